@@ -1,0 +1,115 @@
+"""probe.toml as validated pydantic models (SPEC), checked once at the edge.
+
+Unknown keys are rejected (``extra="forbid"``) so a misspelt key is reported
+instead of silently ignored. Values must be finite. Building the camera model
+from the validated config is :meth:`ProbeConfig.camera_model`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+
+from pipestitch.camera import CameraModel, OcamModel, OpenCVFisheyeModel
+from pipestitch.geometry import PipeSection
+
+__all__ = ["CameraConfig", "LaserConfig", "PipeConfig", "ProbeBodyConfig", "ProbeConfig"]
+
+
+def _finite(value: float) -> float:
+    if not math.isfinite(value):
+        raise ValueError(f"must be a finite number, got {value}")
+    return value
+
+
+Finite = Annotated[float, AfterValidator(_finite)]
+Positive = Annotated[float, Field(gt=0), AfterValidator(_finite)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CameraConfig(_Strict):
+    """``[camera]``: an OCamCalib or OpenCV fisheye model and the image size."""
+
+    model: Literal["ocam", "opencv_fisheye"]
+    width: Annotated[int, Field(gt=0)]
+    height: Annotated[int, Field(gt=0)]
+    pol: list[Finite] | None = None
+    invpol: list[Finite] | None = None
+    center: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+    affine: Annotated[list[Finite], Field(min_length=3, max_length=3)] | None = None
+    K: list[list[Finite]] | None = None
+    D: Annotated[list[Finite], Field(min_length=4, max_length=4)] | None = None
+
+    @model_validator(mode="after")
+    def _fields_of_model(self) -> CameraConfig:
+        needed = {"ocam": ("pol", "center"), "opencv_fisheye": ("K", "D")}[self.model]
+        missing = [name for name in needed if getattr(self, name) is None]
+        if missing:
+            raise ValueError(f"camera model {self.model!r} needs {', '.join(missing)}")
+        if self.K is not None and (len(self.K) != 3 or any(len(r) != 3 for r in self.K)):
+            raise ValueError("K must be a 3 x 3 matrix")
+        return self
+
+    def build(self) -> CameraModel:
+        """The camera model this section describes (raises ValueError if invalid)."""
+        if self.model == "ocam":
+            c, d, e = self.affine or (1.0, 0.0, 0.0)
+            return OcamModel(pol=tuple(self.pol), invpol=tuple(self.invpol or ()),
+                             center_row=self.center[0], center_col=self.center[1],
+                             c=c, d=d, e=e, width=self.width, height=self.height)
+        k = self.K
+        return OpenCVFisheyeModel(fx=k[0][0], fy=k[1][1], cx=k[0][2], cy=k[1][2], k=tuple(self.D),
+                                  width=self.width, height=self.height, skew=k[0][1] / k[0][0])
+
+    @classmethod
+    def from_model(cls, cam: CameraModel) -> CameraConfig:
+        """The ``[camera]`` section describing ``cam``."""
+        if isinstance(cam, OcamModel):
+            return cls(model="ocam", width=cam.width, height=cam.height, pol=list(cam.pol),
+                       invpol=list(cam.invpol), center=[cam.center_row, cam.center_col],
+                       affine=[cam.c, cam.d, cam.e])
+        if isinstance(cam, OpenCVFisheyeModel):
+            return cls(model="opencv_fisheye", width=cam.width, height=cam.height,
+                       K=cam.camera_matrix.tolist(), D=list(cam.k))
+        raise TypeError(f"unsupported camera model {type(cam).__name__}")
+
+
+class LaserConfig(_Strict):
+    """``[laser]``: the laser plane z = d in the probe frame."""
+
+    plane_distance_mm: Positive
+
+
+class ProbeBodyConfig(_Strict):
+    """``[probe]``: the rigid probe body, a cylinder behind the camera centre."""
+
+    length_mm: Positive = 145.0
+    diameter_mm: Positive = 45.0
+
+
+class PipeConfig(_Strict):
+    """``[pipe]``: nominal pipe."""
+
+    inner_diameter_mm: Positive
+
+    def section(self) -> PipeSection:
+        """The nominal circular cross-section."""
+        return PipeSection.circle(self.inner_diameter_mm)
+
+
+class ProbeConfig(_Strict):
+    """The whole probe.toml."""
+
+    camera: CameraConfig
+    laser: LaserConfig
+    probe: ProbeBodyConfig = ProbeBodyConfig()
+    pipe: PipeConfig
+
+    def camera_model(self) -> CameraModel:
+        """Build the camera model."""
+        return self.camera.build()

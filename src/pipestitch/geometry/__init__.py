@@ -1,0 +1,26 @@
+"""Probe geometry: pose, rotations, pipe sections and intersections (pure maths)."""
+
+from __future__ import annotations
+
+from pipestitch.geometry.cylinder import PipeSection, theta_z_from_points
+from pipestitch.geometry.intersect import (
+    laser_ring,
+    plane_basis,
+    ray_wall_distance,
+    rays_to_wall,
+)
+from pipestitch.geometry.pose import Pose
+from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
+
+__all__ = [
+    "PipeSection",
+    "Pose",
+    "laser_ring",
+    "plane_basis",
+    "ray_wall_distance",
+    "rays_to_wall",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "theta_z_from_points",
+]

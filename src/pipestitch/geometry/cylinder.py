@@ -1,0 +1,102 @@
+"""Pipe cross-sections (circular or oval) and wall point <-> (theta, z).
+
+The pipe axis is the world z axis. A cross-section is an ellipse centred on the
+axis with semi-axes ``a_mm`` (along the direction ``angle`` from world x) and
+``b_mm``; a circle has ``a_mm == b_mm``. theta = atan2(y, x) in radians, [0, 2pi).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["PipeSection", "theta_z_from_points"]
+
+
+@dataclass(frozen=True)
+class PipeSection:
+    """Elliptical pipe cross-section (circle when ``a_mm == b_mm``).
+
+    Attributes
+    ----------
+    a_mm, b_mm : float
+        Semi-axes in mm.
+    angle : float
+        Direction of the ``a`` semi-axis from world x, radians.
+    """
+
+    a_mm: float
+    b_mm: float | None = None
+    angle: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.b_mm is None:
+            object.__setattr__(self, "b_mm", self.a_mm)
+        if not (np.isfinite(self.a_mm) and np.isfinite(self.b_mm) and np.isfinite(self.angle)):
+            raise ValueError(f"PipeSection: expected finite values, got {self}")
+        if self.a_mm <= 0 or self.b_mm <= 0:
+            raise ValueError(f"PipeSection: semi-axes must be positive, got {self.a_mm}, "
+                             f"{self.b_mm}")
+
+    @classmethod
+    def circle(cls, diameter_mm: float) -> PipeSection:
+        """Circular section of inner diameter ``diameter_mm``."""
+        return cls(diameter_mm / 2.0, diameter_mm / 2.0)
+
+    @classmethod
+    def oval(cls, diameter_mm: float, ovality: float, angle: float = 0.0) -> PipeSection:
+        """Oval of mean diameter ``diameter_mm`` and ovality (Dmax - Dmin)/Dmean (SPEC)."""
+        r = diameter_mm / 2.0
+        return cls(r * (1 + ovality / 2), r * (1 - ovality / 2), angle)
+
+    @property
+    def is_circle(self) -> bool:
+        """True when both semi-axes are equal."""
+        return bool(self.a_mm == self.b_mm)
+
+    @property
+    def mean_radius_mm(self) -> float:
+        """(a + b) / 2."""
+        return 0.5 * (self.a_mm + self.b_mm)
+
+    @property
+    def ovality(self) -> float:
+        """(Dmax - Dmin) / Dmean, the SPEC definition, as a fraction."""
+        return abs(self.a_mm - self.b_mm) / self.mean_radius_mm
+
+    def metric(self) -> np.ndarray:
+        """2 × 2 matrix M with the wall at q^T M q = 1 for q = (x, y)."""
+        c, s = np.cos(self.angle), np.sin(self.angle)
+        rot = np.array([[c, -s], [s, c]])
+        return rot @ np.diag([self.a_mm**-2, self.b_mm**-2]) @ rot.T
+
+    def radius_at(self, theta: np.ndarray) -> np.ndarray:
+        """Distance from the axis to the wall at polar angle ``theta`` (rad)."""
+        u = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+        return 1.0 / np.sqrt(np.einsum("...i,ij,...j->...", u, self.metric(), u))
+
+    def points(self, theta: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
+        """World points (N, 3) on the wall at angles ``theta`` (rad) and ``z_mm``."""
+        theta, z_mm = np.broadcast_arrays(np.asarray(theta, float), np.asarray(z_mm, float))
+        r = self.radius_at(theta)
+        return np.stack([r * np.cos(theta), r * np.sin(theta), z_mm], axis=-1)
+
+    def normals(self, points_world: np.ndarray) -> np.ndarray:
+        """Inward-facing unit normals of the wall at world points (N, 3)."""
+        g = np.asarray(points_world)[..., :2] @ self.metric()
+        n = np.concatenate([-g, np.zeros_like(g[..., :1])], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    def clearance_mm(self, points_world: np.ndarray) -> np.ndarray:
+        """Radial distance from world points to the wall: > 0 inside the pipe."""
+        pts = np.asarray(points_world)
+        theta = np.arctan2(pts[..., 1], pts[..., 0])
+        return self.radius_at(theta) - np.hypot(pts[..., 0], pts[..., 1])
+
+
+def theta_z_from_points(points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N, 3) -> (theta in [0, 2pi) radians, z in mm)."""
+    pts = np.asarray(points_world)
+    theta = np.mod(np.arctan2(pts[..., 1], pts[..., 0]), 2 * np.pi)
+    return theta, pts[..., 2]

@@ -1,0 +1,292 @@
+"""Dataset folders (SPEC): opening, frame access and a full validation.
+
+``open_dataset`` reads what every stage needs (probe.toml, the frame list,
+odometry) and fails with a :class:`DatasetError` naming the file when that is not
+possible. ``check_dataset`` goes further and lists *every* problem it finds
+(numbering, image sizes, unreadable images, CSV columns) without stopping at the
+first.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.config import ProbeConfig
+from pipestitch.errors import DatasetError
+from pipestitch.io.images import read_image
+from pipestitch.io.probe_toml import read_probe_toml
+
+__all__ = [
+    "Dataset",
+    "Problem",
+    "check_dataset",
+    "count_frame_files",
+    "open_dataset",
+    "read_csv_columns",
+]
+
+IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
+_FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
+POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One finding of :func:`check_dataset`."""
+
+    path: Path
+    message: str
+    severity: str = "error"  # "error" | "warning"
+
+    def __str__(self) -> str:
+        return f"{self.severity}: {self.path}: {self.message}"
+
+
+@dataclass
+class Dataset:
+    """An opened dataset: configuration and frame paths (images are read lazily)."""
+
+    root: Path
+    config: ProbeConfig
+    laser_paths: list[Path]
+    led_paths: list[Path] = field(default_factory=list)
+    odometry_mm: dict[int, float] | None = None
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of frame pairs (laser frames)."""
+        return len(self.laser_paths)
+
+    @property
+    def has_led(self) -> bool:
+        """True when every laser frame has its LED frame."""
+        return len(self.led_paths) == len(self.laser_paths) and bool(self.led_paths)
+
+    def read_laser(self, index: int) -> np.ndarray:
+        """Laser frame ``index`` as stored (raises DatasetError naming the file)."""
+        return self._checked(self.laser_paths[index])
+
+    def read_led(self, index: int) -> np.ndarray:
+        """LED frame ``index`` as stored."""
+        if not self.has_led:
+            raise DatasetError(self.root / "frames", "this dataset has no LED frames")
+        return self._checked(self.led_paths[index])
+
+    def _checked(self, path: Path) -> np.ndarray:
+        img = read_image(path)
+        cam = self.config.camera
+        if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+            raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
+                                     f"{cam.width}x{cam.height}")
+        return img
+
+
+def _frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:
+    found: dict[str, dict[int, Path]] = {"laser": {}, "led": {}}
+    other = []
+    for path in sorted(frames_dir.iterdir()):
+        m = _FRAME_RE.match(path.name)
+        if m and m.group(3).lower() in IMAGE_EXTENSIONS:
+            found[m.group(1)][int(m.group(2))] = path
+        else:
+            other.append(path)
+    return found, other
+
+
+def _numbering_problems(kind: str, frames: dict[int, Path], frames_dir: Path) -> list[Problem]:
+    if not frames:
+        return []
+    missing = sorted(set(range(max(frames) + 1)) - set(frames))
+    if not missing:
+        return []
+    shown = ", ".join(f"{kind}_{i:05d}" for i in missing[:10])
+    more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+    return [Problem(frames_dir, f"{kind} frames must be numbered contiguously from 00000; "
+                                f"missing {shown}{more}")]
+
+
+def read_csv_columns(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Read a numeric CSV with a header; every required column must be present.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file and the line for missing columns or non-numeric values.
+    """
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(path, f"cannot read: {exc}") from exc
+    if not rows:
+        raise DatasetError(path, "empty file (expected a header line)")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise DatasetError(path, f"missing column(s) {', '.join(missing)}; header is {header}")
+    cols: dict[str, list[float]] = {c: [] for c in header}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise DatasetError(path, f"line {lineno}: {len(row)} fields, header has {len(header)}")
+        for name, cell in zip(header, row, strict=True):
+            try:
+                value = float(cell)
+            except ValueError:
+                value = math.nan if name not in required else None
+            if value is None or (name in required and not math.isfinite(value)):
+                raise DatasetError(path, f"line {lineno}: {name} = {cell!r} is not a finite number")
+            cols[name].append(value)
+    return {k: np.asarray(v) for k, v in cols.items()}
+
+
+def _read_odometry(path: Path, n_pairs: int) -> dict[int, float]:
+    cols = read_csv_columns(path, ("frame", "z_mm"))
+    frames = cols["frame"]
+    if np.any(frames != np.round(frames)) or np.any((frames < 0) | (frames >= n_pairs)):
+        raise DatasetError(path, f"frame numbers must be integers in 0..{n_pairs - 1}")
+    return {int(f): float(z) for f, z in zip(frames, cols["z_mm"], strict=True)}
+
+
+def open_dataset(root: str | Path) -> Dataset:
+    """Open a dataset folder: probe.toml, frame lists and odometry.
+
+    Raises
+    ------
+    DatasetError
+        If the folder, probe.toml or the laser frames are missing or malformed.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(root, "dataset folder not found")
+    config = read_probe_toml(root / "probe.toml")
+    frames_dir = root / "frames"
+    if not frames_dir.is_dir():
+        raise DatasetError(frames_dir, "frames/ folder not found")
+    found, _ = _frame_files(frames_dir)
+    problems = _numbering_problems("laser", found["laser"], frames_dir)
+    if problems:
+        raise DatasetError(frames_dir, problems[0].message)
+    if not found["laser"]:
+        raise DatasetError(frames_dir, "no laser frames (expected frames/laser_00000.png, ...)")
+    lasers = [found["laser"][i] for i in range(len(found["laser"]))]
+    leds = [found["led"][i] for i in range(len(lasers)) if i in found["led"]]
+    odo_path = root / "odometry.csv"
+    odometry = _read_odometry(odo_path, len(lasers)) if odo_path.is_file() else None
+    return Dataset(root=root, config=config, laser_paths=lasers,
+                   led_paths=leds if len(leds) == len(lasers) else [], odometry_mm=odometry)
+
+
+def _check_images(paths: list[Path], size: tuple[int, int],
+                  progress: Callable[[], None] | None) -> Iterator[Problem]:
+    for path in paths:
+        try:
+            img = read_image(path)
+        except DatasetError as exc:
+            yield Problem(path, exc.problem)
+        else:
+            if (img.shape[1], img.shape[0]) != size:
+                yield Problem(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
+                                    f"{size[0]}x{size[1]}")
+            elif img.ndim == 3 and img.shape[2] not in (3, 4):
+                yield Problem(path, f"expected 1, 3 or 4 channels, got {img.shape[2]}")
+        if progress is not None:
+            progress()
+
+
+def _check_frames(root: Path, config: ProbeConfig | None,
+                  progress: Callable[[], None] | None) -> Iterator[Problem]:
+    frames_dir = root / "frames"
+    if not frames_dir.is_dir():
+        yield Problem(frames_dir, "frames/ folder not found")
+        return
+    found, other = _frame_files(frames_dir)
+    for path in other:
+        yield Problem(path, "not a frame name (expected laser_NNNNN.png or led_NNNNN.png)",
+                      "warning")
+    if not found["laser"]:
+        yield Problem(frames_dir, "no laser frames (expected frames/laser_00000.png, ...)")
+    for kind in ("laser", "led"):
+        yield from _numbering_problems(kind, found[kind], frames_dir)
+    if not found["led"]:
+        yield Problem(frames_dir, "no LED frames: laser-only dataset (pose works, run does not)",
+                      "warning")
+    else:
+        for i in sorted(set(found["laser"]) ^ set(found["led"])):
+            kind = "led" if i in found["laser"] else "laser"
+            yield Problem(frames_dir, f"pair {i:05d} has no {kind} frame")
+    if config is not None:
+        paths = [found[k][i] for k in ("laser", "led") for i in sorted(found[k])]
+        yield from _check_images(paths, (config.camera.width, config.camera.height), progress)
+
+
+def _check_truth(root: Path) -> Iterator[Problem]:
+    truth = root / "truth"
+    if not truth.is_dir():
+        return
+    checks = [("poses.csv", POSE_COLUMNS), ("defects.csv", ("z_mm", "theta_deg", "diameter_mm"))]
+    for name, columns in checks:
+        if (truth / name).is_file():
+            try:
+                read_csv_columns(truth / name, columns)
+            except DatasetError as exc:
+                yield Problem(truth / name, exc.problem)
+    wall_json = truth / "wall.json"
+    if wall_json.is_file():
+        try:
+            meta = json.loads(wall_json.read_text(encoding="utf-8"))
+            missing = {"mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm"} - set(meta)
+            if missing:
+                yield Problem(wall_json, f"missing key(s) {', '.join(sorted(missing))}")
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            yield Problem(wall_json, f"malformed JSON: {exc}")
+
+
+def count_frame_files(root: str | Path) -> int:
+    """How many frame images ``check_dataset`` will decode (for a progress bar)."""
+    frames_dir = Path(root) / "frames"
+    if not frames_dir.is_dir():
+        return 0
+    found, _ = _frame_files(frames_dir)
+    return len(found["laser"]) + len(found["led"])
+
+
+def check_dataset(root: str | Path, *,
+                  progress: Callable[[], None] | None = None) -> list[Problem]:
+    """Validate a dataset and return every problem found (empty list: valid).
+
+    Parameters
+    ----------
+    root : str or Path
+        Dataset folder.
+    progress : callable, optional
+        Called once per decoded frame image.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        return [Problem(root, "dataset folder not found")]
+    problems: list[Problem] = []
+    config = None
+    try:
+        config = read_probe_toml(root / "probe.toml")
+    except DatasetError as exc:
+        problems.append(Problem(exc.path or root, exc.problem))
+    problems.extend(_check_frames(root, config, progress))
+    n_pairs = count_frame_files(root)
+    odo = root / "odometry.csv"
+    if odo.is_file():
+        try:
+            _read_odometry(odo, max(n_pairs, 1))
+        except DatasetError as exc:
+            problems.append(Problem(odo, exc.problem))
+    problems.extend(_check_truth(root))
+    return problems

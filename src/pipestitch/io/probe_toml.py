@@ -1,0 +1,111 @@
+"""probe.toml reader and writer (SPEC).
+
+The reader reports every problem at once, naming the file, the section and the
+key (unknown keys included); the writer produces a commented file that the reader
+and OCamCalib users recognise.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from pipestitch.camera import CameraModel
+from pipestitch.config import CameraConfig, ProbeConfig
+from pipestitch.errors import ConfigError
+from pipestitch.io.atomic import atomic_write_text
+
+__all__ = ["format_probe_toml", "parse_probe_toml", "probe_config_for", "read_probe_toml",
+           "write_probe_toml"]
+
+
+def _describe(exc: ValidationError) -> str:
+    problems = []
+    for err in exc.errors():
+        loc = [str(p) for p in err["loc"]]
+        where = f"[{loc[0]}] {'.'.join(loc[1:])}".strip() if loc else "(top level)"
+        if err["type"] == "extra_forbidden":
+            problems.append(f"unknown key {where}")
+        elif err["type"] == "missing":
+            problems.append(f"missing key {where}")
+        else:
+            problems.append(f"{where}: {err['msg']}")
+    return "; ".join(problems)
+
+
+def parse_probe_toml(text: str, path: str | Path = "probe.toml") -> ProbeConfig:
+    """Parse and validate probe.toml text; the camera model is built to check it."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(path, f"malformed TOML: {exc}") from exc
+    try:
+        cfg = ProbeConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(path, _describe(exc)) from exc
+    try:
+        cfg.camera_model()
+    except ValueError as exc:
+        raise ConfigError(path, f"[camera] {exc}") from exc
+    return cfg
+
+
+def read_probe_toml(path: str | Path) -> ProbeConfig:
+    """Read and validate a probe.toml file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise ConfigError(path, "file not found") from exc
+    except (UnicodeDecodeError, OSError) as exc:
+        raise ConfigError(path, f"cannot read as text: {exc}") from exc
+    return parse_probe_toml(text, path)
+
+
+def _value(v: object) -> str:
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+_CAMERA_COMMENTS = {
+    "pol": "cam2world F(rho), ascending powers, rho in px",
+    "invpol": "world2cam rho(t), ascending, t = atan(z/sqrt(x²+y²))",
+    "center": "xc yc = ROW, COLUMN of the centre, 0-based",
+    "affine": "c d e",
+    "K": "[[fx,0,cx],[0,fy,cy],[0,0,1]]",
+    "D": "k1 k2 k3 k4",
+}
+
+
+def format_probe_toml(cfg: ProbeConfig) -> str:
+    """probe.toml text for ``cfg`` (SPEC layout, with comments)."""
+    out = ["# probe.toml written by pipestitch (see SPEC: frames, units, OCamCalib conventions)"]
+    for section, model in (("camera", cfg.camera), ("laser", cfg.laser), ("probe", cfg.probe),
+                           ("pipe", cfg.pipe)):
+        out.append(f"\n[{section}]")
+        for key, v in model.model_dump(exclude_none=True).items():
+            comment = _CAMERA_COMMENTS.get(key) if section == "camera" else None
+            out.append(f"{key} = {_value(v)}" + (f"  # {comment}" if comment else ""))
+    return "\n".join(out) + "\n"
+
+
+def write_probe_toml(path: str | Path, cfg: ProbeConfig) -> Path:
+    """Write ``cfg`` to ``path`` atomically."""
+    return atomic_write_text(path, format_probe_toml(cfg))
+
+
+def probe_config_for(camera: CameraModel, *, plane_distance_mm: float, pipe_diameter_mm: float,
+                     length_mm: float = 145.0, diameter_mm: float = 45.0) -> ProbeConfig:
+    """Assemble a :class:`ProbeConfig` around a camera model."""
+    return ProbeConfig(camera=CameraConfig.from_model(camera),
+                       laser={"plane_distance_mm": plane_distance_mm},
+                       probe={"length_mm": length_mm, "diameter_mm": diameter_mm},
+                       pipe={"inner_diameter_mm": pipe_diameter_mm})

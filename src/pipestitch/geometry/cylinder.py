@@ -84,9 +84,12 @@ class PipeSection:
 
     def normals(self, points_world: np.ndarray) -> np.ndarray:
         """Inward-facing unit normals of the wall at world points (N, 3)."""
-        g = np.asarray(points_world)[..., :2] @ self.metric()
-        n = np.concatenate([-g, np.zeros_like(g[..., :1])], axis=-1)
-        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+        (m00, m01), (_, m11) = self.metric()
+        pts = np.asarray(points_world)
+        gx = -(m00 * pts[..., 0] + m01 * pts[..., 1])
+        gy = -(m01 * pts[..., 0] + m11 * pts[..., 1])
+        norm = np.sqrt(gx * gx + gy * gy)
+        return np.stack([gx / norm, gy / norm, np.zeros_like(gx)], axis=-1)
 
     def clearance_mm(self, points_world: np.ndarray) -> np.ndarray:
         """Radial distance from world points to the wall: > 0 inside the pipe."""

@@ -1,0 +1,159 @@
+"""Command-line interface: parse arguments, call the pipeline, map errors to exit codes.
+
+Exit codes (SPEC): 0 success, 2 bad input (the message names the file and the
+problem), 1 processing failure. No traceback reaches the user for expected errors.
+"""
+
+from __future__ import annotations
+
+import functools
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, TypeVar
+
+import typer
+from rich.table import Table
+
+from pipestitch import __version__
+from pipestitch.errors import PipestitchError
+from pipestitch.pipeline.check import run_check
+from pipestitch.pipeline.progress import console
+from pipestitch.pipeline.simulate import simulate_dataset
+from pipestitch.simulate.scenarios import SCENARIOS
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="pipestitch",
+    help="Small-bore pipe inspection: probe pose from the laser ring, centralised unwrapping, "
+         "stitching and measurement.\n\nExample: pipestitch demo --out /tmp/demo",
+    no_args_is_help=True,
+    add_completion=False,
+    rich_markup_mode="rich",
+)
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def _handle_errors(func: F) -> F:
+    """Turn pipestitch errors into a one-line message and the SPEC exit code."""
+    @functools.wraps(func)
+    def wrapper(*args: object, **kwargs: object) -> object:
+        try:
+            return func(*args, **kwargs)
+        except PipestitchError as exc:
+            console.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True)
+            raise typer.Exit(exc.exit_code) from None
+        except KeyboardInterrupt:
+            console.print("[bold red]interrupted[/]")
+            raise typer.Exit(130) from None
+    return wrapper  # type: ignore[return-value]
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"pipestitch {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: Annotated[bool, typer.Option("--version", callback=_version,
+                                                is_eager=True, help="Print the version.")] = False
+          ) -> None:
+    """pipestitch command line."""
+
+
+def _scenario_help() -> str:
+    return "; ".join(f"{name}: {s.description}" for name, s in SCENARIOS.items())
+
+
+@app.command()
+@_handle_errors
+def simulate(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Dataset folder to write.")],
+    scenario: Annotated[str, typer.Option(help="Scenario name. " + _scenario_help())] = "default",
+    seed: Annotated[int, typer.Option(help="Random seed (same seed, same dataset).")] = 0,
+    size: Annotated[str, typer.Option(help="Sensor size: full (2448x2048) or half (1224x1024).")
+                    ] = "full",
+    pairs: Annotated[int | None, typer.Option(help="Override the number of frame pairs.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Simulate a probe run and write it as a dataset (SPEC layout, with truth/).
+
+    Example: pipestitch simulate --scenario test_piece --size half --out data/test_piece
+    """
+    if scenario not in SCENARIOS:
+        console.print(f"[bold red]error:[/] unknown scenario {scenario!r}; choose from "
+                      f"{', '.join(SCENARIOS)}")
+        raise typer.Exit(2)
+    if size not in ("full", "half"):
+        console.print(f"[bold red]error:[/] --size: expected full or half, got {size!r}")
+        raise typer.Exit(2)
+    if pairs is not None and pairs < 1:
+        console.print(f"[bold red]error:[/] --pairs: expected at least 1, got {pairs}")
+        raise typer.Exit(2)
+    run = simulate_dataset(SCENARIOS[scenario], out, seed=seed, size=size, n_pairs=pairs,
+                           show_progress=not quiet)
+    typer.echo(f"wrote {len(run.poses)} pairs of scenario {scenario!r} to {out}")
+
+
+def _print_problems(problems: list) -> None:
+    table = Table("severity", "file", "problem", show_lines=False)
+    for p in problems:
+        colour = "red" if p.severity == "error" else "yellow"
+        table.add_row(f"[{colour}]{p.severity}[/]", str(p.path), p.message)
+    console.print(table)
+
+
+@app.command()
+@_handle_errors
+def check(
+    dataset: Annotated[Path, typer.Argument(help="Dataset folder (SPEC layout).")],
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Validate a dataset: layout, numbering, image sizes, readable frames, probe.toml, CSVs.
+
+    Lists every problem with its file; exits with 2 if any is an error.
+
+    Example: pipestitch check data/test_piece
+    """
+    problems = run_check(dataset, show_progress=not quiet)
+    errors = [p for p in problems if p.severity == "error"]
+    if problems:
+        _print_problems(problems)
+    if errors:
+        console.print(f"[bold red]{len(errors)} error(s)[/] in {dataset}")
+        raise typer.Exit(2)
+    typer.echo(f"{dataset}: OK ({len(problems)} warning(s))")
+
+
+@app.command()
+@_handle_errors
+def demo(
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Folder for the demo (default: "
+                                             "a new temporary folder).")] = None,
+    size: Annotated[str, typer.Option(help="Sensor size: full or half.")] = "half",
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Simulate a short probe run and check it (processing joins once the mosaic lands).
+
+    Example: pipestitch demo --out /tmp/pipestitch-demo
+    """
+    root = out if out is not None else Path(tempfile.mkdtemp(prefix="pipestitch-demo-"))
+    dataset = root / "dataset"
+    run = simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
+                           show_progress=not quiet)
+    problems = [p for p in run_check(dataset, show_progress=not quiet) if p.severity == "error"]
+    if problems:
+        _print_problems(problems)
+        raise typer.Exit(1)
+    typer.echo(f"demo dataset: {dataset} ({len(run.poses)} pairs, checked OK)")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

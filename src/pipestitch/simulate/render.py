@@ -1,0 +1,252 @@
+"""Rendering laser and LED frames by ray tracing every pixel to the pipe wall.
+
+Each pixel's ray (unprojected once per camera) is moved into the world by the
+frame's pose and intersected with the wall; the hit point gives
+
+* the LED frame: the wall texture sampled with ``cv2.remap`` from a mip pyramid
+  chosen by the pixel's footprint on the wall (trilinear filtering, so the far
+  wall near the image centre does not alias), lit by LEDs at the camera
+  (cos(incidence)/distance²), with lens vignetting, shot and read noise and
+  quantisation;
+* the laser frame: the laser sheet's Gaussian profile evaluated at the hit point's
+  distance from the laser plane, so the ring's image width follows from the
+  geometry, on a dark background with speckle, noise and optional glints and
+  partial rings.
+
+The mirror assembly (a disc around the optical axis), the laser holder arm (a
+radial sector) and the lens' image circle are occluded in both frames. The
+renderer knows the true pose and geometry; it shares the camera and geometry
+modules with the estimators but none of their estimation code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipestitch.camera import CameraModel, pixel_grid
+from pipestitch.geometry import PipeSection, Pose, ray_wall_distance
+
+__all__ = ["Optics", "Renderer", "WallTexture"]
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Physical parameters of the simulated probe's optics and sensor."""
+
+    fov_deg: float = 185.0               # lens image circle (full angle)
+    mirror_radius_mm: float = 6.0        # mirror assembly seen around the optical axis
+    arm_azimuth_deg: float = 90.0        # image azimuth of the laser holder arm (0 = +col)
+    arm_width_deg: float = 7.0           # angular width of the arm's shadow
+    laser_sigma_mm: float = 0.22         # Gaussian half-width of the laser sheet on the wall
+    laser_peak: float = 0.8              # ring brightness (fraction of full scale)
+    laser_background: float = 0.015      # ambient light in the laser frame
+    speckle: float = 0.12                # relative speckle of the laser line
+    led_gain: float = 1.1                # exposure of the LED frame
+    vignetting: float = 0.35             # relative brightness loss at the image circle
+    full_well_e: float = 9000.0          # electrons at full scale (shot noise)
+    read_noise: float = 1.2 / 255        # read noise, fraction of full scale
+    bit_depth: int = 8                   # 8 or 16
+    colour: bool = False                 # write BGR frames (red laser, warm LEDs)
+    glints: int = 0                      # specular blobs per laser frame
+    partial_ring_deg: float = 0.0        # width of a ring sector the laser misses
+
+
+@dataclass(frozen=True)
+class WallTexture:
+    """Unrolled wall albedo: row i at theta = i·deg_per_px, column j at z0 + j·mm_per_px."""
+
+    albedo: np.ndarray
+    deg_per_px: float
+    mm_per_px_axial: float
+    z0_mm: float
+
+
+class Renderer:
+    """Renders frame pairs of one camera in one pipe over one wall texture.
+
+    Parameters
+    ----------
+    camera : CameraModel
+        Camera model (defines the image size).
+    section : PipeSection
+        Pipe cross-section (in the world frame).
+    wall : WallTexture
+        The wall's albedo.
+    plane_distance_mm : float
+        Laser plane distance d.
+    optics : Optics
+        Optics and sensor parameters.
+    plane_normal : array_like, optional
+        Unit normal of the laser plane in the probe frame (default +z, SPEC).
+    """
+
+    def __init__(self, camera: CameraModel, section: PipeSection, wall: WallTexture,
+                 plane_distance_mm: float, optics: Optics | None = None,
+                 plane_normal: np.ndarray | None = None) -> None:
+        self.camera = camera
+        self.section = section
+        self.wall = wall
+        self.optics = optics or Optics()
+        self.plane_distance_mm = float(plane_distance_mm)
+        normal = np.array([0.0, 0.0, 1.0]) if plane_normal is None else np.asarray(plane_normal)
+        self.plane_normal = normal / np.linalg.norm(normal)
+        shape = (camera.height, camera.width)
+        rays = camera.unproject(pixel_grid(camera.width, camera.height))
+        self._rays = np.nan_to_num(rays).astype(np.float32).reshape(*shape, 3)
+        self._incidence = np.arccos(np.clip(np.nan_to_num(rays[:, 2], nan=-1.0), -1, 1))
+        self._incidence = self._incidence.reshape(shape).astype(np.float32)
+        self.visibility = self._visibility(rays.reshape(*shape, 3))
+        self._pyramid = self._build_pyramid(wall.albedo.astype(np.float32))
+        self._visible_index = np.flatnonzero(self.visibility.ravel() > 0)
+        self._rays_visible = self._rays.reshape(-1, 3)[self._visible_index]
+        self._ray_normal = self._rays_visible @ self.plane_normal.astype(np.float32)
+
+    # --- static parts -----------------------------------------------------------------
+    def _visibility(self, rays: np.ndarray) -> np.ndarray:
+        """Fraction of each pixel not occluded by lens rim, mirror assembly or arm."""
+        o = self.optics
+        inc_deg = np.rad2deg(self._incidence)
+        pixel_deg = np.rad2deg(1.0 / max(self.camera.width, self.camera.height)) * 4
+        lens = np.clip((o.fov_deg / 2 - inc_deg) / pixel_deg + 0.5, 0, 1)
+        mirror_deg = np.rad2deg(np.arctan2(o.mirror_radius_mm, self.plane_distance_mm))
+        mirror = np.clip((inc_deg - mirror_deg) / pixel_deg + 0.5, 0, 1)
+        azimuth = np.rad2deg(np.arctan2(rays[..., 1], rays[..., 0]))
+        off = np.abs((azimuth - o.arm_azimuth_deg + 180) % 360 - 180)
+        # The arm is a bar of constant width: its angular width in the image is
+        # constant in azimuth; soften its edge by about one pixel at the ring.
+        arm = np.clip((off - o.arm_width_deg / 2) / 0.15 + 0.5, 0, 1)
+        arm = np.where(inc_deg > mirror_deg, arm, 1.0)
+        vis = lens * mirror * arm
+        vis[~np.isfinite(rays[..., 2])] = 0
+        return vis.astype(np.float32)
+
+    def _build_pyramid(self, albedo: np.ndarray) -> list[np.ndarray]:
+        levels = [albedo]
+        while min(levels[-1].shape) > 64 and len(levels) < 7:
+            h, w = levels[-1].shape
+            levels.append(cv2.resize(levels[-1], ((w + 1) // 2, (h + 1) // 2),
+                                     interpolation=cv2.INTER_AREA))
+        return levels
+
+    # --- per frame ----------------------------------------------------------------------
+    def trace(self, pose: Pose) -> dict[str, np.ndarray]:
+        """Trace every visible pixel to the wall.
+
+        Returns
+        -------
+        dict
+            ``row``/``col``: texture coordinates (float32 maps), ``plane_mm``:
+            signed distance of the hit point from the laser plane, ``light``: LED
+            irradiance factor, ``hit``: bool mask of pixels that reach the textured wall.
+        """
+        rays = self._rays_visible
+        origin = pose.translation_world_probe().astype(np.float32)
+        dirs = rays @ pose.rotation_world_probe().T.astype(np.float32)
+        s = ray_wall_distance(origin, dirs, self.section)
+        hit = origin + s[:, None] * dirs
+        w = self.wall
+        theta_deg = np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) % 360
+        normals = self.section.normals(hit)
+        cos_inc = np.abs(normals[:, 0] * dirs[:, 0] + normals[:, 1] * dirs[:, 1])
+        values = {
+            "row": theta_deg / w.deg_per_px,
+            "col": (hit[:, 2] - w.z0_mm) / w.mm_per_px_axial,
+            "plane_mm": s * self._ray_normal - self.plane_distance_mm,
+            "light": cos_inc * (self.section.mean_radius_mm / s) ** 2,
+        }
+        shape = self._rays.shape[:2]
+        out = {}
+        for key, v in values.items():
+            full = np.full(shape, -10.0, np.float32)
+            full.ravel()[self._visible_index] = np.nan_to_num(v, nan=-10.0)
+            out[key] = full
+        n_cols = w.albedo.shape[1]
+        out["hit"] = (out["col"] >= 0) & (out["col"] <= n_cols - 1) & (out["light"] > 0)
+        return out
+
+    def sample_albedo(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """Albedo at texture coordinates, filtered by each pixel's footprint (mipmap)."""
+        n_rows = self.wall.albedo.shape[0]
+        d_row_y, d_row_x = np.gradient(row)
+        d_row_y = np.minimum(np.abs(d_row_y), n_rows - np.abs(d_row_y))  # theta wraps
+        d_row_x = np.minimum(np.abs(d_row_x), n_rows - np.abs(d_row_x))
+        d_col_y, d_col_x = np.gradient(col)
+        footprint = np.maximum(np.hypot(d_row_x, d_col_x), np.hypot(d_row_y, d_col_y))
+        level = np.clip(np.log2(np.maximum(footprint, 1e-3)), 0, len(self._pyramid) - 1)
+        out = np.zeros(row.shape, np.float32)
+        for i, tex in enumerate(self._pyramid):
+            weight = np.clip(1 - np.abs(level - i), 0, 1)
+            if not np.any(weight > 0):
+                continue
+            sy = tex.shape[0] / n_rows
+            sx = tex.shape[1] / self.wall.albedo.shape[1]
+            map_x = (col + 0.5) * sx - 0.5
+            map_y = (row + 0.5) * sy - 0.5
+            sample = cv2.remap(tex, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            out += weight * sample
+        return out
+
+    def _sensor(self, signal: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Shot + read noise and quantisation of a signal in [0, 1]."""
+        o = self.optics
+        electrons = np.clip(signal, 0, None) * o.full_well_e
+        noisy = electrons + np.sqrt(electrons) * rng.standard_normal(signal.shape, np.float32)
+        noisy = noisy / o.full_well_e + o.read_noise * rng.standard_normal(signal.shape,
+                                                                             np.float32)
+        full = 255 if o.bit_depth == 8 else 65535
+        dtype = np.uint8 if o.bit_depth == 8 else np.uint16
+        return np.clip(np.rint(noisy * full), 0, full).astype(dtype)
+
+    def _colourise(self, grey: np.ndarray, bgr_gain: tuple[float, float, float],
+                   rng: np.random.Generator) -> np.ndarray:
+        if not self.optics.colour:
+            return self._sensor(grey, rng)
+        return np.dstack([self._sensor(grey * g, rng) for g in bgr_gain])
+
+    def render_pair(self, pose: Pose, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Render the (laser, LED) frames of one pair at ``pose``."""
+        tr = self.trace(pose)
+        albedo = np.where(tr["hit"], self.sample_albedo(tr["row"], tr["col"]), 0.0)
+        o = self.optics
+        vignette = 1 - o.vignetting * (self._incidence / np.deg2rad(o.fov_deg / 2)) ** 2
+        led = o.led_gain * albedo * tr["light"] * vignette * self.visibility
+        laser = self._laser_signal(tr, albedo, rng) * self.visibility
+        return (self._colourise(laser, (0.08, 0.12, 1.0), rng),
+                self._colourise(led, (0.85, 1.0, 1.05), rng))
+
+    def _laser_signal(self, tr: dict[str, np.ndarray], albedo: np.ndarray,
+                      rng: np.random.Generator) -> np.ndarray:
+        o = self.optics
+        sheet = np.exp(-0.5 * (tr["plane_mm"] / o.laser_sigma_mm) ** 2)
+        sheet *= np.where(tr["hit"], 0.2 + 0.8 * np.clip(albedo / 0.6, 0, 1), 0.0)
+        speckle = 1 + o.speckle * rng.standard_normal(sheet.shape, np.float32)
+        signal = o.laser_peak * sheet * np.clip(speckle, 0, None) + o.laser_background
+        if o.partial_ring_deg > 0:
+            signal = np.where(self._sector(rng.uniform(0, 360), o.partial_ring_deg),
+                              o.laser_background, signal)
+        for _ in range(o.glints):
+            signal = signal + self._glint(rng)
+        return signal
+
+    def _sector(self, centre_deg: float, width_deg: float) -> np.ndarray:
+        rays = self._rays
+        azimuth = np.rad2deg(np.arctan2(rays[..., 1], rays[..., 0]))
+        return np.abs((azimuth - centre_deg + 180) % 360 - 180) < width_deg / 2
+
+    def _glint(self, rng: np.random.Generator) -> np.ndarray:
+        """A specular blob: a bright saturated Gaussian spot somewhere on the wall image."""
+        h, w = self._rays.shape[:2]
+        while True:
+            col, row = rng.uniform(0, w), rng.uniform(0, h)
+            if self.visibility[int(row), int(col)] > 0.5:
+                break
+        sigma = rng.uniform(2.0, 8.0) * max(h, w) / 2448
+        x0, x1 = int(max(col - 5 * sigma, 0)), int(min(col + 5 * sigma + 1, w))
+        y0, y1 = int(max(row - 5 * sigma, 0)), int(min(row + 5 * sigma + 1, h))
+        blob = np.zeros((h, w), np.float32)
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        blob[y0:y1, x0:x1] = 1.5 * np.exp(-((xx - col) ** 2 + (yy - row) ** 2) / (2 * sigma**2))
+        return blob

@@ -1,0 +1,156 @@
+"""Named simulation scenarios and the in-memory synthetic run they describe.
+
+A :class:`Scenario` fixes the pipe, wall texture, defects, trajectory, optics and
+odometer; :func:`build_run` turns it (with a seed and a sensor size) into a
+:class:`SyntheticRun`: camera, poses, wall texture, renderer and truth tables.
+Writing a dataset to disk is the pipeline's job (``pipeline/simulate.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from pipestitch.camera import CameraModel, default_camera
+from pipestitch.geometry import PipeSection, Pose
+from pipestitch.simulate.render import Optics, Renderer, WallTexture
+from pipestitch.simulate.textures import Defect, WallGrid, make_wall, reference_test_piece
+from pipestitch.simulate.trajectory import (
+    BodyEnvelope,
+    odometer_readings,
+    table1_poses,
+    wandering_poses,
+)
+
+__all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run"]
+
+PLANE_DISTANCE_MM = 16.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything that defines a synthetic run except the seed and sensor size."""
+
+    name: str
+    description: str
+    pipe_diameter_mm: float = 65.0
+    n_pairs: int = 12
+    texture: str = "corrosion"
+    defects: str = "none"             # "none" | "test_piece" | "random"
+    ovality: float = 0.0              # (Dmax - Dmin) / Dmean
+    trajectory: str = "wander"        # "wander" | "table1"
+    step_mm: float = 5.0
+    wander: float = 0.8
+    odometer: bool = False
+    odometer_slip_probability: float = 0.0
+    laser_only: bool = False
+    optics: Optics = field(default_factory=Optics)
+
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
+    Scenario("default", "short run along a corroded 65 mm pipe with a few holes and spots, "
+             "odometer", n_pairs=12, defects="random", odometer=True),
+    Scenario("chart83", "test chart in an 83 mm pipe, 20 pairs (the reference mosaic experiment)",
+             pipe_diameter_mm=83.0, n_pairs=20, texture="chart"),
+    Scenario("test_piece", "reference test piece: 65 mm aluminium pipe, 7 holes of 6 mm in a "
+             "cross 24 mm apart, 32 pairs over 160 mm", n_pairs=32, texture="aluminium",
+             defects="test_piece"),
+    Scenario("corrosion", "corroded 65 mm pipe, 30 pairs, odometer", n_pairs=30, odometer=True,
+             defects="random"),
+    Scenario("aluminium", "feature-poor brushed aluminium 65 mm pipe with an odometer that "
+             "slips", n_pairs=30, texture="aluminium", odometer=True,
+             odometer_slip_probability=0.1),
+    Scenario("oval", "oval 65 mm pipe (ovality 5 %), corrosion texture", n_pairs=20,
+             ovality=0.05, defects="random"),
+    Scenario("hard", "16-bit colour frames, glints, partial rings, strong noise",
+             n_pairs=12, defects="random",
+             optics=Optics(bit_depth=16, colour=True, glints=3, partial_ring_deg=60.0,
+                           full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)),
+    *[Scenario(f"table1_{d}", f"reference evaluation: 300 independent random poses in a {d} mm "
+               "pipe, laser frames only", pipe_diameter_mm=float(d), n_pairs=300,
+               trajectory="table1", laser_only=True) for d in (50, 65, 80)],
+]}
+SCENARIOS["table1"] = replace(SCENARIOS["table1_65"], name="table1")
+
+
+@dataclass
+class SyntheticRun:
+    """A simulated run held in memory: render frames with :meth:`render`."""
+
+    scenario: Scenario
+    camera: CameraModel
+    section: PipeSection
+    body: BodyEnvelope
+    poses: list[Pose]
+    grid: WallGrid
+    albedo: np.ndarray
+    defects: list[Defect]
+    odometry_mm: np.ndarray | None
+    renderer: Renderer
+    seed: int
+
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """(laser, LED) frames of pair ``index`` (deterministic per seed and index)."""
+        rng = np.random.default_rng([self.seed, index])
+        return self.renderer.render_pair(self.poses[index], rng)
+
+
+def _random_defects(radius_mm: float, z0: float, z1: float,
+                    rng: np.random.Generator) -> list[Defect]:
+    """A few holes and spots spread over the run (not on its very ends)."""
+    out = []
+    for kind, n in (("hole", 3), ("spot", 3)):
+        for _ in range(n):
+            out.append(Defect(kind, float(rng.uniform(z0, z1)), float(rng.uniform(0, 360)),
+                              float(rng.uniform(3.0, 8.0))))
+    return out
+
+
+def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
+              n_pairs: int | None = None) -> SyntheticRun:
+    """Draw the trajectory, texture and defects of ``scenario`` and set up the renderer.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        What to simulate.
+    seed : int
+        Random seed; the same seed gives the same dataset.
+    size : {"full", "half"}
+        Sensor size (2448 × 2048 or 1224 × 1024).
+    n_pairs : int, optional
+        Override the scenario's number of pairs.
+    """
+    rng = np.random.default_rng(seed)
+    n = scenario.n_pairs if n_pairs is None else int(n_pairs)
+    if n < 1:
+        raise ValueError(f"n_pairs: expected at least 1, got {n}")
+    camera = default_camera(size)
+    radius = scenario.pipe_diameter_mm / 2
+    section = (PipeSection.oval(scenario.pipe_diameter_mm, scenario.ovality,
+                                angle=float(rng.uniform(0, np.pi)))
+               if scenario.ovality > 0 else PipeSection.circle(scenario.pipe_diameter_mm))
+    body = BodyEnvelope()
+    if scenario.trajectory == "table1":
+        poses = [replace(p, z_mm=5.0 * i)
+                 for i, p in enumerate(table1_poses(n, radius, PLANE_DISTANCE_MM, rng))]
+    else:
+        poses = wandering_poses(n, section, body, rng, step_mm=scenario.step_mm,
+                                wander=scenario.wander)
+    z = np.array([p.z_mm for p in poses])
+    reach = 3.5 * max(section.a_mm, section.b_mm)
+    mm_per_px = 0.04 if size == "full" else 0.07
+    grid = WallGrid.square(radius, mm_per_px, float(z.min()) - 40.0, float(z.max()) + reach)
+    defects: list[Defect] = []
+    if scenario.defects == "test_piece":
+        defects = reference_test_piece(float(np.mean(z)) + 40.0, radius_mm=radius)
+    elif scenario.defects == "random":
+        defects = _random_defects(radius, float(z.min()) + 25, float(z.max()) + 45, rng)
+    albedo = make_wall(scenario.texture, grid, rng=rng, defects=defects)
+    odometry = (odometer_readings(z, rng, slip_probability=scenario.odometer_slip_probability)
+                if scenario.odometer else None)
+    wall = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    renderer = Renderer(camera, section, wall, PLANE_DISTANCE_MM, scenario.optics)
+    return SyntheticRun(scenario, camera, section, body, poses, grid, albedo, defects, odometry,
+                        renderer, seed)

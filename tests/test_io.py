@@ -1,0 +1,187 @@
+"""probe.toml, OCamCalib files, images and dataset validation, including bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.camera import OpenCVFisheyeModel, default_camera
+from pipestitch.errors import ConfigError, DatasetError
+from pipestitch.io.dataset import check_dataset, open_dataset, read_csv_columns
+from pipestitch.io.images import read_image, to_grey_float, write_image
+from pipestitch.io.ocamcalib import format_calib_results, parse_calib_results, read_calib_results
+from pipestitch.io.probe_toml import (
+    format_probe_toml,
+    parse_probe_toml,
+    probe_config_for,
+    read_probe_toml,
+    write_probe_toml,
+)
+
+SPEC_EXAMPLE = """
+[camera]
+model = "ocam"            # comment
+width = 2448
+height = 2048
+pol = [-634.0, 0.0, 0.00079]
+invpol = [1041.2, 634.5]
+center = [1023.5, 1223.5]
+affine = [1.0, 0.0, 0.0]
+[laser]
+plane_distance_mm = 16.0
+[probe]
+length_mm = 145.0
+diameter_mm = 45.0
+[pipe]
+inner_diameter_mm = 65.0  # nominal
+"""
+
+
+def test_spec_example_parses() -> None:
+    cfg = parse_probe_toml(SPEC_EXAMPLE)
+    cam = cfg.camera_model()
+    assert (cam.width, cam.height, cam.center_row, cam.center_col) == (2448, 2048, 1023.5, 1223.5)
+    assert cfg.laser.plane_distance_mm == 16.0 and cfg.pipe.inner_diameter_mm == 65.0
+
+
+@pytest.mark.parametrize("camera", [default_camera("half"),
+                                    OpenCVFisheyeModel(290.0, 289.4, 399.9, 273.9,
+                                                       (-0.03, -0.02, 0.002, 0.001), 800, 503)])
+def test_probe_toml_round_trip(tmp_path: Path, camera) -> None:
+    cfg = probe_config_for(camera, plane_distance_mm=16.0, pipe_diameter_mm=65.0)
+    write_probe_toml(tmp_path / "probe.toml", cfg)
+    back = read_probe_toml(tmp_path / "probe.toml")
+    assert back == cfg
+    assert back.camera_model() == camera
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda t: t.replace("[pipe]", "[pipe]\ncolour = 1"), r"unknown key \[pipe\] colour"),
+    (lambda t: t.replace('"ocam"', '"pinhole"'), r"\[camera\] model"),
+    (lambda t: t.replace("plane_distance_mm = 16.0", "plane_distance_mm = nan"),
+     r"\[laser\] plane_distance_mm"),
+    (lambda t: t.replace("pol = [-634.0, 0.0, 0.00079]\n", ""), "needs pol"),
+    (lambda t: t.replace("[laser]", "[laser"), "malformed TOML"),
+    (lambda t: t.replace("inner_diameter_mm = 65.0", "inner_diameter_mm = -65.0"),
+     "inner_diameter_mm"),
+    (lambda t: t.replace("pol = [-634.0", "pol = [634.0"), "negative"),
+])
+def test_bad_probe_toml_names_the_problem(edit, message: str) -> None:
+    with pytest.raises(ConfigError, match=message) as info:
+        parse_probe_toml(edit(SPEC_EXAMPLE), "some/probe.toml")
+    assert str(info.value).startswith("some/probe.toml")
+
+
+def test_missing_probe_toml(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="file not found"):
+        read_probe_toml(tmp_path / "probe.toml")
+
+
+def test_calib_results_round_trip_and_real_file(shared_data: Path) -> None:
+    path = shared_data / "ocam_komatsu_fisheye_1600px" / "calib_results_0.txt"
+    cam = read_calib_results(path)
+    assert cam.pol[0] == pytest.approx(-4.714441e02)
+    assert cam.invpol[0] == pytest.approx(772.405470)
+    assert (cam.center_row, cam.center_col) == (794.308657, 798.175741)
+    assert (cam.c, cam.d, cam.e) == (1.000305, -0.000277, -0.000925)
+    assert parse_calib_results(format_calib_results(cam)) == cam
+
+
+def test_bad_calib_results() -> None:
+    with pytest.raises(ConfigError, match="header says 3"):
+        parse_calib_results("3 -100 0\n1 5\n1 2\n1 0 0\n10 10\n")
+    with pytest.raises(ConfigError, match="expected 5 numeric lines"):
+        parse_calib_results("2 -100 0\n1 5\n")
+    with pytest.raises(ConfigError, match="non-numeric"):
+        parse_calib_results("2 -100 zero\n1 5\n1 2\n1 0 0\n10 10\n")
+
+
+def test_images_8_16_bit_colour(tmp_path: Path) -> None:
+    grey16 = (np.arange(200, dtype=np.uint16).reshape(10, 20) * 300)
+    colour8 = np.dstack([np.full((10, 20), v, np.uint8) for v in (10, 200, 60)])
+    write_image(tmp_path / "a.png", grey16)
+    write_image(tmp_path / "b.png", colour8)
+    a, b = read_image(tmp_path / "a.png"), read_image(tmp_path / "b.png")
+    assert a.dtype == np.uint16 and np.array_equal(a, grey16)
+    assert to_grey_float(a).max() == pytest.approx(199 * 300 / 65535)
+    expected = (0.114 * 10 + 0.587 * 200 + 0.299 * 60) / 255  # BGR -> grey weights
+    assert to_grey_float(b)[0, 0] == pytest.approx(expected, abs=1 / 255)
+
+
+def test_corrupt_and_missing_images(tmp_path: Path) -> None:
+    (tmp_path / "bad.png").write_bytes(b"\x89PNG not really")
+    (tmp_path / "empty.png").write_bytes(b"")
+    with pytest.raises(DatasetError, match="cannot decode"):
+        read_image(tmp_path / "bad.png")
+    with pytest.raises(DatasetError, match="empty"):
+        read_image(tmp_path / "empty.png")
+    with pytest.raises(DatasetError, match="not found"):
+        read_image(tmp_path / "none.png")
+
+
+def _tiny_dataset(root: Path, n: int = 3, size=(64, 48), led: bool = True) -> None:
+    cam = default_camera("half")
+    cfg = probe_config_for(cam, plane_distance_mm=16.0, pipe_diameter_mm=65.0)
+    text = format_probe_toml(cfg).replace("width = 1224", f"width = {size[0]}")
+    text = text.replace("height = 1024", f"height = {size[1]}")
+    (root / "frames").mkdir(parents=True)
+    (root / "probe.toml").write_text(text)
+    for i in range(n):
+        img = np.zeros((size[1], size[0]), np.uint8)
+        cv2.imwrite(str(root / "frames" / f"laser_{i:05d}.png"), img)
+        if led:
+            cv2.imwrite(str(root / "frames" / f"led_{i:05d}.png"), img)
+
+
+def test_valid_dataset_has_no_errors(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path)
+    assert [p for p in check_dataset(tmp_path) if p.severity == "error"] == []
+    ds = open_dataset(tmp_path)
+    assert ds.n_pairs == 3 and ds.has_led and ds.read_led(2).shape == (48, 64)
+
+
+def test_check_lists_every_problem(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=5)
+    frames = tmp_path / "frames"
+    (frames / "laser_00002.png").unlink()                       # gap in numbering
+    (frames / "led_00003.png").write_bytes(b"garbage")          # corrupt
+    cv2.imwrite(str(frames / "led_00004.png"), np.zeros((10, 10), np.uint8))  # wrong size
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,0.0\n1,abc\n")
+    problems = check_dataset(tmp_path)
+    text = "\n".join(str(p) for p in problems)
+    assert "missing laser_00002" in text
+    assert "led_00003.png: cannot decode" in text
+    assert "led_00004.png: image is 10x10, probe.toml says 64x48" in text
+    assert "odometry.csv: line 3: z_mm = 'abc' is not a finite number" in text
+    assert "pair 00002 has no laser frame" in text
+
+
+def test_laser_only_dataset_is_a_warning(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, led=False)
+    problems = check_dataset(tmp_path)
+    assert problems and all(p.severity == "warning" for p in problems)
+    assert not open_dataset(tmp_path).has_led
+
+
+def test_open_dataset_errors(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="dataset folder not found"):
+        open_dataset(tmp_path / "nope")
+    (tmp_path / "probe.toml").write_text(SPEC_EXAMPLE)
+    with pytest.raises(DatasetError, match="frames/ folder not found"):
+        open_dataset(tmp_path)
+    (tmp_path / "frames").mkdir()
+    with pytest.raises(DatasetError, match="no laser frames"):
+        open_dataset(tmp_path)
+
+
+def test_csv_reader_errors(tmp_path: Path) -> None:
+    path = tmp_path / "x.csv"
+    path.write_text("frame,z\n")
+    with pytest.raises(DatasetError, match="missing column"):
+        read_csv_columns(path, ("frame", "z_mm"))
+    path.write_text("frame,z_mm\n0,nan\n")
+    with pytest.raises(DatasetError, match="not a finite number"):
+        read_csv_columns(path, ("frame", "z_mm"))

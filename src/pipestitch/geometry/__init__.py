@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pipestitch.geometry.body import BodyEnvelope
 from pipestitch.geometry.cylinder import PipeSection, theta_z_from_points
 from pipestitch.geometry.intersect import (
     laser_ring,
@@ -13,6 +14,7 @@ from pipestitch.geometry.pose import Pose
 from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
 
 __all__ = [
+    "BodyEnvelope",
     "PipeSection",
     "Pose",
     "laser_ring",

@@ -44,7 +44,7 @@ class Optics:
     laser_peak: float = 0.8              # ring brightness (fraction of full scale)
     laser_background: float = 0.015      # ambient light in the laser frame
     speckle: float = 0.12                # relative speckle of the laser line
-    led_gain: float = 1.1                # exposure of the LED frame
+    led_gain: float = 1.8                # exposure of the LED frame
     vignetting: float = 0.35             # relative brightness loss at the image circle
     full_well_e: float = 9000.0          # electrons at full scale (shot noise)
     read_noise: float = 1.2 / 255        # read noise, fraction of full scale

@@ -13,11 +13,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pipestitch.camera import CameraModel, default_camera
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import BodyEnvelope, PipeSection, Pose
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 from pipestitch.simulate.textures import Defect, WallGrid, make_wall, reference_test_piece
 from pipestitch.simulate.trajectory import (
-    BodyEnvelope,
     odometer_readings,
     table1_poses,
     wandering_poses,

@@ -1,0 +1,192 @@
+"""Laser frame -> sub-pixel laser-ring points with a confidence.
+
+The ring surrounds the optical axis, so every ray from the image of the optical
+axis crosses it once. The frame is resampled on a polar grid about that point
+(``cv2.remap``), each radial profile is matched against a ridge (a
+difference-of-Gaussians tuned to a thin line, which answers weakly to broad glints
+and steps), the strongest ridges above the frame's own noise level are kept as
+candidates, and each is located to sub-pixel precision by the centroid of its
+background-subtracted profile. Candidates are ranked per azimuth; outliers
+(glints, reflections) are removed later by the geometric fit, which knows that
+the ring lies on the laser plane (see :mod:`pipestitch.pose_fit`).
+
+What this module does not do: decide which candidate lies on the ring when two
+are equally strong (it returns both, ranked) or know the pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from pipestitch.camera import CameraModel
+
+__all__ = ["RingDetection", "detect_ring", "prepare_laser_frame"]
+
+
+@dataclass(frozen=True)
+class RingDetection:
+    """Candidate ring points of one laser frame.
+
+    Attributes
+    ----------
+    pixels : numpy.ndarray, shape (N, 2)
+        Sub-pixel points (col, row).
+    azimuth : numpy.ndarray, shape (N,)
+        Index of the polar ray each point was found on.
+    rank : numpy.ndarray, shape (N,)
+        0 for the strongest candidate of its ray, 1 for the next, ...
+    snr : numpy.ndarray, shape (N,)
+        Ridge strength divided by the frame's noise level.
+    n_azimuths : int
+        Number of polar rays searched.
+    noise : float
+        Estimated noise of the ridge response (fraction of full scale).
+    """
+
+    pixels: np.ndarray
+    azimuth: np.ndarray
+    rank: np.ndarray
+    snr: np.ndarray
+    n_azimuths: int
+    noise: float
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of azimuths with at least one candidate."""
+        return float(np.unique(self.azimuth).size / self.n_azimuths) if self.n_azimuths else 0.0
+
+    def best(self) -> np.ndarray:
+        """The strongest candidate of every ray, (M, 2)."""
+        return self.pixels[self.rank == 0]
+
+
+def prepare_laser_frame(img: np.ndarray) -> np.ndarray:
+    """Grey float32 in [0, 1] that keeps the laser's contrast.
+
+    8- and 16-bit frames are scaled by their dtype's range. For colour frames the
+    channel with the highest peak-over-median contrast is used (a red laser lives
+    in one channel; a grey conversion would dilute it with the other two).
+    """
+    arr = np.asarray(img)
+    if arr.dtype.kind not in "uif":
+        raise ValueError(f"laser frame: expected a numeric image, got dtype {arr.dtype}")
+    scale = 1.0 / np.iinfo(arr.dtype).max if arr.dtype.kind in "ui" else 1.0
+    if arr.ndim == 3:
+        channels = arr[..., :3].astype(np.float32) * np.float32(scale)
+        step = max(1, channels.shape[0] // 256)
+        sub = channels[::step, ::step].reshape(-1, 3)
+        contrast = np.percentile(sub, 99.9, axis=0) - np.median(sub, axis=0)
+        arr = channels[..., int(np.argmax(contrast))]
+    elif arr.ndim != 2:
+        raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
+    else:
+        arr = arr.astype(np.float32) * np.float32(scale)
+    if not np.all(np.isfinite(arr)):
+        arr = np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
+    return arr
+
+
+def _polar_grid(camera: CameraModel, n_azimuths: int,
+                step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sampling maps of rays from the image of the optical axis out to the lens edge."""
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    edge_theta = min(camera.max_incidence_rad, np.deg2rad(100.0))
+    phi = np.linspace(0, 2 * np.pi, n_azimuths, endpoint=False)
+    edge_rays = np.stack([np.sin(edge_theta) * np.cos(phi), np.sin(edge_theta) * np.sin(phi),
+                          np.full_like(phi, np.cos(edge_theta))], axis=1)
+    edge = camera.project(edge_rays)
+    r_max = float(np.nanmax(np.linalg.norm(edge - centre, axis=1)))
+    radii = np.arange(2.0, r_max, step_px)
+    map_x = (centre[0] + np.cos(phi)[:, None] * radii[None, :]).astype(np.float32)
+    map_y = (centre[1] + np.sin(phi)[:, None] * radii[None, :]).astype(np.float32)
+    return map_x, map_y, radii, centre
+
+
+def detect_ring(img: np.ndarray, camera: CameraModel, *, n_azimuths: int = 1440,
+                line_sigma_px: float | None = None, min_snr: float = 8.0,
+                max_candidates: int = 3, min_relative: float = 0.2) -> RingDetection:
+    """Find laser-ring candidates in a laser frame.
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        Laser frame (8/16-bit or float, grey or colour) of the camera's size.
+    camera : CameraModel
+        Camera model (gives the image of the optical axis and the lens edge).
+    n_azimuths : int
+        Number of polar rays.
+    line_sigma_px : float, optional
+        Expected Gaussian width of the laser line; default scales with the image.
+    min_snr : float
+        Minimum ridge strength in units of the noise of the ridge response.
+    max_candidates : int
+        Candidates kept per ray (the fit decides between them).
+    min_relative : float
+        Minimum ridge strength relative to the frame's typical ring response.
+
+    Returns
+    -------
+    RingDetection
+        Possibly empty (no ring in the frame): check ``coverage``.
+    """
+    grey = prepare_laser_frame(img)
+    if grey.shape != (camera.height, camera.width):
+        raise ValueError(f"laser frame: expected {camera.width}x{camera.height}, "
+                         f"got {grey.shape[1]}x{grey.shape[0]}")
+    sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
+    step = 0.5
+    map_x, map_y, radii, _ = _polar_grid(camera, n_azimuths, step)
+    polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
+    narrow = gaussian_filter1d(polar, sigma / step, axis=1)
+    wide = gaussian_filter1d(polar, 4 * sigma / step, axis=1)
+    ridge = narrow - wide
+    # Noise of the ridge response (robust), floored at a quarter of an 8-bit step
+    # so that a noise-free frame does not turn every ripple into a candidate.
+    noise = max(1.4826 * float(np.median(np.abs(ridge - np.median(ridge)))), 0.25 / 255)
+    is_peak = (ridge > np.roll(ridge, 1, axis=1)) & (ridge >= np.roll(ridge, -1, axis=1))
+    is_peak[:, :2] = is_peak[:, -2:] = False
+    # Weak ridges are neither ring nor worth a candidate: keep those above the noise
+    # and above a fraction of the typical ring response of this frame.
+    strongest = np.max(ridge, axis=1)
+    typical = float(np.median(strongest[strongest > min_snr * noise])) if np.any(
+        strongest > min_snr * noise) else np.inf
+    is_peak &= (ridge > min_snr * noise) & (ridge > min_relative * typical)
+    # A broad glint also has a ridge maximum; a thin line has a much larger ridge
+    # response relative to its height, so rank by the response itself.
+    score = np.where(is_peak, ridge, -np.inf)
+    order = np.argsort(-score, axis=1)[:, :max_candidates]
+    top = np.take_along_axis(score, order, axis=1)
+    az_idx, rank = np.nonzero(np.isfinite(top))
+    idx = order[az_idx, rank]
+    radius = _centroid(polar, narrow, az_idx, idx, sigma / step) * step + radii[0]
+    phi = az_idx * (2 * np.pi / n_azimuths)
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
+    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
+                         snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
+
+
+def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+              sigma_samples: float) -> np.ndarray:
+    """Sub-sample peak position: centroid of the profile above its local background.
+
+    The window spans +-3 sigma of the expected line; the background is the lower
+    of the window's two end values, so a sloping background (LED leakage, the
+    far-wall glow) is not mistaken for signal. Saturated (flat-topped) peaks are
+    handled correctly, which a parabola fit is not.
+    """
+    half = max(2, int(np.ceil(3 * sigma_samples)))
+    offsets = np.arange(-half, half + 1)
+    cols = np.clip(idx[:, None] + offsets[None, :], 0, polar.shape[1] - 1)
+    profile = polar[rows[:, None], cols]
+    base = np.minimum(profile[:, :1], profile[:, -1:])
+    peak = smooth[rows, idx][:, None]
+    weight = np.clip(profile - (base + 0.3 * (peak - base)), 0, None)
+    total = weight.sum(axis=1)
+    shift = np.where(total > 0, (weight * offsets).sum(axis=1) / np.where(total > 0, total, 1), 0)
+    return idx + shift

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, TypeVar
 
 import typer
-from rich.table import Table
+from rich.markup import escape
 
 from pipestitch import __version__
 from pipestitch.errors import PipestitchError
@@ -42,7 +42,7 @@ def _handle_errors(func: F) -> F:
         try:
             return func(*args, **kwargs)
         except PipestitchError as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True)
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
             raise typer.Exit(exc.exit_code) from None
         except KeyboardInterrupt:
             console.print("[bold red]interrupted[/]")
@@ -98,11 +98,11 @@ def simulate(
 
 
 def _print_problems(problems: list) -> None:
-    table = Table("severity", "file", "problem", show_lines=False)
+    # One line per problem, never wrapped: paths stay whole and greppable.
     for p in problems:
         colour = "red" if p.severity == "error" else "yellow"
-        table.add_row(f"[{colour}]{p.severity}[/]", str(p.path), p.message)
-    console.print(table)
+        console.print(f"[{colour}]{p.severity}[/]: {escape(str(p.path))}: {escape(p.message)}", soft_wrap=True,
+                      highlight=False)
 
 
 @app.command()

@@ -72,9 +72,11 @@ def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size
     frames = out / "frames"
     for i in track(range(len(run.poses)), f"simulating {scenario.name}", total=len(run.poses),
                    enabled=show_progress):
-        laser, led = run.render(i)
-        write_image(frames / f"laser_{i:05d}.png", laser)
-        if not scenario.laser_only:
+        if scenario.laser_only:
+            write_image(frames / f"laser_{i:05d}.png", run.render_laser(i))
+        else:
+            laser, led = run.render(i)
+            write_image(frames / f"laser_{i:05d}.png", laser)
             write_image(frames / f"led_{i:05d}.png", led)
     if run.odometry_mm is not None:
         atomic_write_text(out / "odometry.csv", _csv(

@@ -206,10 +206,19 @@ class Renderer:
             return self._sensor(grey, rng)
         return np.dstack([self._sensor(grey * g, rng) for g in bgr_gain])
 
+    def _traced_albedo(self, pose: Pose) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        tr = self.trace(pose)
+        return tr, np.where(tr["hit"], self.sample_albedo(tr["row"], tr["col"]), 0.0)
+
+    def render_laser(self, pose: Pose, rng: np.random.Generator) -> np.ndarray:
+        """Render the laser frame alone (laser-only datasets, pose benchmarks)."""
+        tr, albedo = self._traced_albedo(pose)
+        laser = self._laser_signal(tr, albedo, rng) * self.visibility
+        return self._colourise(laser, (0.08, 0.12, 1.0), rng)
+
     def render_pair(self, pose: Pose, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Render the (laser, LED) frames of one pair at ``pose``."""
-        tr = self.trace(pose)
-        albedo = np.where(tr["hit"], self.sample_albedo(tr["row"], tr["col"]), 0.0)
+        tr, albedo = self._traced_albedo(pose)
         o = self.optics
         vignette = 1 - o.vignetting * (self._incidence / np.deg2rad(o.fov_deg / 2)) ** 2
         led = o.led_gain * albedo * tr["light"] * vignette * self.visibility

@@ -91,8 +91,14 @@ class SyntheticRun:
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(laser, LED) frames of pair ``index`` (deterministic per seed and index)."""
-        rng = np.random.default_rng([self.seed, index])
-        return self.renderer.render_pair(self.poses[index], rng)
+        return self.renderer.render_pair(self.poses[index], self._rng(index))
+
+    def render_laser(self, index: int) -> np.ndarray:
+        """Laser frame of pair ``index`` only."""
+        return self.renderer.render_laser(self.poses[index], self._rng(index))
+
+    def _rng(self, index: int) -> np.random.Generator:
+        return np.random.default_rng([self.seed, index])
 
 
 def _random_defects(radius_mm: float, z0: float, z1: float,
@@ -132,8 +138,8 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
                if scenario.ovality > 0 else PipeSection.circle(scenario.pipe_diameter_mm))
     body = BodyEnvelope()
     if scenario.trajectory == "table1":
-        poses = [replace(p, z_mm=5.0 * i)
-                 for i, p in enumerate(table1_poses(n, radius, PLANE_DISTANCE_MM, rng))]
+        # Independent poses at one axial position: z means nothing between them.
+        poses = table1_poses(n, radius, PLANE_DISTANCE_MM, rng)
     else:
         poses = wandering_poses(n, section, body, rng, step_mm=scenario.step_mm,
                                 wander=scenario.wander)
@@ -143,7 +149,9 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     grid = WallGrid.square(radius, mm_per_px, float(z.min()) - 40.0, float(z.max()) + reach)
     defects: list[Defect] = []
     if scenario.defects == "test_piece":
-        defects = reference_test_piece(float(np.mean(z)) + 40.0, radius_mm=radius)
+        # Centred away from the laser holder arm (image azimuth 90°) for the middle frames.
+        defects = reference_test_piece(float(np.mean(z)) + 40.0, theta_centre_deg=150.0,
+                                       radius_mm=radius)
     elif scenario.defects == "random":
         defects = _random_defects(radius, float(z.min()) + 25, float(z.max()) + 45, rng)
     albedo = make_wall(scenario.texture, grid, rng=rng, defects=defects)

@@ -1,0 +1,92 @@
+"""The real command line on small simulated datasets, including bad input."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("cli") / "ds"
+    result = runner.invoke(app, ["simulate", "--out", str(root), "--size", "half", "--pairs",
+                                 "2", "--quiet", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    return root
+
+
+def test_help_explains_every_command() -> None:
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for command in ("simulate", "check", "demo"):
+        assert command in result.output
+        sub = runner.invoke(app, [command, "--help"])
+        assert sub.exit_code == 0 and "Example: pipestitch" in sub.output
+
+
+def test_console_script_runs_check(small_dataset: Path) -> None:
+    exe = shutil.which("pipestitch") or str(Path(sys.executable).parent / "pipestitch")
+    proc = subprocess.run([exe, "check", str(small_dataset), "--quiet"], capture_output=True,
+                          text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert "OK" in proc.stdout
+
+
+def test_check_reports_bad_frames_with_exit_2(small_dataset: Path, tmp_path: Path) -> None:
+    broken = tmp_path / "broken"
+    shutil.copytree(small_dataset, broken)
+    (broken / "frames" / "led_00001.png").write_bytes(b"not a png")
+    (broken / "frames" / "laser_00000.png").unlink()
+    result = runner.invoke(app, ["check", str(broken), "--quiet"])
+    assert result.exit_code == 2
+    assert "led_00001.png" in result.output and "cannot decode" in result.output
+    assert "missing laser_00000" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_check_bad_probe_toml_exit_2(small_dataset: Path, tmp_path: Path) -> None:
+    broken = tmp_path / "toml"
+    shutil.copytree(small_dataset, broken)
+    toml = broken / "probe.toml"
+    toml.write_text(toml.read_text().replace('model = "ocam"', 'model = "pinhole"'))
+    result = runner.invoke(app, ["check", str(broken), "--quiet"])
+    assert result.exit_code == 2 and "probe.toml" in result.output
+
+
+def test_check_missing_dataset_exit_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["check", str(tmp_path / "nowhere"), "--quiet"])
+    assert result.exit_code == 2 and "dataset folder not found" in result.output
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--scenario", "nope"], "unknown scenario"),
+    (["--size", "quarter"], "--size"),
+    (["--pairs", "0"], "--pairs"),
+])
+def test_simulate_bad_options_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "x"), "--quiet", *args])
+    assert result.exit_code == 2 and message in result.output
+
+
+def test_demo_writes_a_checked_dataset(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "dataset" / "frames" / "led_00011.png").is_file()
+
+
+def test_messages_with_brackets_are_printed_verbatim(small_dataset: Path, tmp_path: Path) -> None:
+    broken = tmp_path / "brackets"
+    shutil.copytree(small_dataset, broken)
+    toml = broken / "probe.toml"
+    toml.write_text(toml.read_text().replace("[pipe]", "[pipe]\nwall = 3"))
+    result = runner.invoke(app, ["check", str(broken), "--quiet"])
+    assert result.exit_code == 2 and "unknown key [pipe] wall" in result.output

@@ -82,7 +82,7 @@ def test_laser_ring_is_drawn_where_the_geometry_puts_it() -> None:
 
 def test_arm_and_mirror_are_dark_in_both_frames() -> None:
     renderer = _flat_renderer()
-    laser, led = renderer.render_pair(Pose(), np.random.default_rng(1))
+    _, led = renderer.render_pair(Pose(), np.random.default_rng(1))
     cam = renderer.camera
     centre = cam.project(np.array([[0.0, 0.0, 1.0]]))[0]
     # Mirror: the optical axis; arm: straight down (azimuth 90°) at 60° incidence.

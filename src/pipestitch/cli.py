@@ -42,7 +42,8 @@ def _handle_errors(func: F) -> F:
         try:
             return func(*args, **kwargs)
         except PipestitchError as exc:
-            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
+                          soft_wrap=True)
             raise typer.Exit(exc.exit_code) from None
         except KeyboardInterrupt:
             console.print("[bold red]interrupted[/]")
@@ -101,8 +102,8 @@ def _print_problems(problems: list) -> None:
     # One line per problem, never wrapped: paths stay whole and greppable.
     for p in problems:
         colour = "red" if p.severity == "error" else "yellow"
-        console.print(f"[{colour}]{p.severity}[/]: {escape(str(p.path))}: {escape(p.message)}", soft_wrap=True,
-                      highlight=False)
+        line = f"[{colour}]{p.severity}[/]: {escape(str(p.path))}: {escape(p.message)}"
+        console.print(line, soft_wrap=True, highlight=False)
 
 
 @app.command()

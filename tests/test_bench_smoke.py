@@ -1,0 +1,22 @@
+"""Smoke runs of every benchmark (the full runs are not part of CI)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+
+
+@pytest.mark.parametrize("script,expect", [
+    ("sensitivity.py", "Delta PX"),
+    ("render.py", "pairs/s"),
+])
+def test_benchmark_smoke(script: str, expect: str) -> None:
+    proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,
+                          text=True, check=False, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert expect in proc.stdout

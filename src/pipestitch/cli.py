@@ -18,6 +18,7 @@ from rich.markup import escape
 from pipestitch import __version__
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import run_check
+from pipestitch.pipeline.pose import run_pose
 from pipestitch.pipeline.progress import console
 from pipestitch.pipeline.simulate import simulate_dataset
 from pipestitch.simulate.scenarios import SCENARIOS
@@ -130,13 +131,34 @@ def check(
 
 @app.command()
 @_handle_errors
+def pose(
+    dataset: Annotated[Path, typer.Argument(help="Dataset folder (SPEC layout).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder for poses.csv.")],
+    workers: Annotated[int, typer.Option(help="Threads (frames stay in order).")] = 2,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Estimate the probe pose of every frame from its laser ring; write OUT/poses.csv.
+
+    Both mirror hypotheses are kept (alt_* columns); the chosen one is decided by the
+    probe envelope and carried by temporal continuity; undecided frames are flagged
+    ambiguous. Frames without a usable ring are reported and kept with an error.
+
+    Example: pipestitch pose data/test_piece --out out/test_piece
+    """
+    summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers))
+    typer.echo(f"wrote {summary.path}: {summary.n_frames} frames, {summary.n_failed} failed, "
+               f"{summary.n_ambiguous} ambiguous")
+
+
+@app.command()
+@_handle_errors
 def demo(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Folder for the demo (default: "
                                              "a new temporary folder).")] = None,
     size: Annotated[str, typer.Option(help="Sensor size: full or half.")] = "half",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Simulate a short probe run and check it (processing joins once the mosaic lands).
+    """Simulate a short probe run, check it and estimate every pose.
 
     Example: pipestitch demo --out /tmp/pipestitch-demo
     """
@@ -148,7 +170,10 @@ def demo(
     if problems:
         _print_problems(problems)
         raise typer.Exit(1)
+    summary = run_pose(dataset, root / "out", show_progress=not quiet)
     typer.echo(f"demo dataset: {dataset} ({len(run.poses)} pairs, checked OK)")
+    typer.echo(f"poses: {summary.path} ({summary.n_failed} failed, {summary.n_ambiguous} "
+               "ambiguous); the mosaic and report come with the mosaic issue")
 
 
 def main() -> None:

@@ -112,6 +112,12 @@ class ConicModel:
         self.coef = np.zeros(6)
         self.scale = 1.0
 
+    @classmethod
+    def from_estimate(cls, data: np.ndarray) -> ConicModel | None:
+        """A fitted model, or None when the points do not make an ellipse (skimage API)."""
+        model = cls()
+        return model if model.estimate(data) else None
+
     def estimate(self, data: np.ndarray) -> bool:
         """Fit the conic to (N >= 5, 2) points; False if it is not an ellipse."""
         self.scale = float(np.sqrt(np.mean(np.sum(data**2, axis=1)))) or 1.0
@@ -278,42 +284,61 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         return PoseFit(False, f"ring not found (coverage {detection.coverage:.0%})",
                        coverage=detection.coverage)
     pts, valid = plane_points(detection.pixels, camera, plane_distance_mm)
-    azimuth = detection.azimuth[valid]
-    rng = np.random.default_rng(seed)
-    conic, inliers = _ransac_conic(pts, max(0.3, 6 * noise_mm), rng)
+    azimuth, pixels = detection.azimuth[valid], detection.pixels[valid]
+    threshold = max(0.3, 6 * noise_mm)
+    conic, inliers = _initial_inliers(pts, detection.rank[valid], threshold, seed)
     if conic is None or inliers.sum() < 12:
         return PoseFit(False, "no ellipse found among ring candidates", coverage=detection.coverage)
     starts = pose_from_conic(*conic.normalised(), plane_distance_mm)
     if not starts:
         return PoseFit(False, "ring is not the section of a cylinder", coverage=detection.coverage)
-    hyps = []
-    for pose0, r0 in starts:
-        r_start = r0 if fit_radius else float(nominal_radius_mm)
-        x, cost, jac = _refine(pose0, r_start, pts[inliers], plane_distance_mm, fit_radius,
-                               noise_mm)
-        keep = inliers
-        for _ in range(4):
-            # Re-select inliers among all candidates with the refined model, one per ray,
-            # until the set is stable (the RANSAC start may have missed a stretch).
-            resid = np.abs(_residuals(x, pts, plane_distance_mm))
-            new_keep = _one_per_azimuth(resid, azimuth, max(0.25, 5 * noise_mm))
-            if np.array_equal(new_keep, keep):
-                break
-            keep = new_keep
-            x, cost, jac = _refine(Pose(*x[:4]), x[4], pts[keep], plane_distance_mm,
-                                   fit_radius, noise_mm)
-        r = _residuals(x, pts[keep], plane_distance_mm)
-        pose = Pose(*x[:4])
-        hyps.append(Hypothesis(pose, float(x[4]), cost, float(np.sqrt(np.mean(r**2))),
-                               _rms_px(pose, x[4], detection.pixels[valid][keep], pts[keep],
-                                       camera, plane_distance_mm),
-                               _std(jac, r, fit_radius)))
+    radius0 = [r0 if fit_radius else float(nominal_radius_mm) for _, r0 in starts]
+    x, _, _ = _refine(starts[0][0], radius0[0], pts[inliers], plane_distance_mm, fit_radius,
+                      noise_mm)
+    keep = inliers
+    for _ in range(4):
+        # Re-select inliers among all candidates with the refined model, one per ray,
+        # until the set is stable (the start may have missed a stretch of the ring).
+        resid = np.abs(_residuals(x, pts, plane_distance_mm))
+        new_keep = _one_per_azimuth(resid, azimuth, max(0.25, 5 * noise_mm))
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+        x, _, _ = _refine(Pose(*x[:4]), x[4], pts[keep], plane_distance_mm, fit_radius,
+                          noise_mm)
     coverage = np.unique(azimuth[keep]).size / detection.n_azimuths
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
                        coverage=coverage)
-    inlier_px = detection.pixels[valid][keep]
-    return PoseFit(True, "", tuple(hyps), int(keep.sum()), float(coverage), "circle", inlier_px)
+    # Both mirrors are fitted to the same inliers: in the plane they explain them equally.
+    hyps = []
+    for (pose0, _), r0 in zip(starts, radius0, strict=True):
+        x, cost, jac = _refine(pose0, r0, pts[keep], plane_distance_mm, fit_radius, noise_mm)
+        r = _residuals(x, pts[keep], plane_distance_mm)
+        pose = Pose(*x[:4])
+        hyps.append(Hypothesis(pose, float(x[4]), cost, float(np.sqrt(np.mean(r**2))),
+                               _rms_px(pose, x[4], pixels[keep], pts[keep], camera,
+                                       plane_distance_mm),
+                               _std(jac, r, fit_radius)))
+    return PoseFit(True, "", tuple(hyps), int(keep.sum()), float(coverage), "circle",
+                   pixels[keep])
+
+
+def _initial_inliers(pts: np.ndarray, rank: np.ndarray, threshold: float,
+                     seed: int) -> tuple[ConicModel | None, np.ndarray]:
+    """A first conic and its inliers: directly when the strongest candidates agree.
+
+    Most frames have few outliers: one algebraic fit of every ray's strongest
+    candidate then explains 90 % of them and RANSAC is not needed.
+    """
+    strongest = rank == 0
+    if strongest.sum() >= 12:
+        conic = ConicModel.from_estimate(pts[strongest])
+        if conic is not None:
+            inliers = strongest & (conic.residuals(pts) < threshold)
+            if inliers.sum() >= 0.9 * strongest.sum() and conic.estimate(pts[inliers]):
+                return conic, inliers
+    return _ransac_conic(pts, threshold, np.random.default_rng(seed))
 
 
 def _one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) -> np.ndarray:
@@ -330,7 +355,8 @@ def _one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) -
 def _rms_px(pose: Pose, radius: float, pixels: np.ndarray, pts: np.ndarray,
             camera: CameraModel, d: float) -> float:
     """RMS image distance between observed points and the model ring at the same angle."""
-    phi = np.arctan2(pts[:, 1], pts[:, 0])
+    step = max(1, len(pts) // 256)  # a few hundred points estimate an RMS well
+    phi = np.arctan2(pts[::step, 1], pts[::step, 0])
     model = camera.project(laser_ring(pose, PipeSection(radius), d, phi=phi))
-    err = np.linalg.norm(model - pixels, axis=1)
+    err = np.linalg.norm(model - pixels[::step], axis=1)
     return float(np.sqrt(np.nanmean(err**2))) if np.any(np.isfinite(err)) else float("nan")

@@ -68,7 +68,8 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
                            full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)),
     *[Scenario(f"table1_{d}", f"reference evaluation: 300 independent random poses in a {d} mm "
                "pipe, laser frames only", pipe_diameter_mm=float(d), n_pairs=300,
-               trajectory="table1", laser_only=True) for d in (50, 65, 80)],
+               texture="aluminium", trajectory="table1", laser_only=True)
+      for d in (50, 65, 80)],
 ]}
 SCENARIOS["table1"] = replace(SCENARIOS["table1_65"], name="table1")
 

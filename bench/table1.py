@@ -107,7 +107,8 @@ def baseline_ga(cam, pixels: np.ndarray, radius: float, seed: int) -> Pose:
         a, b = np.deg2rad(x[0]), np.deg2rad(x[1])
         cx = np.sin(b) * D + x[2]
         cy = -np.sin(a) * np.cos(b) * D + x[3]
-        bad = (x[2] ** 2 + x[3] ** 2 >= radius**2) | (cx**2 + cy**2 >= radius**2) | ~np.isfinite(err)
+        bad = ((x[2] ** 2 + x[3] ** 2 >= radius**2) | (cx**2 + cy**2 >= radius**2)
+               | ~np.isfinite(err))
         return np.where(bad, 1e4, err)
 
     res = differential_evolution(cost, bounds=[(-lim, lim), (-lim, lim), (-radius, radius),

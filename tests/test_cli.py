@@ -90,3 +90,35 @@ def test_messages_with_brackets_are_printed_verbatim(small_dataset: Path, tmp_pa
     toml.write_text(toml.read_text().replace("[pipe]", "[pipe]\nwall = 3"))
     result = runner.invoke(app, ["check", str(broken), "--quiet"])
     assert result.exit_code == 2 and "unknown key [pipe] wall" in result.output
+
+
+def test_pose_writes_spec_columns_and_keeps_bad_frames(small_dataset: Path,
+                                                       tmp_path: Path) -> None:
+    import csv
+
+    data = tmp_path / "posedata"
+    shutil.copytree(small_dataset, data)
+    (data / "frames" / "laser_00001.png").write_bytes(b"corrupt")
+    result = runner.invoke(app, ["pose", str(data), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "laser_00001.png" in result.output and "1 failed" in result.output
+    with (tmp_path / "out" / "poses.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    spec = ["frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg", "radius_mm",
+            "ovality", "rms_px", "ambiguous", "alt_alpha_deg", "alt_beta_deg", "alt_dx_mm",
+            "alt_dy_mm"]
+    assert list(rows[0])[:len(spec)] == spec
+    assert [r["frame"] for r in rows] == ["0", "1"]
+    assert rows[1]["error"] and rows[1]["alpha_deg"] == "nan"
+    with (data / "truth" / "poses.csv").open() as handle:
+        truth = next(csv.DictReader(handle))
+    est = [float(rows[0][k]) for k in ("alpha_deg", "beta_deg")]
+    alt = [float(rows[0]["alt_" + k]) for k in ("alpha_deg", "beta_deg")]
+    true = [float(truth[k]) for k in ("alpha_deg", "beta_deg")]
+    # Up to the mirror, the pose is within the success tolerance (0.5 deg).
+    assert min(max(abs(a - b) for a, b in zip(v, true, strict=True)) for v in (est, alt)) < 0.5
+
+
+def test_pose_on_missing_dataset_exit_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["pose", str(tmp_path / "none"), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "dataset folder not found" in result.output

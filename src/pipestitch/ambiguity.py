@@ -22,6 +22,7 @@ the same pose within the uncertainty.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -42,8 +43,8 @@ class Choice:
     ambiguous : bool
         True when the evidence does not decide (the chosen one is only the likelier).
     reason : str
-        What decided: "envelope", "photometric", "continuity", "coincide", "undecided"
-        or "no fit".
+        What decided: "envelope", "photometric", "continuity", "coincide", "undecided",
+        "infeasible" (neither hypothesis fits a circular pipe) or "no fit".
     margin : float
         Cost difference between the two choices (negative log-likelihood units).
     """
@@ -92,7 +93,7 @@ def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
 def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | None = None,
                 step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
                 min_margin: float = 5.0, coincide_deg: float = 0.05,
-                coincide_mm: float = 0.05) -> list[Choice]:
+                coincide_mm: float = 0.05, infeasible_cost: float = 50.0) -> list[Choice]:
     """Choose a hypothesis per frame from per-frame costs and temporal continuity.
 
     Parameters
@@ -110,6 +111,9 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
         Margin below which a frame is flagged ambiguous (5 ≈ 150:1 odds).
     coincide_deg, coincide_mm : float
         Hypotheses closer than this are the same pose: not ambiguous.
+    infeasible_cost : float
+        When both hypotheses cost at least this much, neither is physically possible:
+        the frame is flagged "infeasible" (ambiguous) and gives the chain no evidence.
 
     Returns
     -------
@@ -123,9 +127,12 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
     if not idx:
         return choices
     ang, off = np.deg2rad(step_angle_deg), step_offset_mm
-    u = unary[idx]
-    trans = [_transition(fits[a], fits[b], b - a, ang, off) for a, b in zip(idx, idx[1:],
-                                                                             strict=False)]
+    u = unary[idx].copy()
+    # Both hypotheses impossible (an oval pipe read as tilt, a wrong calibration):
+    # such a frame carries no evidence for the chain and is flagged.
+    impossible = np.min(u, axis=1) >= infeasible_cost
+    u[impossible] = 0.0
+    trans = [_transition(fits[a], fits[b], b - a, ang, off) for a, b in pairwise(idx)]
     fwd = np.zeros((len(idx), 2))
     fwd[0] = u[0]
     for k, t in enumerate(trans, start=1):
@@ -141,7 +148,9 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
         same = (np.rad2deg(np.hypot(h0.pose.alpha - h1.pose.alpha, h0.pose.beta - h1.pose.beta))
                 < coincide_deg and np.hypot(h0.pose.dx_mm - h1.pose.dx_mm,
                                             h0.pose.dy_mm - h1.pose.dy_mm) < coincide_mm)
-        if same:
+        if impossible[k]:
+            choices[i] = Choice(chosen, True, "infeasible", margin)
+        elif same:
             choices[i] = Choice(chosen, False, "coincide", margin)
         elif margin < min_margin:
             choices[i] = Choice(chosen, True, "undecided", margin)

@@ -1,0 +1,112 @@
+"""Pose from the ring: exact closed form, full round trips, both hypotheses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import PipeSection, Pose, laser_ring
+from pipestitch.pose_fit import ConicModel, fit_pose, pose_from_conic
+from pipestitch.ring import RingDetection, detect_ring
+from pipestitch.simulate.render import Optics, Renderer, WallTexture
+
+D = 16.0
+
+
+def as_vec(p: Pose) -> np.ndarray:
+    return np.array([np.rad2deg(p.alpha), np.rad2deg(p.beta), p.dx_mm, p.dy_mm])
+
+
+@settings(max_examples=80, deadline=None)
+@given(a=st.floats(-0.25, 0.25), b=st.floats(-0.25, 0.25), dx=st.floats(-8, 8),
+       dy=st.floats(-8, 8), diameter=st.sampled_from([50.0, 65.0, 80.0]))
+def test_closed_form_recovers_pose_and_its_mirror(a, b, dx, dy, diameter) -> None:
+    pose = Pose(a, b, dx, dy)
+    ring = laser_ring(pose, PipeSection.circle(diameter), D, n_points=60)
+    conic = ConicModel.from_estimate(ring[:, :2])
+    assert conic is not None
+    sols = pose_from_conic(*conic.normalised(), D)
+    assert len(sols) == 2
+    errs = [np.abs(as_vec(p) - as_vec(pose)).max() for p, _ in sols]
+    # Tilt enters the conic quadratically (axis ratio 1/cos), so rounding errors of
+    # 1e-16 in the conic become sqrt(1e-16) = 1e-8 rad near zero tilt, and 1e-8 rad
+    # times d = 16 mm in the offset: bounds of 1e-5 (deg and mm) cover that.
+    assert min(errs) < 1e-5
+    for p, r in sols:
+        assert r == pytest.approx(diameter / 2, abs=1e-7)
+        # Both hypotheses put the ring exactly on the wall: that is the ambiguity.
+        w = p.to_world(ring)
+        np.testing.assert_allclose(np.hypot(w[:, 0], w[:, 1]), diameter / 2, atol=1e-6)
+    mirror = sols[int(np.argmax(errs))][0]
+    # The mirror is exactly (-alpha, -beta) with another offset.
+    assert mirror.alpha == pytest.approx(-a, abs=1e-7)
+    assert mirror.beta == pytest.approx(-b, abs=1e-7)
+
+
+def _render(pose: Pose, size: str = "half", optics: Optics | None = None,
+            diameter: float = 65.0):
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    albedo = np.kron(base, np.ones((100, 60), np.float32))
+    r = Renderer(default_camera(size), PipeSection.circle(diameter),
+                 WallTexture(albedo, 0.1, 0.1, -50.0), D, optics)
+    return r.camera, r.render_laser(pose, np.random.default_rng(3))
+
+
+@pytest.mark.parametrize("pose", [Pose.from_degrees(4.0, -3.0, 5.0, -2.0),
+                                  Pose.from_degrees(-12.0, 7.0, -9.0, 6.0),
+                                  Pose.from_degrees(2.0, 2.0, 0.0, 0.0)])
+def test_render_extract_solve_round_trip(pose: Pose) -> None:
+    cam, laser = _render(pose)
+    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    assert fit.ok and len(fit.hypotheses) == 2
+    err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
+              key=lambda e: e.max())
+    # Half size, default noise: well inside the 0.5°/0.5 mm success tolerance.
+    assert err[:2].max() < 0.15 and err[2:].max() < 0.05
+    h0, h1 = fit.hypotheses
+    assert h0.cost == pytest.approx(h1.cost, rel=0.05)
+    assert h0.radius_mm == pytest.approx(32.5, abs=0.02)
+    assert 0.02 < h0.rms_px < 0.5 and 0.001 < h0.rms_mm < 0.1
+    best = min(fit.hypotheses, key=lambda h: np.abs(as_vec(h.pose) - as_vec(pose)).max())
+    # The reported uncertainty is honest: the error is within 5 sigma.
+    assert abs(np.rad2deg(best.pose.alpha - pose.alpha)) < 5 * np.rad2deg(best.std["alpha"])
+
+
+def test_partial_ring_colour_glints_still_solve() -> None:
+    pose = Pose.from_degrees(5.0, 3.0, -4.0, 2.0)
+    optics = Optics(bit_depth=16, colour=True, glints=4, partial_ring_deg=60.0,
+                    full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)
+    cam, laser = _render(pose, optics=optics)
+    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    assert fit.ok and 0.7 < fit.coverage < 0.86
+    err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
+              key=lambda e: e.max())
+    assert err[:2].max() < 0.5 and err[2:].max() < 0.2
+
+
+def test_fixed_radius_and_no_ring() -> None:
+    pose = Pose.from_degrees(4.0, -3.0, 5.0, -2.0)
+    cam, laser = _render(pose)
+    fit = fit_pose(detect_ring(laser, cam), cam, D, fit_radius=False, nominal_radius_mm=32.5)
+    assert fit.ok and all(h.radius_mm == 32.5 for h in fit.hypotheses)
+    empty = RingDetection(np.zeros((0, 2)), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
+                          1440, 0.01)
+    result = fit_pose(empty, cam, D)
+    assert not result.ok and "ring not found" in result.reason
+    with pytest.raises(ValueError, match="nominal_radius_mm"):
+        fit_pose(empty, cam, D, fit_radius=False)
+
+
+def test_noise_free_accuracy_full_size() -> None:
+    pose = Pose.from_degrees(-8.0, 6.0, 3.0, -7.0)
+    optics = Optics(full_well_e=1e12, read_noise=0.0, speckle=0.0)
+    cam, laser = _render(pose, size="full", optics=optics)
+    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
+              key=lambda e: e.max())
+    # Issue target without noise: mean |error| <= 0.02° / 0.01 mm.
+    assert err[:2].max() < 0.02 and err[2:].max() < 0.01

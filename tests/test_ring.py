@@ -1,0 +1,86 @@
+"""Ring extraction against the true ring from the geometry, on simulated frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import PipeSection, Pose, laser_ring
+from pipestitch.ring import detect_ring, prepare_laser_frame
+from pipestitch.simulate.render import Optics, Renderer, WallTexture
+
+SECTION = PipeSection.circle(65.0)
+
+
+def renderer(size: str, optics: Optics | None = None) -> Renderer:
+    rng = np.random.default_rng(0)
+    # A mildly textured metal wall (albedo 0.6-0.75, smooth variations).
+    base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    albedo = np.kron(base, np.ones((100, 50), np.float32))
+    return Renderer(default_camera(size), SECTION, WallTexture(albedo, 0.1, 0.1, -50.0), 16.0,
+                    optics)
+
+
+def distance_to_true_ring(cam, pose: Pose, pixels: np.ndarray) -> np.ndarray:
+    truth = cam.project(laser_ring(pose, SECTION, 16.0, n_points=60000))
+    truth = truth[np.isfinite(truth[:, 0])]
+    return cKDTree(truth).query(pixels)[0]
+
+
+POSE = Pose.from_degrees(3.0, -2.0, 4.0, -3.0, 0.0, 10.0)
+
+
+def test_subpixel_accuracy_full_size_default_noise() -> None:
+    r = renderer("full")
+    laser = r.render_laser(POSE, np.random.default_rng(1))
+    det = detect_ring(laser, r.camera)
+    d = distance_to_true_ring(r.camera, POSE, det.best())
+    rms = float(np.sqrt(np.mean(d**2)))
+    # Issue target: < 0.3 px RMS at default noise. Noise and speckle make a perfect
+    # score impossible, so a tiny RMS would mean the test compares the wrong things.
+    assert 0.02 < rms < 0.3
+    # The arm hides ~2 % of the azimuths; everything else is found.
+    assert 0.95 < det.coverage < 0.99
+
+
+def test_hard_frames_colour_16_bit_glints_partial() -> None:
+    optics = Optics(bit_depth=16, colour=True, glints=4, partial_ring_deg=60.0,
+                    full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)
+    r = renderer("half", optics)
+    laser = r.render_laser(POSE, np.random.default_rng(2))
+    assert laser.dtype == np.uint16 and laser.ndim == 3
+    det = detect_ring(laser, r.camera)
+    # 60° of partial ring + 7° of arm are missing: coverage about 81 %.
+    assert 0.75 < det.coverage < 0.86
+    d = distance_to_true_ring(r.camera, POSE, det.best())
+    # Most strongest candidates are on the ring; glints give a few outliers that
+    # the pose fit removes (see test_pose_fit).
+    assert np.mean(d < 1.0) > 0.95
+
+
+def test_empty_and_nan_frames_give_no_ring() -> None:
+    cam = default_camera("half")
+    dark = np.zeros((cam.height, cam.width), np.uint8)
+    assert detect_ring(dark, cam).coverage == 0.0
+    nans = np.full((cam.height, cam.width), np.nan, np.float32)
+    assert detect_ring(nans, cam).coverage == 0.0
+
+
+def test_bad_input_is_rejected_clearly() -> None:
+    cam = default_camera("half")
+    with pytest.raises(ValueError, match="expected 1224x1024"):
+        detect_ring(np.zeros((10, 10), np.uint8), cam)
+    with pytest.raises(ValueError, match="2-D or 3-D"):
+        prepare_laser_frame(np.zeros((2, 2, 2, 2), np.uint8))
+
+
+def test_colour_frame_uses_the_laser_channel() -> None:
+    img = np.zeros((50, 60, 3), np.uint16)
+    img[..., 2] = 1000  # red background
+    img[20:22, :, 2] = 60000  # red laser line
+    img[..., 1] = 30000  # bright but flat green
+    grey = prepare_laser_frame(img)
+    assert grey[21, 5] == pytest.approx(60000 / 65535)
+    assert grey[5, 5] == pytest.approx(1000 / 65535)

@@ -14,6 +14,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 @pytest.mark.parametrize("script,expect", [
     ("sensitivity.py", "Delta PX"),
     ("render.py", "pairs/s"),
+    ("table1.py", "speed: ours"),
 ])
 def test_benchmark_smoke(script: str, expect: str) -> None:
     proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,

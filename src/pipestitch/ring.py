@@ -106,7 +106,8 @@ def _polar_grid(camera: CameraModel, n_azimuths: int,
     return map_x, map_y, radii, centre
 
 
-def detect_ring(img: np.ndarray, camera: CameraModel, *, n_azimuths: int = 1440,
+def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray | None = None,
+                n_azimuths: int = 1440,
                 line_sigma_px: float | None = None, min_snr: float = 8.0,
                 max_candidates: int = 3, min_relative: float = 0.2) -> RingDetection:
     """Find laser-ring candidates in a laser frame.
@@ -117,6 +118,11 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, n_azimuths: int = 1440,
         Laser frame (8/16-bit or float, grey or colour) of the camera's size.
     camera : CameraModel
         Camera model (gives the image of the optical axis and the lens edge).
+    reflectance : numpy.ndarray, optional
+        The pair's LED frame. The laser line's brightness follows the wall's
+        reflectance, and a reflectance gradient across the line shifts its centre
+        (by gradient × width²: tenths of a pixel on a textured wall). Dividing by the
+        LED frame, which sees the same wall, removes that bias.
     n_azimuths : int
         Number of polar rays.
     line_sigma_px : float, optional
@@ -141,6 +147,8 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, n_azimuths: int = 1440,
     step = 0.5
     map_x, map_y, radii, _ = _polar_grid(camera, n_azimuths, step)
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    if reflectance is not None:
+        polar = _flatten_reflectance(polar, reflectance, map_x, map_y, camera)
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
     narrow = gaussian_filter1d(polar, sigma / step, axis=1)
     wide = gaussian_filter1d(polar, 4 * sigma / step, axis=1)
@@ -169,6 +177,27 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, n_azimuths: int = 1440,
     pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
     return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
                          snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
+
+
+def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, map_x: np.ndarray,
+                         map_y: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
+
+    The LED image is normalised by its own broad average (LED fall-off, vignetting)
+    so that only the local reflectance remains; where the wall is too dark to
+    measure (holes, black paint) the laser carries no usable signal and is zeroed.
+    """
+    led = prepare_laser_frame(reflectance)
+    if led.shape != (camera.height, camera.width):
+        raise ValueError(f"reflectance: expected {camera.width}x{camera.height}, "
+                         f"got {led.shape[1]}x{led.shape[0]}")
+    led = cv2.GaussianBlur(led, (0, 0), 0.5)
+    local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    broad = gaussian_filter1d(local, 40.0, axis=1, mode="nearest")
+    floor = 0.15 * broad
+    valid = (local > floor) & (broad > 0)
+    relative = np.where(valid, local / np.where(broad > 0, broad, 1.0), 1.0)
+    return np.where(valid, polar / np.maximum(relative, 0.15), 0.0).astype(np.float32)
 
 
 def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,

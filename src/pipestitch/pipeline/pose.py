@@ -50,7 +50,13 @@ def _one_frame(dataset: Dataset, index: int) -> FramePose:
     except DatasetError as exc:
         return FramePose(index, PoseFit(False, exc.problem), f"{exc.path.name}: {exc.problem}")
     camera = cfg.camera_model()
-    detection = detect_ring(img, camera)
+    led = None
+    if dataset.has_led:
+        try:
+            led = dataset.read_led(index)
+        except DatasetError:
+            led = None  # the laser frame alone still gives a pose, a little less exact
+    detection = detect_ring(img, camera, reflectance=led)
     fit = fit_pose(detection, camera, cfg.laser.plane_distance_mm,
                    nominal_radius_mm=cfg.pipe.inner_diameter_mm / 2)
     return FramePose(index, fit, "" if fit.ok else fit.reason)

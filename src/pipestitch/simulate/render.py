@@ -230,7 +230,9 @@ class Renderer:
                       rng: np.random.Generator) -> np.ndarray:
         o = self.optics
         sheet = np.exp(-0.5 * (tr["plane_mm"] / o.laser_sigma_mm) ** 2)
-        sheet *= np.where(tr["hit"], 0.2 + 0.8 * np.clip(albedo / 0.6, 0, 1), 0.0)
+        # Diffuse wall: the laser returns in proportion to the same reflectance the LEDs
+        # see (laser_peak is the brightness on a wall of albedo 0.6).
+        sheet *= np.where(tr["hit"], albedo / 0.6, 0.0)
         speckle = 1 + o.speckle * rng.standard_normal(sheet.shape, np.float32)
         signal = o.laser_peak * sheet * np.clip(speckle, 0, None) + o.laser_background
         if o.partial_ring_deg > 0:

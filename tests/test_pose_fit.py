@@ -53,15 +53,16 @@ def _render(pose: Pose, size: str = "half", optics: Optics | None = None,
     albedo = np.kron(base, np.ones((100, 60), np.float32))
     r = Renderer(default_camera(size), PipeSection.circle(diameter),
                  WallTexture(albedo, 0.1, 0.1, -50.0), D, optics)
-    return r.camera, r.render_laser(pose, np.random.default_rng(3))
+    laser, led = r.render_pair(pose, np.random.default_rng(3))
+    return r.camera, laser, led
 
 
 @pytest.mark.parametrize("pose", [Pose.from_degrees(4.0, -3.0, 5.0, -2.0),
                                   Pose.from_degrees(-12.0, 7.0, -9.0, 6.0),
                                   Pose.from_degrees(2.0, 2.0, 0.0, 0.0)])
 def test_render_extract_solve_round_trip(pose: Pose) -> None:
-    cam, laser = _render(pose)
-    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    cam, laser, led = _render(pose)
+    fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
     assert fit.ok and len(fit.hypotheses) == 2
     err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
               key=lambda e: e.max())
@@ -80,8 +81,8 @@ def test_partial_ring_colour_glints_still_solve() -> None:
     pose = Pose.from_degrees(5.0, 3.0, -4.0, 2.0)
     optics = Optics(bit_depth=16, colour=True, glints=4, partial_ring_deg=60.0,
                     full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)
-    cam, laser = _render(pose, optics=optics)
-    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    cam, laser, led = _render(pose, optics=optics)
+    fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
     assert fit.ok and 0.7 < fit.coverage < 0.86
     err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
               key=lambda e: e.max())
@@ -90,7 +91,7 @@ def test_partial_ring_colour_glints_still_solve() -> None:
 
 def test_fixed_radius_and_no_ring() -> None:
     pose = Pose.from_degrees(4.0, -3.0, 5.0, -2.0)
-    cam, laser = _render(pose)
+    cam, laser, _ = _render(pose)
     fit = fit_pose(detect_ring(laser, cam), cam, D, fit_radius=False, nominal_radius_mm=32.5)
     assert fit.ok and all(h.radius_mm == 32.5 for h in fit.hypotheses)
     empty = RingDetection(np.zeros((0, 2)), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
@@ -104,8 +105,8 @@ def test_fixed_radius_and_no_ring() -> None:
 def test_noise_free_accuracy_full_size() -> None:
     pose = Pose.from_degrees(-8.0, 6.0, 3.0, -7.0)
     optics = Optics(full_well_e=1e12, read_noise=0.0, speckle=0.0)
-    cam, laser = _render(pose, size="full", optics=optics)
-    fit = fit_pose(detect_ring(laser, cam), cam, D)
+    cam, laser, led = _render(pose, size="full", optics=optics)
+    fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
     err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
               key=lambda e: e.max())
     # Issue target without noise: mean |error| <= 0.02° / 0.01 mm.

@@ -34,6 +34,7 @@ from scipy.optimize import differential_evolution
 
 from pipestitch.ambiguity import envelope_costs, resolve_run
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
+from pipestitch.pipeline.pose import PoseSettings, fit_frame, resolve_frames
 from pipestitch.pose_fit import fit_pose, pose_from_conic
 from pipestitch.ring import detect_ring
 from pipestitch.simulate.render import Optics
@@ -188,20 +189,19 @@ def report(diameter: int, r: dict) -> None:
 
 
 def trajectories(names: list[str], n: int, size: str) -> None:
-    """Simulated runs: the whole pose stage (LED-normalised rings, envelope, continuity)."""
+    """Simulated runs through the pose stage: LED-normalised rings, envelope, photometric
+    consistency and continuity."""
     print("\ntrajectories (wandering probe, mirror resolved over the run):")
     print(f"  {'scenario':12} {'frames':>6} {'success':>8} {'mirror':>8} {'ambiguous':>9} "
           f"{'silent wrong':>12}   mean |err| up to the mirror (a, b deg; dx, dy mm)")
     for name in names:
         run = build_run(SCENARIOS[name], seed=2, size=size, n_pairs=n)
-        body = BodyEnvelope()
-        fits = []
-        for i in range(len(run.poses)):
-            laser, led = run.render(i)
-            det = detect_ring(laser, run.camera, reflectance=led)
-            fits.append(fit_pose(det, run.camera, D))
-        unary = np.array([envelope_costs(f, body) if f.ok else np.zeros(2) for f in fits])
-        choices = resolve_run(fits, unary)
+        settings = PoseSettings(run.camera, D, SCENARIOS[name].pipe_diameter_mm / 2,
+                                BodyEnvelope())
+        frames, choices = resolve_frames(
+            (fit_frame(i, *run.render(i), settings) for i in range(len(run.poses))),
+            settings.body)
+        fits = [f.fit for f in frames]
         ok = mirror_ok = amb = silent = 0
         errs = []
         for fit, c, pose in zip(fits, choices, run.poses, strict=True):

@@ -22,7 +22,7 @@ the same pose within the uncertainty.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import pairwise
+from itertools import pairwise as pairwise_indices
 
 import numpy as np
 
@@ -78,6 +78,24 @@ def envelope_costs(fit: PoseFit, body: BodyEnvelope, *, sigma_mm: float = 0.5) -
     return costs
 
 
+def _photo_evidence(photo: dict[int, np.ndarray], idx: list[int], k: int) -> float:
+    """How strongly the photometric costs next to frame idx[k] prefer one of its states."""
+    ev = 0.0
+    if idx[k] in photo:  # frame k is the first of the pair
+        p = photo[idx[k]]
+        ev = max(ev, abs(p[0].min() - p[1].min()))
+    if k > 0 and idx[k - 1] in photo:  # frame k is the second of the pair
+        p = photo[idx[k - 1]]
+        ev = max(ev, abs(p[:, 0].min() - p[:, 1].min()))
+    return ev
+
+
+def _reason(u: np.ndarray, photo_evidence: float, min_margin: float, unary_name: str) -> str:
+    if abs(u[0] - u[1]) >= min_margin:
+        return unary_name
+    return "photometric" if photo_evidence >= min_margin else "continuity"
+
+
 def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
                 offset_mm: float) -> np.ndarray:
     cost = np.zeros((2, 2))
@@ -90,7 +108,8 @@ def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
     return cost
 
 
-def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | None = None,
+def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
+                pairwise: dict[int, np.ndarray] | None = None, reasons: list[str] | None = None,
                 step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
                 min_margin: float = 5.0, coincide_deg: float = 0.05,
                 coincide_mm: float = 0.05, infeasible_cost: float = 50.0) -> list[Choice]:
@@ -102,7 +121,10 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
         One per frame in run order; frames with ``ok`` False are skipped (the chain
         connects their neighbours with a proportionally looser transition).
     unary : numpy.ndarray, shape (N, 2)
-        Per-frame cost of each hypothesis (envelope + photometric ...).
+        Per-frame cost of each hypothesis (envelope ...).
+    pairwise : dict of int -> numpy.ndarray (2, 2), optional
+        Photometric costs between frame k and the next frame with a fit, keyed by k
+        (:func:`pipestitch.photometric.pair_costs`).
     reasons : list of str, optional
         Per-frame name of the evidence in ``unary`` (default "envelope").
     step_angle_deg, step_offset_mm : float
@@ -132,7 +154,9 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
     # such a frame carries no evidence for the chain and is flagged.
     impossible = np.min(u, axis=1) >= infeasible_cost
     u[impossible] = 0.0
-    trans = [_transition(fits[a], fits[b], b - a, ang, off) for a, b in pairwise(idx)]
+    photo = pairwise or {}
+    trans = [_transition(fits[a], fits[b], b - a, ang, off) + photo.get(a, np.zeros((2, 2)))
+             for a, b in pairwise_indices(idx)]
     fwd = np.zeros((len(idx), 2))
     fwd[0] = u[0]
     for k, t in enumerate(trans, start=1):
@@ -155,7 +179,7 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *, reasons: list[str] | 
         elif margin < min_margin:
             choices[i] = Choice(chosen, True, "undecided", margin)
         else:
-            local = abs(u[k, 0] - u[k, 1]) >= min_margin
-            own = (reasons[i] if reasons else "envelope") if local else "continuity"
-            choices[i] = Choice(chosen, False, own, margin)
+            choices[i] = Choice(chosen, False, _reason(u[k], _photo_evidence(photo, idx, k),
+                                                       min_margin, reasons[i] if reasons
+                                                       else "envelope"), margin)
     return choices

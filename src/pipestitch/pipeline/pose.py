@@ -1,5 +1,9 @@
 """The ``pose`` stage: every laser frame -> ring -> both hypotheses -> run-level choice.
 
+Evidence on the mirror ambiguity: the probe envelope per frame and, where the LED
+frames are present and the tilt is large enough to be measured well, photometric
+consistency of consecutive LED frames; temporal continuity carries it along the run.
+
 Frames are processed in order on a small thread pool (OpenCV and most numpy work
 release the GIL). A frame that cannot be read or has no usable ring is reported and
 kept as a row with its error, never dropped. Output: ``poses.csv`` per SPEC, with
@@ -9,23 +13,27 @@ extra columns after SPEC's (error, how the hypothesis was chosen, uncertainties)
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from pipestitch.ambiguity import Choice, envelope_costs, resolve_run
+from pipestitch.camera import CameraModel
+from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.progress import console, track
 from pipestitch.pose_fit import PoseFit, fit_pose
-from pipestitch.ring import detect_ring
+from pipestitch.ring import detect_ring, prepare_laser_frame
 
-__all__ = ["POSE_COLUMNS", "FramePose", "estimate_poses", "run_pose", "write_poses_csv"]
+__all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
+           "resolve_frames", "run_pose", "write_poses_csv"]
 
 POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg",
                 "radius_mm", "ovality", "rms_px", "ambiguous", "alt_alpha_deg", "alt_beta_deg",
@@ -36,50 +44,111 @@ EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model"
 
 @dataclass(frozen=True)
 class FramePose:
-    """Pose result of one frame: a fit, or the error that prevented it."""
+    """Pose result of one frame: a fit, or the error that prevented it.
+
+    ``strips`` (the LED frame unwrapped with both hypotheses) lives only until the
+    next frame has been compared with it.
+    """
 
     index: int
     fit: PoseFit
     error: str = ""
+    strips: StripPair | None = None
 
 
-def _one_frame(dataset: Dataset, index: int) -> FramePose:
-    cfg = dataset.config
+# Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
+# README) makes even the true hypothesis disagree photometrically with its
+# neighbour, so the comparison would be evidence about noise, not about the mirror.
+PHOTOMETRIC_MIN_TILT_DEG = 1.5
+
+
+def _photometric_strips(led: np.ndarray, fit: PoseFit, camera: CameraModel) -> StripPair | None:
+    h = fit.hypotheses[0]
+    tilt_deg = np.rad2deg(h.pose.tilt)
+    sigma_deg = np.rad2deg(np.hypot(h.std.get("alpha", 0.0), h.std.get("beta", 0.0)))
+    if tilt_deg < max(PHOTOMETRIC_MIN_TILT_DEG, 5 * sigma_deg):
+        return None
+    return contrast_strips(prepare_laser_frame(led), camera, fit)
+
+
+@dataclass(frozen=True)
+class PoseSettings:
+    """What the per-frame fit needs from probe.toml."""
+
+    camera: CameraModel
+    plane_distance_mm: float
+    nominal_radius_mm: float
+    body: BodyEnvelope
+
+    @classmethod
+    def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
+        """Settings of a dataset's probe.toml."""
+        return cls(cfg.camera_model(), cfg.laser.plane_distance_mm,
+                   cfg.pipe.inner_diameter_mm / 2,
+                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm))
+
+
+def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
+              settings: PoseSettings) -> FramePose:
+    """Ring, both hypotheses and (when possible) photometric strips of one frame pair."""
+    detection = detect_ring(laser, settings.camera, reflectance=led)
+    fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
+                   nominal_radius_mm=settings.nominal_radius_mm)
+    strips = (_photometric_strips(led, fit, settings.camera)
+              if fit.ok and led is not None else None)
+    return FramePose(index, fit, "" if fit.ok else fit.reason, strips)
+
+
+def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings) -> FramePose:
     try:
-        img = dataset.read_laser(index)
+        laser = dataset.read_laser(index)
     except DatasetError as exc:
         return FramePose(index, PoseFit(False, exc.problem), f"{exc.path.name}: {exc.problem}")
-    camera = cfg.camera_model()
     led = None
     if dataset.has_led:
         try:
             led = dataset.read_led(index)
         except DatasetError:
             led = None  # the laser frame alone still gives a pose, a little less exact
-    detection = detect_ring(img, camera, reflectance=led)
-    fit = fit_pose(detection, camera, cfg.laser.plane_distance_mm,
-                   nominal_radius_mm=cfg.pipe.inner_diameter_mm / 2)
-    return FramePose(index, fit, "" if fit.ok else fit.reason)
+    return fit_frame(index, laser, led, settings)
 
 
-def _ordered(dataset: Dataset, workers: int) -> Iterator[FramePose]:
+def _ordered(dataset: Dataset, settings: PoseSettings, workers: int) -> Iterator[FramePose]:
     if workers <= 1:
         for i in range(dataset.n_pairs):
-            yield _one_frame(dataset, i)
+            yield _load_and_fit(dataset, i, settings)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(lambda i: _one_frame(dataset, i), range(dataset.n_pairs))
+        yield from pool.map(lambda i: _load_and_fit(dataset, i, settings),
+                            range(dataset.n_pairs))
+
+
+def resolve_frames(frames_in: Iterable[FramePose],
+                   body: BodyEnvelope) -> tuple[list[FramePose], list[Choice]]:
+    """Compare consecutive frames photometrically as they come, then choose over the run.
+
+    Only one frame's strips are held at a time, so memory does not grow with the run.
+    """
+    frames: list[FramePose] = []
+    pairwise: dict[int, np.ndarray] = {}
+    previous: FramePose | None = None
+    for frame in frames_in:
+        if frame.fit.ok:
+            if previous is not None and previous.strips and frame.strips:
+                pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
+            previous = frame
+        frames.append(replace(frame, strips=None))
+    unary = np.array([envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2) for f in frames])
+    return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
 
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True,
                    workers: int = 2) -> tuple[list[FramePose], list[Choice]]:
     """Fit every frame and choose between the mirror hypotheses over the run."""
-    frames = list(track(_ordered(dataset, workers), "pose", total=dataset.n_pairs,
-                        enabled=show_progress))
-    body = BodyEnvelope(dataset.config.probe.length_mm, dataset.config.probe.diameter_mm)
-    unary = np.array([envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2) for f in frames])
-    choices = resolve_run([f.fit for f in frames], unary)
-    return frames, choices
+    settings = PoseSettings.from_config(dataset.config)
+    frames = track(_ordered(dataset, settings, workers), "pose", total=dataset.n_pairs,
+                   enabled=show_progress)
+    return resolve_frames(frames, settings.body)
 
 
 def _fmt(value: float, digits: int = 6) -> str:

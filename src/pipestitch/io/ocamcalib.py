@@ -12,6 +12,7 @@ from pathlib import Path
 from pipestitch.camera import OcamModel
 from pipestitch.errors import ConfigError
 from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.text import read_config_text
 
 __all__ = ["parse_calib_results", "read_calib_results", "write_calib_results"]
 
@@ -61,12 +62,7 @@ def parse_calib_results(text: str, path: str | Path = "calib_results.txt") -> Oc
 def read_calib_results(path: str | Path) -> OcamModel:
     """Read an OCamCalib ``calib_results.txt``."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError as exc:
-        raise ConfigError(path, "file not found") from exc
-    except (UnicodeDecodeError, OSError) as exc:
-        raise ConfigError(path, f"cannot read as text: {exc}") from exc
+    text = read_config_text(path)
     return parse_calib_results(text, path)
 
 

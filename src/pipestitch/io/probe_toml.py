@@ -16,6 +16,7 @@ from pipestitch.camera import CameraModel
 from pipestitch.config import CameraConfig, ProbeConfig
 from pipestitch.errors import ConfigError
 from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.text import read_config_text
 
 __all__ = ["format_probe_toml", "parse_probe_toml", "probe_config_for", "read_probe_toml",
            "write_probe_toml"]
@@ -56,12 +57,7 @@ def parse_probe_toml(text: str, path: str | Path = "probe.toml") -> ProbeConfig:
 def read_probe_toml(path: str | Path) -> ProbeConfig:
     """Read and validate a probe.toml file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(path, "file not found") from exc
-    except (UnicodeDecodeError, OSError) as exc:
-        raise ConfigError(path, f"cannot read as text: {exc}") from exc
+    text = read_config_text(path)
     return parse_probe_toml(text, path)
 
 

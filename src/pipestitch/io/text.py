@@ -1,0 +1,20 @@
+"""Reading small text files (configuration, calibration) with errors that name the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipestitch.errors import ConfigError
+
+__all__ = ["read_config_text"]
+
+
+def read_config_text(path: str | Path) -> str:
+    """UTF-8 text of ``path``; :class:`ConfigError` if missing or unreadable."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8", errors="strict")
+    except FileNotFoundError as exc:
+        raise ConfigError(path, "file not found") from exc
+    except (UnicodeDecodeError, OSError) as exc:
+        raise ConfigError(path, f"cannot read as text: {exc}") from exc

@@ -289,23 +289,21 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     conic, inliers = _initial_inliers(pts, detection.rank[valid], threshold, seed)
     if conic is None or inliers.sum() < 12:
         return PoseFit(False, "no ellipse found among ring candidates", coverage=detection.coverage)
+    keep = inliers
+    for _ in range(4):
+        # Re-select inliers among all candidates, one per ray, until the set is
+        # stable (the start may have missed a stretch of the ring). The conic's
+        # Sampson distance is accurate to microns near the curve, so this needs no
+        # nonlinear fit.
+        new_keep = _one_per_azimuth(conic.residuals(pts), azimuth, max(0.25, 5 * noise_mm))
+        if np.array_equal(new_keep, keep) or new_keep.sum() < 12 or not conic.estimate(
+                pts[new_keep]):
+            break
+        keep = new_keep
     starts = pose_from_conic(*conic.normalised(), plane_distance_mm)
     if not starts:
         return PoseFit(False, "ring is not the section of a cylinder", coverage=detection.coverage)
     radius0 = [r0 if fit_radius else float(nominal_radius_mm) for _, r0 in starts]
-    x, _, _ = _refine(starts[0][0], radius0[0], pts[inliers], plane_distance_mm, fit_radius,
-                      noise_mm)
-    keep = inliers
-    for _ in range(4):
-        # Re-select inliers among all candidates with the refined model, one per ray,
-        # until the set is stable (the start may have missed a stretch of the ring).
-        resid = np.abs(_residuals(x, pts, plane_distance_mm))
-        new_keep = _one_per_azimuth(resid, azimuth, max(0.25, 5 * noise_mm))
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-        x, _, _ = _refine(Pose(*x[:4]), x[4], pts[keep], plane_distance_mm, fit_radius,
-                          noise_mm)
     coverage = np.unique(azimuth[keep]).size / detection.n_azimuths
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",

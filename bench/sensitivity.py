@@ -74,12 +74,11 @@ def max_displacement(cam, name: str, diameter: float, samples: int,
     body = BodyEnvelope()
     ref = ring_px(cam, Pose(), section)
     b = bounds_for(name, diameter / 2)
-    best, best_x = 0.0, np.zeros(4)
+    found = []
     for x in rng.uniform(b[:, 0], b[:, 1], size=(samples, 4)):
         if feasible(name, Pose(*x), section, body):
-            val = displacement(cam, x, section, ref)
-            if val > best:
-                best, best_x = val, x
+            found.append((displacement(cam, x, section, ref), x))
+    found.sort(key=lambda t: -t[0])
 
     def cost(x: np.ndarray) -> float:
         pose = Pose(*x)
@@ -87,15 +86,17 @@ def max_displacement(cam, name: str, diameter: float, samples: int,
             return 0.0
         return -displacement(cam, x, section, ref)
 
-    res = minimize(cost, best_x, method="Powell", bounds=b, options={"xtol": 1e-4, "ftol": 1e-4})
-    if -res.fun > best:
-        best, best_x = -res.fun, res.x
+    best, best_x = (found[0] if found else (0.0, np.zeros(4)))
+    for _, x0 in found[:5]:  # multi-start: the feasible set is thin and not convex
+        res = minimize(cost, x0, method="Powell", bounds=b, options={"xtol": 1e-4, "ftol": 1e-4})
+        if -res.fun > best:
+            best, best_x = -res.fun, res.x
     return best, best_x
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=3000, help="random poses per search")
+    parser.add_argument("--samples", type=int, default=6000, help="random poses per search")
     parser.add_argument("--quick", action="store_true", help="smoke run (CI)")
     args = parser.parse_args()
     samples = 200 if args.quick else args.samples

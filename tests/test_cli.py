@@ -122,3 +122,18 @@ def test_pose_writes_spec_columns_and_keeps_bad_frames(small_dataset: Path,
 def test_pose_on_missing_dataset_exit_2(tmp_path: Path) -> None:
     result = runner.invoke(app, ["pose", str(tmp_path / "none"), "--out", str(tmp_path / "o")])
     assert result.exit_code == 2 and "dataset folder not found" in result.output
+
+
+def test_unexpected_failure_exits_1_without_traceback(small_dataset: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    import pipestitch.cli as cli
+
+    def boom(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(cli, "run_pose", boom)
+    monkeypatch.delenv("PIPESTITCH_DEBUG", raising=False)
+    result = runner.invoke(app, ["pose", str(small_dataset), "--out", "/tmp/x", "--quiet"])
+    assert result.exit_code == 1
+    assert "processing failed" in result.output and "disk on fire" in result.output
+    assert "Traceback" not in result.output

@@ -7,6 +7,7 @@ problem), 1 processing failure. No traceback reaches the user for expected error
 from __future__ import annotations
 
 import functools
+import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -49,6 +50,16 @@ def _handle_errors(func: F) -> F:
         except KeyboardInterrupt:
             console.print("[bold red]interrupted[/]")
             raise typer.Exit(130) from None
+        except (typer.Exit, typer.Abort):
+            raise
+        except Exception as exc:
+            # A bug or an unexpected failure: exit 1 with one line; the traceback is
+            # there for developers with PIPESTITCH_DEBUG=1.
+            if os.environ.get("PIPESTITCH_DEBUG"):
+                raise
+            console.print(f"[bold red]processing failed:[/] {escape(repr(exc))} "
+                          "(set PIPESTITCH_DEBUG=1 for the traceback)", soft_wrap=True)
+            raise typer.Exit(1) from None
     return wrapper  # type: ignore[return-value]
 
 

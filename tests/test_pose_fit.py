@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipestitch.camera import default_camera
+from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
 from pipestitch.pose_fit import ConicModel, fit_pose, pose_from_conic
 from pipestitch.ring import RingDetection, detect_ring
@@ -111,3 +111,20 @@ def test_noise_free_accuracy_full_size() -> None:
               key=lambda e: e.max())
     # Issue target without noise: mean |error| <= 0.02° / 0.01 mm.
     assert err[:2].max() < 0.02 and err[2:].max() < 0.01
+
+
+def test_opencv_fisheye_camera_end_to_end() -> None:
+    # A 185° equidistant-like lens in OpenCV's model (theta_d = theta (1 + k1 theta^2 ...)).
+    cam = OpenCVFisheyeModel(310.0, 310.0, 611.5, 511.5, (-0.01, 0.002, 0.0, 0.0), 1224, 1024)
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    albedo = np.kron(base, np.ones((100, 60), np.float32))
+    r = Renderer(cam, PipeSection.circle(80.0), WallTexture(albedo, 0.1, 0.1, -50.0), D)
+    pose = Pose.from_degrees(-5.0, 4.0, 6.0, 3.0)
+    laser, led = r.render_pair(pose, np.random.default_rng(4))
+    fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
+    assert fit.ok
+    err = min((np.abs(as_vec(h.pose) - as_vec(pose)) for h in fit.hypotheses),
+              key=lambda e: e.max())
+    assert err[:2].max() < 0.15 and err[2:].max() < 0.05
+    assert fit.hypotheses[0].radius_mm == pytest.approx(40.0, abs=0.03)

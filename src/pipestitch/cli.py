@@ -151,8 +151,10 @@ def pose(
     """Estimate the probe pose of every frame from its laser ring; write OUT/poses.csv.
 
     Both mirror hypotheses are kept (alt_* columns); the chosen one is decided by the
-    probe envelope and carried by temporal continuity; undecided frames are flagged
-    ambiguous. Frames without a usable ring are reported and kept with an error.
+    probe envelope and the photometric consistency of consecutive LED frames, and
+    carried along the run by temporal continuity; undecided frames are flagged
+    ambiguous (chosen_by says why). Frames without a usable ring are reported and kept
+    with an error.
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """

@@ -78,6 +78,9 @@ def test_ocam_optical_axis_and_ninety_degrees() -> None:
     roots = np.roots(cam.pol[::-1])
     rho90 = min(r.real for r in roots if abs(r.imag) < 1e-9 and r.real > 0)
     px = cam.project(np.array([[1.0, 0.0, 0.0]]))[0]  # +x probe = +column direction
+    assert px[0] > cam.center_col + 900 and abs(px[1] - cam.center_row) < 2
+    down = cam.project(np.array([[0.0, 1.0, 0.0]]))[0]  # +y probe = +row direction
+    assert down[1] > cam.center_row + 900 and abs(down[0] - cam.center_col) < 2
     u = px[1] - cam.center_row
     v = px[0] - cam.center_col
     # Undo the affine part to get rho (the affine matrix is [[c, d], [e, 1]]).

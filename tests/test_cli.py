@@ -27,7 +27,7 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_help_explains_every_command() -> None:
     result = runner.invoke(app, ["--help"])
     assert result.exit_code == 0
-    for command in ("simulate", "check", "demo"):
+    for command in ("simulate", "check", "pose", "demo"):
         assert command in result.output
         sub = runner.invoke(app, [command, "--help"])
         assert sub.exit_code == 0 and "Example: pipestitch" in sub.output
@@ -137,3 +137,54 @@ def test_unexpected_failure_exits_1_without_traceback(small_dataset: Path,
     assert result.exit_code == 1
     assert "processing failed" in result.output and "disk on fire" in result.output
     assert "Traceback" not in result.output
+
+
+def test_pose_survives_odd_frames_and_quotes_messages(small_dataset: Path, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    import csv
+
+    import cv2
+    import numpy as np
+
+    import pipestitch.pipeline.pose as pose_stage
+
+    data = tmp_path / "odd"
+    shutil.copytree(small_dataset, data)
+    # Wrong size: the message "image is 10x10, probe.toml says ..." holds a comma.
+    cv2.imwrite(str(data / "frames" / "laser_00001.png"), np.zeros((10, 10), np.uint8))
+    (data / "frames" / "led_00000.png").unlink()  # pose from the laser frame alone
+    real = pose_stage.fit_frame
+    calls = []
+
+    def flaky(index, laser, led, settings):
+        calls.append(index)
+        return real(index, laser, led, settings)
+
+    monkeypatch.setattr(pose_stage, "fit_frame", flaky)
+    result = runner.invoke(app, ["pose", str(data), "--out", str(tmp_path / "o"), "--quiet",
+                                 "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    with (tmp_path / "o" / "poses.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert rows[1]["error"].startswith("laser_00001.png: image is 10x10, probe.toml says")
+    assert rows[1]["ambiguous"] == "0" and rows[1]["alpha_deg"] == "nan"
+    assert "led_00000.png: LED frame missing" in rows[0]["warning"]
+    assert rows[0]["alpha_deg"] != "nan"
+    assert calls == [0]
+
+
+def test_pose_exit_1_when_no_frame_has_a_ring(small_dataset: Path, tmp_path: Path) -> None:
+    import cv2
+    import numpy as np
+
+    data = tmp_path / "dark"
+    shutil.copytree(small_dataset, data)
+    for p in (data / "frames").glob("laser_*.png"):
+        cv2.imwrite(str(p), np.zeros((1024, 1224), np.uint8))
+    result = runner.invoke(app, ["pose", str(data), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code == 1 and "no frame gave a pose" in result.output
+
+
+def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:
+    result = runner.invoke(app, ["simulate", "--out", str(small_dataset), "--quiet"])
+    assert result.exit_code == 2 and "already holds frames" in result.output

@@ -126,5 +126,13 @@ def test_theta_z_round_trip() -> None:
     th, zz = theta_z_from_points(section.points(theta, z))
     np.testing.assert_allclose(th, theta, atol=1e-12)
     np.testing.assert_allclose(zz, z)
-    n = section.normals(section.points(np.array([0.0]), np.array([0.0])))
-    np.testing.assert_allclose(n[0], [-1, 0, 0], atol=0.1)  # inward, roughly radial
+    pts = section.points(theta, z)
+    n = section.normals(pts)
+    # Independent: the inward normal of (u/a)² + (v/b)² = 1 in the ellipse's own axes.
+    c, s = np.cos(0.4), np.sin(0.4)
+    u, v = c * pts[:, 0] + s * pts[:, 1], -s * pts[:, 0] + c * pts[:, 1]
+    gu, gv = -u / section.a_mm**2, -v / section.b_mm**2
+    expected = np.stack([c * gu - s * gv, s * gu + c * gv], axis=1)
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    np.testing.assert_allclose(n[:, :2], expected, atol=1e-12)
+    np.testing.assert_allclose(n[:, 2], 0.0)

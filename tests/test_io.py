@@ -11,7 +11,7 @@ import pytest
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.errors import ConfigError, DatasetError
 from pipestitch.io.dataset import check_dataset, open_dataset, read_csv_columns
-from pipestitch.io.images import read_image, to_grey_float, write_image
+from pipestitch.io.images import read_image, write_image
 from pipestitch.io.ocamcalib import format_calib_results, parse_calib_results, read_calib_results
 from pipestitch.io.probe_toml import (
     format_probe_toml,
@@ -106,9 +106,7 @@ def test_images_8_16_bit_colour(tmp_path: Path) -> None:
     write_image(tmp_path / "b.png", colour8)
     a, b = read_image(tmp_path / "a.png"), read_image(tmp_path / "b.png")
     assert a.dtype == np.uint16 and np.array_equal(a, grey16)
-    assert to_grey_float(a).max() == pytest.approx(199 * 300 / 65535)
-    expected = (0.114 * 10 + 0.587 * 200 + 0.299 * 60) / 255  # BGR -> grey weights
-    assert to_grey_float(b)[0, 0] == pytest.approx(expected, abs=1 / 255)
+    assert b.dtype == np.uint8 and b.shape == (10, 20, 3) and np.array_equal(b, colour8)
 
 
 def test_corrupt_and_missing_images(tmp_path: Path) -> None:
@@ -185,3 +183,28 @@ def test_csv_reader_errors(tmp_path: Path) -> None:
     path.write_text("frame,z_mm\n0,nan\n")
     with pytest.raises(DatasetError, match="not a finite number"):
         read_csv_columns(path, ("frame", "z_mm"))
+
+
+def test_zero_focal_length_is_a_config_error() -> None:
+    text = SPEC_EXAMPLE.replace('model = "ocam"', 'model = "opencv_fisheye"').replace(
+        "pol = [-634.0, 0.0, 0.00079]", "K = [[0.0, 0.0, 600.0], [0.0, 300.0, 500.0], "
+        "[0.0, 0.0, 1.0]]\nD = [0.0, 0.0, 0.0, 0.0]")
+    with pytest.raises(ConfigError, match="focal lengths"):
+        parse_probe_toml(text)
+
+
+def test_check_odometry_frames_beyond_the_laser_frames(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,0.0\n4,20.0\n")
+    problems = [str(p) for p in check_dataset(tmp_path)]
+    assert any("odometry.csv: frame numbers must be integers in 0..2" in p for p in problems)
+
+
+def test_missing_led_frame_is_per_pair(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "frames" / "led_00001.png").unlink()
+    ds = open_dataset(tmp_path)
+    assert ds.has_led and ds.led_missing() == [1]
+    with pytest.raises(DatasetError, match="led_00001.png: LED frame missing"):
+        ds.read_led(1)
+    assert ds.read_led(2).shape == (48, 64)

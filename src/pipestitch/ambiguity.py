@@ -90,9 +90,9 @@ def _photo_evidence(photo: dict[int, np.ndarray], idx: list[int], k: int) -> flo
     return ev
 
 
-def _reason(u: np.ndarray, photo_evidence: float, min_margin: float, unary_name: str) -> str:
+def _reason(u: np.ndarray, photo_evidence: float, min_margin: float) -> str:
     if abs(u[0] - u[1]) >= min_margin:
-        return unary_name
+        return "envelope"
     return "photometric" if photo_evidence >= min_margin else "continuity"
 
 
@@ -109,7 +109,7 @@ def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
 
 
 def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
-                pairwise: dict[int, np.ndarray] | None = None, reasons: list[str] | None = None,
+                pairwise: dict[int, np.ndarray] | None = None,
                 step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
                 min_margin: float = 5.0, coincide_deg: float = 0.05,
                 coincide_mm: float = 0.05, infeasible_cost: float = 50.0) -> list[Choice]:
@@ -125,8 +125,6 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
     pairwise : dict of int -> numpy.ndarray (2, 2), optional
         Photometric costs between frame k and the next frame with a fit, keyed by k
         (:func:`pipestitch.photometric.pair_costs`).
-    reasons : list of str, optional
-        Per-frame name of the evidence in ``unary`` (default "envelope").
     step_angle_deg, step_offset_mm : float
         Typical pose change between consecutive frames (transition scale).
     min_margin : float
@@ -180,6 +178,5 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
             choices[i] = Choice(chosen, True, "undecided", margin)
         else:
             choices[i] = Choice(chosen, False, _reason(u[k], _photo_evidence(photo, idx, k),
-                                                       min_margin, reasons[i] if reasons
-                                                       else "envelope"), margin)
+                                                       min_margin), margin)
     return choices

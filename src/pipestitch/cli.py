@@ -161,6 +161,9 @@ def pose(
     summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers))
     typer.echo(f"wrote {summary.path}: {summary.n_frames} frames, {summary.n_failed} failed, "
                f"{summary.n_ambiguous} ambiguous")
+    if summary.n_failed == summary.n_frames:
+        console.print("[bold red]error:[/] no frame gave a pose (see the errors above)")
+        raise typer.Exit(1)
 
 
 @app.command()

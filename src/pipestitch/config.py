@@ -53,6 +53,9 @@ class CameraConfig(_Strict):
             raise ValueError(f"camera model {self.model!r} needs {', '.join(missing)}")
         if self.K is not None and (len(self.K) != 3 or any(len(r) != 3 for r in self.K)):
             raise ValueError("K must be a 3 x 3 matrix")
+        if self.K is not None and not (self.K[0][0] > 0 and self.K[1][1] > 0):
+            raise ValueError(f"K: focal lengths fx, fy must be positive, got {self.K[0][0]}, "
+                             f"{self.K[1][1]}")
         return self
 
     def build(self) -> CameraModel:

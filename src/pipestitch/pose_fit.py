@@ -14,9 +14,10 @@ robust least squares (``scipy.optimize.least_squares``, soft-L1 loss, analytic
 Jacobian) of the radial distance of every plane point from the wall, in mm.
 
 Outliers (glints, reflections, second candidates on a ray) are removed by RANSAC
-on the ellipse (``skimage.measure.ransac``) followed by a residual test after the
-refinement. This module fits one frame; choosing between the hypotheses over a run
-is :mod:`pipestitch.ambiguity`.
+on the ellipse (``skimage.measure.ransac``) when the strongest candidates do not
+already agree, then by re-selecting one candidate per ray by its distance from the
+conic until the set is stable. This module fits one frame; choosing between the
+hypotheses over a run is :mod:`pipestitch.ambiguity`.
 """
 
 from __future__ import annotations
@@ -76,7 +77,6 @@ class PoseFit:
     n_points: int = 0
     coverage: float = 0.0
     model: str = "circle"
-    inliers: np.ndarray | None = None
 
 
 def plane_points(pixels: np.ndarray, camera: CameraModel,
@@ -120,13 +120,14 @@ class ConicModel:
 
     def estimate(self, data: np.ndarray) -> bool:
         """Fit the conic to (N >= 5, 2) points; False if it is not an ellipse."""
-        self.scale = float(np.sqrt(np.mean(np.sum(data**2, axis=1)))) or 1.0
-        x, y = data[:, 0] / self.scale, data[:, 1] / self.scale
+        scale = float(np.sqrt(np.mean(np.sum(data**2, axis=1)))) or 1.0
+        x, y = data[:, 0] / scale, data[:, 1] / scale
         design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
-        _, _, vt = np.linalg.svd(design, full_matrices=False)
-        self.coef = vt[-1]
-        a, b, c = self.coef[:3]
-        return bool(4 * a * c - b * b > 0)
+        coef = np.linalg.svd(design, full_matrices=False)[2][-1]
+        if not 4 * coef[0] * coef[2] - coef[1] ** 2 > 0:
+            return False  # not an ellipse: the model keeps its previous conic
+        self.coef, self.scale = coef, scale
+        return True
 
     def residuals(self, data: np.ndarray) -> np.ndarray:
         """Sampson distance of each point from the conic (data units)."""
@@ -206,7 +207,7 @@ def _jacobian(x: np.ndarray, pts: np.ndarray, d: float) -> np.ndarray:
 
 
 def _refine(pose: Pose, radius: float, pts: np.ndarray, d: float, fit_radius: bool,
-            f_scale: float) -> tuple[np.ndarray, float, np.ndarray]:
+            f_scale: float) -> tuple[np.ndarray, float]:
     x0 = np.array([pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm, radius])
     free = slice(None) if fit_radius else slice(0, 4)
 
@@ -224,10 +225,11 @@ def _refine(pose: Pose, radius: float, pts: np.ndarray, d: float, fit_radius: bo
                         x_scale=np.array([0.01, 0.01, 1.0, 1.0, 1.0])[free], method="trf")
     x = x0.copy()
     x[free] = res.x
-    return x, float(res.cost), res.jac
+    return x, float(res.cost)
 
 
 def _std(jac: np.ndarray, residuals: np.ndarray, fit_radius: bool) -> dict[str, float]:
+    """1-sigma of each parameter from the plain (unweighted) Jacobian and residuals."""
     dof = max(1, len(residuals) - jac.shape[1])
     sigma2 = float(residuals @ residuals) / dof
     try:
@@ -311,15 +313,15 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     # Both mirrors are fitted to the same inliers: in the plane they explain them equally.
     hyps = []
     for (pose0, _), r0 in zip(starts, radius0, strict=True):
-        x, cost, jac = _refine(pose0, r0, pts[keep], plane_distance_mm, fit_radius, noise_mm)
+        x, cost = _refine(pose0, r0, pts[keep], plane_distance_mm, fit_radius, noise_mm)
         r = _residuals(x, pts[keep], plane_distance_mm)
+        jac = _jacobian(x, pts[keep], plane_distance_mm)[:, :5 if fit_radius else 4]
         pose = Pose(*x[:4])
         hyps.append(Hypothesis(pose, float(x[4]), cost, float(np.sqrt(np.mean(r**2))),
                                _rms_px(pose, x[4], pixels[keep], pts[keep], camera,
                                        plane_distance_mm),
                                _std(jac, r, fit_radius)))
-    return PoseFit(True, "", tuple(hyps), int(keep.sum()), float(coverage), "circle",
-                   pixels[keep])
+    return PoseFit(True, "", tuple(hyps), int(keep.sum()), float(coverage), "circle")
 
 
 def _initial_inliers(pts: np.ndarray, rank: np.ndarray, threshold: float,

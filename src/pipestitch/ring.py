@@ -23,7 +23,7 @@ import numpy as np
 
 from pipestitch.camera import CameraModel
 
-__all__ = ["RingDetection", "detect_ring", "prepare_laser_frame"]
+__all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame"]
 
 
 @dataclass(frozen=True)
@@ -63,23 +63,34 @@ class RingDetection:
         return self.pixels[self.rank == 0]
 
 
-def prepare_laser_frame(img: np.ndarray) -> np.ndarray:
+def laser_channel(img: np.ndarray) -> int | None:
+    """Channel of a colour frame with the highest peak-over-median contrast (None if grey).
+
+    A red laser lives in one channel; a grey conversion would dilute it with the
+    other two.
+    """
+    arr = np.asarray(img)
+    if arr.ndim != 3:
+        return None
+    step = max(1, arr.shape[0] // 256)
+    sub = arr[::step, ::step, :3].reshape(-1, min(3, arr.shape[2])).astype(np.float32)
+    contrast = np.percentile(sub, 99.9, axis=0) - np.median(sub, axis=0)
+    return int(np.argmax(contrast))
+
+
+def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarray:
     """Grey float32 in [0, 1] that keeps the laser's contrast.
 
-    8- and 16-bit frames are scaled by their dtype's range. For colour frames the
-    channel with the highest peak-over-median contrast is used (a red laser lives
-    in one channel; a grey conversion would dilute it with the other two).
+    8- and 16-bit frames are scaled by their dtype's range. Colour frames give
+    ``channel``, by default the laser's (:func:`laser_channel`).
     """
     arr = np.asarray(img)
     if arr.dtype.kind not in "uif":
         raise ValueError(f"laser frame: expected a numeric image, got dtype {arr.dtype}")
     scale = 1.0 / np.iinfo(arr.dtype).max if arr.dtype.kind in "ui" else 1.0
     if arr.ndim == 3:
-        channels = arr[..., :3].astype(np.float32) * np.float32(scale)
-        step = max(1, channels.shape[0] // 256)
-        sub = channels[::step, ::step].reshape(-1, 3)
-        contrast = np.percentile(sub, 99.9, axis=0) - np.median(sub, axis=0)
-        arr = channels[..., int(np.argmax(contrast))]
+        index = laser_channel(arr) if channel is None else min(channel, arr.shape[2] - 1)
+        arr = arr[..., index].astype(np.float32) * np.float32(scale)
     elif arr.ndim != 2:
         raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
     else:
@@ -138,16 +149,17 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     RingDetection
         Possibly empty (no ring in the frame): check ``coverage``.
     """
-    grey = prepare_laser_frame(img)
+    channel = laser_channel(img)
+    grey = prepare_laser_frame(img, channel)
     if grey.shape != (camera.height, camera.width):
         raise ValueError(f"laser frame: expected {camera.width}x{camera.height}, "
                          f"got {grey.shape[1]}x{grey.shape[0]}")
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
     step = 0.5
-    map_x, map_y, radii, _ = _polar_grid(camera, n_azimuths, step)
+    map_x, map_y, radii, centre = _polar_grid(camera, n_azimuths, step)
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     if reflectance is not None:
-        polar = _flatten_reflectance(polar, reflectance, map_x, map_y, camera)
+        polar = _flatten_reflectance(polar, reflectance, channel, map_x, map_y, camera)
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
     narrow = _blur_along_rays(polar, sigma / step)
     wide = _blur_along_rays(polar, 4 * sigma / step)
@@ -176,7 +188,6 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     idx = order[az_idx, rank]
     radius = _centroid(polar, narrow, az_idx, idx, sigma / step) * step + radii[0]
     phi = az_idx * (2 * np.pi / n_azimuths)
-    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
     pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
     return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
                          snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
@@ -189,15 +200,16 @@ def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
                             borderType=cv2.BORDER_REPLICATE)
 
 
-def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, map_x: np.ndarray,
-                         map_y: np.ndarray, camera: CameraModel) -> np.ndarray:
+def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,
+                         map_x: np.ndarray, map_y: np.ndarray,
+                         camera: CameraModel) -> np.ndarray:
     """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
 
     The LED image is normalised by its own broad average (LED fall-off, vignetting)
     so that only the local reflectance remains; where the wall is too dark to
     measure (holes, black paint) the laser carries no usable signal and is zeroed.
     """
-    led = prepare_laser_frame(reflectance)
+    led = prepare_laser_frame(reflectance, channel)  # the wall as the laser's channel sees it
     if led.shape != (camera.height, camera.width):
         raise ValueError(f"reflectance: expected {camera.width}x{camera.height}, "
                          f"got {led.shape[1]}x{led.shape[0]}")

@@ -5,8 +5,9 @@ relative to the camera's axial position and with roll 0) the wall point is moved
 into the probe frame by the frame's pose, projected by the camera model and the
 frame is sampled there with ``cv2.remap``: one resampling, straight from wall to
 pixel, so the strip has a true millimetre scale whatever the probe's tilt and
-offset. Nodes the camera cannot see (outside the lens' valid range, behind the
-mirror assembly) are masked.
+offset. Nodes outside the lens' valid range or the image are masked (NaN); occluders
+inside the image (mirror assembly, laser-holder arm) are not known from probe.toml
+and are left to the caller (see :mod:`pipestitch.photometric`).
 
 This module is the geometric core; choosing windows from the field of view,
 quality weights and the mosaic belong to the mosaic stage.

@@ -10,9 +10,9 @@ has x along rows, y along columns and z backwards; the SPEC probe frame is
 
 ``project`` does not use ``invpol``: it inverts ``pol`` exactly (lookup table +
 Newton, see :func:`pipestitch.camera.base.invert_monotonic`), so that project and
-unproject agree to ~1e-9 px over the whole image circle, including rays more than
-90° off the axis. ``invpol`` is kept for export and for comparison with other
-tools (:meth:`OcamModel.project_invpol`).
+unproject agree to float64 rounding (~1e-12 px) over the whole image circle,
+including rays more than 90° off the axis. ``invpol`` is kept for export and for
+comparison with other tools (:meth:`OcamModel.project_invpol`).
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ class Dataset:
     root: Path
     config: ProbeConfig
     laser_paths: list[Path]
-    led_paths: list[Path] = field(default_factory=list)
+    led_paths: list[Path | None] = field(default_factory=list)
     odometry_mm: dict[int, float] | None = None
 
     @property
@@ -67,8 +67,14 @@ class Dataset:
 
     @property
     def has_led(self) -> bool:
-        """True when every laser frame has its LED frame."""
-        return len(self.led_paths) == len(self.laser_paths) and bool(self.led_paths)
+        """True when the dataset has LED frames (some pairs may still lack one)."""
+        return any(p is not None for p in self.led_paths)
+
+    def led_missing(self) -> list[int]:
+        """Pairs whose LED frame is missing in a dataset that has LED frames."""
+        if not self.has_led:
+            return []
+        return [i for i, p in enumerate(self.led_paths) if p is None]
 
     def read_laser(self, index: int) -> np.ndarray:
         """Laser frame ``index`` as stored (raises DatasetError naming the file)."""
@@ -76,9 +82,10 @@ class Dataset:
 
     def read_led(self, index: int) -> np.ndarray:
         """LED frame ``index`` as stored."""
-        if not self.has_led:
-            raise DatasetError(self.root / "frames", "this dataset has no LED frames")
-        return self._checked(self.led_paths[index])
+        path = self.led_paths[index] if index < len(self.led_paths) else None
+        if path is None:
+            raise DatasetError(self.root / "frames" / f"led_{index:05d}.png", "LED frame missing")
+        return self._checked(path)
 
     def _checked(self, path: Path) -> np.ndarray:
         img = read_image(path)
@@ -179,11 +186,11 @@ def open_dataset(root: str | Path) -> Dataset:
     if not found["laser"]:
         raise DatasetError(frames_dir, "no laser frames (expected frames/laser_00000.png, ...)")
     lasers = [found["laser"][i] for i in range(len(found["laser"]))]
-    leds = [found["led"][i] for i in range(len(lasers)) if i in found["led"]]
+    leds = [found["led"].get(i) for i in range(len(lasers))]
     odo_path = root / "odometry.csv"
     odometry = _read_odometry(odo_path, len(lasers)) if odo_path.is_file() else None
     return Dataset(root=root, config=config, laser_paths=lasers,
-                   led_paths=leds if len(leds) == len(lasers) else [], odometry_mm=odometry)
+                   led_paths=leds, odometry_mm=odometry)
 
 
 def _check_images(paths: list[Path], size: tuple[int, int],
@@ -281,9 +288,10 @@ def check_dataset(root: str | Path, *,
     except DatasetError as exc:
         problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_frames(root, config, progress))
-    n_pairs = count_frame_files(root)
     odo = root / "odometry.csv"
     if odo.is_file():
+        frames_dir = root / "frames"
+        n_pairs = len(_frame_files(frames_dir)[0]["laser"]) if frames_dir.is_dir() else 0
         try:
             _read_odometry(odo, max(n_pairs, 1))
         except DatasetError as exc:

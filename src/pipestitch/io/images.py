@@ -10,7 +10,7 @@ import numpy as np
 from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_bytes
 
-__all__ = ["read_image", "read_size", "to_grey_float", "write_image"]
+__all__ = ["read_image", "write_image"]
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -33,21 +33,6 @@ def read_image(path: str | Path) -> np.ndarray:
     if img.dtype not in (np.uint8, np.uint16):
         raise DatasetError(path, f"expected 8- or 16-bit pixels, got {img.dtype}")
     return img
-
-
-def read_size(path: str | Path) -> tuple[int, int]:
-    """(width, height) of an image file (decodes it, so corrupt files are caught)."""
-    img = read_image(path)
-    return img.shape[1], img.shape[0]
-
-
-def to_grey_float(img: np.ndarray) -> np.ndarray:
-    """Grey float32 in [0, 1] from an 8/16-bit grey, BGR or BGRA image."""
-    scale = 1.0 / np.iinfo(img.dtype).max if img.dtype.kind in "ui" else 1.0
-    if img.ndim == 3:
-        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        img = cv2.cvtColor(img, code)
-    return img.astype(np.float32) * np.float32(scale)
 
 
 def write_image(path: str | Path, img: np.ndarray) -> Path:

@@ -12,6 +12,8 @@ extra columns after SPEC's (error, how the hypothesis was chosen, uncertainties)
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -19,6 +21,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from rich.markup import escape
 
 from pipestitch.ambiguity import Choice, envelope_costs, resolve_run
 from pipestitch.camera import CameraModel
@@ -39,7 +42,8 @@ POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "rol
                 "radius_mm", "ovality", "rms_px", "ambiguous", "alt_alpha_deg", "alt_beta_deg",
                 "alt_dx_mm", "alt_dy_mm")
 EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model",
-                 "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm")
+                 "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm",
+                 "warning")
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,7 @@ class FramePose:
     fit: PoseFit
     error: str = ""
     strips: StripPair | None = None
+    warning: str = ""
 
 
 # Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
@@ -100,17 +105,23 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
 
 
 def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings) -> FramePose:
+    """One frame, never raising: a failure becomes that frame's error (SPEC)."""
     try:
         laser = dataset.read_laser(index)
     except DatasetError as exc:
         return FramePose(index, PoseFit(False, exc.problem), f"{exc.path.name}: {exc.problem}")
-    led = None
+    led, warning = None, ""
     if dataset.has_led:
         try:
             led = dataset.read_led(index)
-        except DatasetError:
-            led = None  # the laser frame alone still gives a pose, a little less exact
-    return fit_frame(index, laser, led, settings)
+        except DatasetError as exc:
+            # The laser frame alone still gives a pose, a little less exact.
+            warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
+    try:
+        return replace(fit_frame(index, laser, led, settings), warning=warning)
+    except Exception as exc:  # one bad frame never stops the run
+        return FramePose(index, PoseFit(False, repr(exc)),
+                         f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
 
 
 def _ordered(dataset: Dataset, settings: PoseSettings, workers: int) -> Iterator[FramePose]:
@@ -127,7 +138,8 @@ def resolve_frames(frames_in: Iterable[FramePose],
                    body: BodyEnvelope) -> tuple[list[FramePose], list[Choice]]:
     """Compare consecutive frames photometrically as they come, then choose over the run.
 
-    Only one frame's strips are held at a time, so memory does not grow with the run.
+    Strips are dropped as soon as the next frame has been compared with them, so
+    memory does not grow with the run (beyond the frames the worker pool has read ahead).
     """
     frames: list[FramePose] = []
     pairwise: dict[int, np.ndarray] = {}
@@ -157,23 +169,25 @@ def _fmt(value: float, digits: int = 6) -> str:
 
 def _row(frame: FramePose, choice: Choice, z_mm: float | None) -> list[str]:
     fit = frame.fit
+    z = _fmt(z_mm if z_mm is not None else math.nan)
     if not fit.ok or choice.chosen is None:
-        nan = ["nan"] * 9
-        return [str(frame.index), *nan, "1", *["nan"] * 4, frame.error or fit.reason,
-                "none", "nan", str(fit.n_points), _fmt(fit.coverage, 3), fit.model,
-                *["nan"] * 5]
+        # No pose: every pose value is nan, "ambiguous" does not apply (0), the error says why.
+        return [str(frame.index), *["nan"] * 4, z, *["nan"] * 4, "0", *["nan"] * 4,
+                frame.error or fit.reason, "none", "nan", str(fit.n_points),
+                _fmt(fit.coverage, 3), fit.model, *["nan"] * 5, frame.warning]
     h = fit.hypotheses[choice.chosen]
     alt = fit.hypotheses[1 - choice.chosen]
     d, a = h.pose.as_degrees(), alt.pose.as_degrees()
     std = h.std
     return [str(frame.index), _fmt(d["alpha_deg"]), _fmt(d["beta_deg"]), _fmt(d["dx_mm"]),
-            _fmt(d["dy_mm"]), _fmt(z_mm if z_mm is not None else math.nan), "nan",
+            _fmt(d["dy_mm"]), z, "nan",
             _fmt(h.radius_mm), "nan", _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
             _fmt(a["alpha_deg"]), _fmt(a["beta_deg"]), _fmt(a["dx_mm"]), _fmt(a["dy_mm"]),
             "", choice.reason, _fmt(choice.margin, 2), str(fit.n_points), _fmt(fit.coverage, 3),
             fit.model, _fmt(math.degrees(std.get("alpha", math.nan))),
             _fmt(math.degrees(std.get("beta", math.nan))), _fmt(std.get("dx_mm", math.nan)),
-            _fmt(std.get("dy_mm", math.nan)), _fmt(std.get("radius_mm", math.nan))]
+            _fmt(std.get("dy_mm", math.nan)), _fmt(std.get("radius_mm", math.nan)),
+            frame.warning]
 
 
 def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
@@ -184,11 +198,13 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
     it later); ``roll_deg`` and ``ovality`` are not measured by the ring alone and
     are written as nan until the stages that measure them run.
     """
-    lines = [",".join(POSE_COLUMNS + EXTRA_COLUMNS)]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")  # quotes messages that hold commas
+    writer.writerow(POSE_COLUMNS + EXTRA_COLUMNS)
     for frame, choice in zip(frames, choices, strict=True):
         z = odometry_mm.get(frame.index) if odometry_mm else None
-        lines.append(",".join(_row(frame, choice, z)))
-    return atomic_write_text(path, "\n".join(lines) + "\n")
+        writer.writerow(_row(frame, choice, z))
+    return atomic_write_text(path, buffer.getvalue())
 
 
 @dataclass(frozen=True)
@@ -207,8 +223,10 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     dataset = open_dataset(root)
     frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers)
     for f in frames:
-        if f.error:
-            console.print(f"[yellow]frame {f.index:05d}[/]: {f.error}", highlight=False)
+        for message in (f.error, f.warning):
+            if message:
+                console.print(f"[yellow]frame {f.index:05d}[/]: {escape(message)}",
+                              highlight=False, soft_wrap=True)
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
                        sum(1 for c in choices if c.ambiguous), path)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.images import write_image
 from pipestitch.io.probe_toml import probe_config_for, write_probe_toml
@@ -64,20 +65,23 @@ def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size
         The in-memory run (poses, wall, renderer) the dataset was made from.
     """
     out = Path(out)
+    frames_dir = out / "frames"
+    if frames_dir.is_dir() and any(frames_dir.iterdir()):
+        # Old frames of a longer run would silently contradict the new truth/.
+        raise DatasetError(frames_dir, "already holds frames; simulate into an empty folder")
     run = build_run(scenario, seed=seed, size=size, n_pairs=n_pairs)
     cfg = probe_config_for(run.camera, plane_distance_mm=PLANE_DISTANCE_MM,
                            pipe_diameter_mm=scenario.pipe_diameter_mm,
                            length_mm=run.body.length_mm, diameter_mm=run.body.diameter_mm)
     write_probe_toml(out / "probe.toml", cfg)
-    frames = out / "frames"
     for i in track(range(len(run.poses)), f"simulating {scenario.name}", total=len(run.poses),
                    enabled=show_progress):
         if scenario.laser_only:
-            write_image(frames / f"laser_{i:05d}.png", run.render_laser(i))
+            write_image(frames_dir / f"laser_{i:05d}.png", run.render_laser(i))
         else:
             laser, led = run.render(i)
-            write_image(frames / f"laser_{i:05d}.png", laser)
-            write_image(frames / f"led_{i:05d}.png", led)
+            write_image(frames_dir / f"laser_{i:05d}.png", laser)
+            write_image(frames_dir / f"led_{i:05d}.png", led)
     if run.odometry_mm is not None:
         atomic_write_text(out / "odometry.csv", _csv(
             ["frame", "z_mm"], [[i, float(z)] for i, z in enumerate(run.odometry_mm)]))

@@ -205,6 +205,6 @@ def test_missing_led_frame_is_per_pair(tmp_path: Path) -> None:
     (tmp_path / "frames" / "led_00001.png").unlink()
     ds = open_dataset(tmp_path)
     assert ds.has_led and ds.led_missing() == [1]
-    with pytest.raises(DatasetError, match="led_00001.png: LED frame missing"):
+    with pytest.raises(DatasetError, match=r"led_00001\.png: LED frame missing"):
         ds.read_led(1)
     assert ds.read_led(2).shape == (48, 64)

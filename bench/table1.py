@@ -35,7 +35,7 @@ from scipy.optimize import differential_evolution
 from pipestitch.ambiguity import envelope_costs, resolve_run
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
 from pipestitch.pipeline.pose import PoseSettings, fit_frame, resolve_frames
-from pipestitch.pose_fit import fit_pose, pose_from_conic
+from pipestitch.pose_fit import ConicModel, fit_pose, pose_from_conic
 from pipestitch.ring import detect_ring
 from pipestitch.simulate.render import Optics
 from pipestitch.simulate.scenarios import PLANE_DISTANCE_MM, SCENARIOS, build_run
@@ -52,13 +52,7 @@ def as_vec(p: Pose) -> np.ndarray:
 def truth_mirror(pose: Pose, radius: float) -> Pose:
     """The exact mirror of the true pose, from the noise-free ring's conic."""
     ring = laser_ring(pose, PipeSection(radius), D, n_points=720)[:, :2]
-    x, y = ring[:, 0], ring[:, 1]
-    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
-    a, b, c, dd, e, f = np.linalg.svd(design)[2][-1]
-    q = np.array([[a, b / 2], [b / 2, c]])
-    lam = np.linalg.eigvalsh(q)
-    norm = lam[-1] if lam[0] > 0 else lam[0]
-    sols = pose_from_conic(q / norm, np.array([dd, e]) / (2 * norm), f / norm, D)
+    sols = pose_from_conic(*ConicModel.from_estimate(ring).normalised(), D)
     vecs = [as_vec(p) for p, _ in sols]
     i = int(np.argmax([np.linalg.norm(v - as_vec(pose)) for v in vecs]))
     return sols[i][0]

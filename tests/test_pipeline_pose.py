@@ -35,8 +35,13 @@ def test_pose_csv_matches_truth_on_a_run(tmp_path: Path) -> None:
     alt = np.column_stack([cols["alt_" + k] for k in ("alpha_deg", "beta_deg", "dx_mm",
                                                         "dy_mm")])
     decided = cols["ambiguous"] == 0
+    # The run's tilt grows to ~2° at its end, where the body envelope rules the mirror
+    # out and continuity carries that back over a few frames.
+    assert decided.sum() >= 2
     # Decided frames must have chosen the true pose (no silent wrong choice); every
-    # frame has the truth among its two hypotheses within the 0.5°/0.5 mm tolerance.
+    # frame has the truth among its two hypotheses within the success
+    # tolerance T_e = 0.5°/0.5 mm (tilts here are 0.7-2.2°, where a single ring gives
+    # the tilt to a few tenths of a degree; see README "Limits, measured").
     ok = np.all(np.abs(est - truth) <= 0.5, axis=1)
     ok_alt = np.all(np.abs(alt - truth) <= 0.5, axis=1)
     assert np.all(ok | ok_alt)

@@ -25,6 +25,7 @@ from pipestitch.io.images import read_image
 from pipestitch.io.probe_toml import read_probe_toml
 
 __all__ = [
+    "TRUTH_POSE_COLUMNS",
     "Dataset",
     "Problem",
     "check_dataset",
@@ -35,7 +36,7 @@ __all__ = [
 
 IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 _FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
-POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
+TRUTH_POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
 
 
 @dataclass(frozen=True)
@@ -240,7 +241,8 @@ def _check_truth(root: Path) -> Iterator[Problem]:
     truth = root / "truth"
     if not truth.is_dir():
         return
-    checks = [("poses.csv", POSE_COLUMNS), ("defects.csv", ("z_mm", "theta_deg", "diameter_mm"))]
+    checks = [("poses.csv", TRUTH_POSE_COLUMNS),
+              ("defects.csv", ("z_mm", "theta_deg", "diameter_mm"))]
     for name, columns in checks:
         if (truth / name).is_file():
             try:

@@ -15,6 +15,7 @@ import numpy as np
 
 from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.dataset import TRUTH_POSE_COLUMNS
 from pipestitch.io.images import write_image
 from pipestitch.io.probe_toml import probe_config_for, write_probe_toml
 from pipestitch.pipeline.progress import track
@@ -38,8 +39,7 @@ def write_truth(run: SyntheticRun, out: Path) -> None:
         d = pose.as_degrees()
         rows.append([i, d["alpha_deg"], d["beta_deg"], d["dx_mm"], d["dy_mm"], d["z_mm"],
                      d["roll_deg"]])
-    atomic_write_text(truth / "poses.csv", _csv(
-        ["frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg"], rows))
+    atomic_write_text(truth / "poses.csv", _csv(list(TRUTH_POSE_COLUMNS), rows))
     write_image(truth / "wall.png", np.clip(np.rint(run.albedo * 255), 0, 255).astype(np.uint8))
     atomic_write_text(truth / "wall.json", json.dumps(run.grid.to_json(), indent=2))
     atomic_write_text(truth / "defects.csv", _csv(

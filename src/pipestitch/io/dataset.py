@@ -32,6 +32,7 @@ __all__ = [
     "count_frame_files",
     "open_dataset",
     "read_csv_columns",
+    "read_frame",
 ]
 
 IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -89,12 +90,24 @@ class Dataset:
         return self._checked(path)
 
     def _checked(self, path: Path) -> np.ndarray:
-        img = read_image(path)
-        cam = self.config.camera
-        if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
-            raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
-                                     f"{cam.width}x{cam.height}")
-        return img
+        return read_frame(path, (self.config.camera.width, self.config.camera.height))
+
+
+def read_frame(path: Path, size: tuple[int, int]) -> np.ndarray:
+    """Read a frame and check its size (width, height) and channel count.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file: unreadable, wrong size or an unusable number of channels.
+    """
+    img = read_image(path)
+    if (img.shape[1], img.shape[0]) != size:
+        raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
+                                 f"{size[0]}x{size[1]}")
+    if img.ndim == 3 and img.shape[2] not in (3, 4):
+        raise DatasetError(path, f"expected 1, 3 or 4 channels, got {img.shape[2]}")
+    return img
 
 
 def _frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:
@@ -198,15 +211,9 @@ def _check_images(paths: list[Path], size: tuple[int, int],
                   progress: Callable[[], None] | None) -> Iterator[Problem]:
     for path in paths:
         try:
-            img = read_image(path)
+            read_frame(path, size)
         except DatasetError as exc:
             yield Problem(path, exc.problem)
-        else:
-            if (img.shape[1], img.shape[0]) != size:
-                yield Problem(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
-                                    f"{size[0]}x{size[1]}")
-            elif img.ndim == 3 and img.shape[2] not in (3, 4):
-                yield Problem(path, f"expected 1, 3 or 4 channels, got {img.shape[2]}")
         if progress is not None:
             progress()
 

@@ -159,30 +159,39 @@ class Renderer:
             signed distance of the hit point from the laser plane, ``light``: LED
             irradiance factor, ``hit``: bool mask of pixels that reach the textured wall.
         """
-        rays = self._rays_visible
-        origin = pose.translation_world_probe().astype(np.float32)
-        dirs = rays @ pose.rotation_world_probe().T.astype(np.float32)
-        s = ray_wall_distance(origin, dirs, self.section)
+        origin, dirs, s = self._cast(pose)
         hit = origin + s[:, None] * dirs
-        w = self.wall
-        theta_deg = np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) % 360
+        row, col = self._texture_coords(hit)
         normals = self.section.normals(hit)
         cos_inc = np.abs(normals[:, 0] * dirs[:, 0] + normals[:, 1] * dirs[:, 1])
         values = {
-            "row": theta_deg / w.deg_per_px,
-            "col": (hit[:, 2] - w.z0_mm) / w.mm_per_px_axial,
+            "row": row,
+            "col": col,
             "plane_mm": s * self._ray_normal - self.plane_distance_mm,
             "light": cos_inc * (self.section.mean_radius_mm / s) ** 2,
         }
-        shape = self._rays.shape[:2]
-        out = {}
-        for key, v in values.items():
-            full = np.full(shape, -10.0, np.float32)
-            full.ravel()[self._visible_index] = np.nan_to_num(v, nan=-10.0)
-            out[key] = full
-        n_cols = w.albedo.shape[1]
+        out = {key: self._full(v, self._visible_index, -10.0) for key, v in values.items()}
+        n_cols = self.wall.albedo.shape[1]
         out["hit"] = (out["col"] >= 0) & (out["col"] <= n_cols - 1) & (out["light"] > 0)
         return out
+
+    def _cast(self, pose: Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Camera centre, world ray directions and wall distance of every visible pixel."""
+        origin = pose.translation_world_probe().astype(np.float32)
+        dirs = self._rays_visible @ pose.rotation_world_probe().T.astype(np.float32)
+        return origin, dirs, ray_wall_distance(origin, dirs, self.section)
+
+    def _texture_coords(self, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) of world wall points in the wall texture."""
+        w = self.wall
+        theta_deg = np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) % 360
+        return theta_deg / w.deg_per_px, (hit[:, 2] - w.z0_mm) / w.mm_per_px_axial
+
+    def _full(self, values: np.ndarray, index: np.ndarray, fill: float) -> np.ndarray:
+        """An image of the sensor's shape with ``values`` at flat ``index``, ``fill`` elsewhere."""
+        full = np.full(self._rays.shape[:2], fill, np.float32)
+        full.ravel()[index] = np.nan_to_num(values, nan=fill)
+        return full
 
     def sample_albedo(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """Albedo at texture coordinates, filtered by each pixel's footprint (mipmap)."""
@@ -235,27 +244,17 @@ class Renderer:
         at full texture resolution: near the ring a pixel covers about one texel, so
         the mip pyramid is not needed there. About 3x faster.
         """
-        rays = self._rays_visible
-        origin = pose.translation_world_probe().astype(np.float32)
-        dirs = rays @ pose.rotation_world_probe().T.astype(np.float32)
-        s = ray_wall_distance(origin, dirs, self.section)
+        origin, dirs, s = self._cast(pose)
         plane = s * self._ray_normal - self.plane_distance_mm
         near = np.flatnonzero(np.abs(np.nan_to_num(plane, nan=1e9))
                               < 6 * self.optics.laser_sigma_mm)
-        hit = origin + s[near, None] * dirs[near]
-        w = self.wall
-        row = (np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) % 360) / w.deg_per_px
-        col = (hit[:, 2] - w.z0_mm) / w.mm_per_px_axial
-        inside = (col >= 0) & (col <= w.albedo.shape[1] - 1)
-        sample = _remap_points(self._pyramid[0], col, row)
-        shape = self._rays.shape[:2]
-        plane_full = np.full(shape, -10.0, np.float32)
-        plane_full.ravel()[self._visible_index] = np.nan_to_num(plane, nan=-10.0)
-        hit_full = np.zeros(shape, bool)
-        hit_full.ravel()[self._visible_index[near[inside]]] = True
-        albedo = np.zeros(shape, np.float32)
-        albedo.ravel()[self._visible_index[near[inside]]] = sample[inside]
-        laser = self._laser_signal({"plane_mm": plane_full, "hit": hit_full}, albedo, rng)
+        row, col = self._texture_coords(origin + s[near, None] * dirs[near])
+        inside = (col >= 0) & (col <= self.wall.albedo.shape[1] - 1)
+        lit = self._visible_index[near[inside]]
+        albedo = self._full(_remap_points(self._pyramid[0], col, row)[inside], lit, 0.0)
+        tr = {"plane_mm": self._full(plane, self._visible_index, -10.0),
+              "hit": self._full(np.ones(lit.size), lit, 0.0) > 0}
+        laser = self._laser_signal(tr, albedo, rng)
         return self._colourise(laser * self.visibility, (0.08, 0.12, 1.0), rng)
 
     def render_pair(self, pose: Pose, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -19,8 +19,10 @@ from rich.markup import escape
 from pipestitch import __version__
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import run_check
+from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.pose import run_pose
 from pipestitch.pipeline.progress import console
+from pipestitch.pipeline.run import RunSummary, run_dataset
 from pipestitch.pipeline.simulate import simulate_dataset
 from pipestitch.simulate.scenarios import SCENARIOS
 
@@ -168,13 +170,50 @@ def pose(
 
 @app.command()
 @_handle_errors
+def run(
+    dataset: Annotated[Path, typer.Argument(help="Dataset folder (SPEC layout).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    mm_per_px: Annotated[float | None, typer.Option(
+        "--mm-per-px", help="Mosaic scale on the wall, mm per pixel on both axes (default: "
+        "the camera's axial resolution half a radius ahead).")] = None,
+    unwrap: Annotated[str, typer.Option(
+        help="ours (centralised, default), centred (pose forced to a centred probe) or "
+             "polar (prior-art polar unwrap about the image centre).")] = "ours",
+    workers: Annotated[int, typer.Option(help="Threads (frames stay in order).")] = 2,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
+
+    Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, profile.csv
+    and report.html. Frames that fail are reported and skipped, never dropped silently.
+
+    Example: pipestitch run data/test_piece --out out/test_piece
+    """
+    try:
+        settings = MosaicSettings(mm_per_px=mm_per_px, mode=unwrap, workers=max(1, workers))
+    except ValueError as exc:
+        console.print(f"[bold red]error:[/] {escape(str(exc))}")
+        raise typer.Exit(2) from None
+    summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet)
+    _print_run(summary)
+
+
+def _print_run(summary: RunSummary) -> None:
+    typer.echo(f"{summary.n_frames} pairs: {summary.n_placed} in the mosaic, "
+               f"{summary.n_failed} without a pose, {summary.n_ambiguous} ambiguous; "
+               f"{summary.seconds:.1f} s ({summary.pairs_per_second:.2f} pairs/s)")
+    typer.echo(f"report: {summary.out / 'report.html'}")
+
+
+@app.command()
+@_handle_errors
 def demo(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Folder for the demo (default: "
                                              "a new temporary folder).")] = None,
     size: Annotated[str, typer.Option(help="Sensor size: full or half.")] = "half",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Simulate a short probe run, check it and estimate every pose.
+    """Simulate a short probe run, check it and process it end to end (mosaic and report).
 
     Example: pipestitch demo --out /tmp/pipestitch-demo
     """
@@ -186,10 +225,8 @@ def demo(
     if problems:
         _print_problems(problems)
         raise typer.Exit(1)
-    summary = run_pose(dataset, root / "out", show_progress=not quiet)
     typer.echo(f"demo dataset: {dataset} ({len(run.poses)} pairs, checked OK)")
-    typer.echo(f"poses: {summary.path} ({summary.n_failed} failed, {summary.n_ambiguous} "
-               "ambiguous); the mosaic and report come with the mosaic issue")
+    _print_run(run_dataset(dataset, root / "out", show_progress=not quiet))
 
 
 def main() -> None:

@@ -107,7 +107,8 @@ def invert_monotonic(
     grid_x, grid_y : numpy.ndarray
         Increasing samples of the function over its valid domain.
     iterations : int
-        Newton steps (quadratic convergence: 6 is ample from a dense table).
+        At most this many Newton steps (quadratic convergence: 6 is ample from a
+        dense table); stops early once every step is below 1e-13 of the domain.
 
     Returns
     -------
@@ -116,9 +117,13 @@ def invert_monotonic(
     """
     x = np.interp(target, grid_y, grid_x)
     lo, hi = grid_x[0], grid_x[-1]
+    tol = 1e-13 * max(abs(lo), abs(hi), 1.0)
     for _ in range(iterations):
         value, slope = func(x)
-        x = np.clip(x - (value - target) / slope, lo, hi)
+        step = (value - target) / slope
+        x = np.clip(x - step, lo, hi)
+        if step.size == 0 or float(np.max(np.abs(step))) <= tol:
+            break  # converged (quadratically): usually after 2 steps from the table
     return x
 
 

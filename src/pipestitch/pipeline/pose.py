@@ -15,10 +15,11 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from rich.markup import escape
@@ -31,12 +32,15 @@ from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.photometric import StripPair, contrast_strips, pair_costs
-from pipestitch.pipeline.progress import console, track
+from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pose_fit import PoseFit, fit_pose
 from pipestitch.ring import detect_ring, prepare_laser_frame
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
-           "resolve_frames", "run_pose", "write_poses_csv"]
+           "ordered_map", "report_frame_messages", "resolve_frames", "run_pose",
+           "write_poses_csv"]
+
+T = TypeVar("T")
 
 POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg",
                 "radius_mm", "ovality", "rms_px", "ambiguous", "alt_alpha_deg", "alt_beta_deg",
@@ -104,34 +108,43 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     return FramePose(index, fit, "" if fit.ok else fit.reason, strips)
 
 
-def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings) -> FramePose:
+def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
+                  timer: StageTimer) -> FramePose:
     """One frame, never raising: a failure becomes that frame's error (SPEC)."""
-    try:
-        laser = dataset.read_laser(index)
-    except DatasetError as exc:
-        return FramePose(index, PoseFit(False, exc.problem), f"{exc.path.name}: {exc.problem}")
-    led, warning = None, ""
-    if dataset.has_led:
+    with timer("decode"):
         try:
-            led = dataset.read_led(index)
+            laser = dataset.read_laser(index)
         except DatasetError as exc:
-            # The laser frame alone still gives a pose, a little less exact.
-            warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
+            return FramePose(index, PoseFit(False, exc.problem),
+                             f"{exc.path.name}: {exc.problem}")
+        led, warning = None, ""
+        if dataset.has_led:
+            try:
+                led = dataset.read_led(index)
+            except DatasetError as exc:
+                # The laser frame alone still gives a pose, a little less exact.
+                warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
     try:
-        return replace(fit_frame(index, laser, led, settings), warning=warning)
+        with timer("ring + pose"):
+            return replace(fit_frame(index, laser, led, settings), warning=warning)
     except Exception as exc:  # one bad frame never stops the run
         return FramePose(index, PoseFit(False, repr(exc)),
                          f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
 
 
-def _ordered(dataset: Dataset, settings: PoseSettings, workers: int) -> Iterator[FramePose]:
+def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
+             timer: StageTimer) -> Iterator[FramePose]:
+    yield from ordered_map(lambda i: _load_and_fit(dataset, i, settings, timer),
+                           range(dataset.n_pairs), workers)
+
+
+def ordered_map(func: Callable[[int], T], indices: Iterable[int], workers: int) -> Iterator[T]:
+    """``func`` over ``indices`` on ``workers`` threads, results in order (lazily)."""
     if workers <= 1:
-        for i in range(dataset.n_pairs):
-            yield _load_and_fit(dataset, i, settings)
+        yield from map(func, indices)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(lambda i: _load_and_fit(dataset, i, settings),
-                            range(dataset.n_pairs))
+        yield from pool.map(func, indices)
 
 
 def resolve_frames(frames_in: Iterable[FramePose],
@@ -154,12 +167,12 @@ def resolve_frames(frames_in: Iterable[FramePose],
     return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
 
 
-def estimate_poses(dataset: Dataset, *, show_progress: bool = True,
-                   workers: int = 2) -> tuple[list[FramePose], list[Choice]]:
+def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
+                   timer: StageTimer | None = None) -> tuple[list[FramePose], list[Choice]]:
     """Fit every frame and choose between the mirror hypotheses over the run."""
     settings = PoseSettings.from_config(dataset.config)
-    frames = track(_ordered(dataset, settings, workers), "pose", total=dataset.n_pairs,
-                   enabled=show_progress)
+    frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
+                   total=dataset.n_pairs, enabled=show_progress)
     return resolve_frames(frames, settings.body)
 
 
@@ -167,9 +180,11 @@ def _fmt(value: float, digits: int = 6) -> str:
     return "nan" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def _row(frame: FramePose, choice: Choice, z_mm: float | None) -> list[str]:
+def _row(frame: FramePose, choice: Choice, z_mm: float | None,
+         roll_deg: float | None) -> list[str]:
     fit = frame.fit
     z = _fmt(z_mm if z_mm is not None else math.nan)
+    roll = _fmt(roll_deg if roll_deg is not None else math.nan)
     if not fit.ok or choice.chosen is None:
         # No pose: every pose value is nan, "ambiguous" does not apply (0), the error says why.
         return [str(frame.index), *["nan"] * 4, z, *["nan"] * 4, "0", *["nan"] * 4,
@@ -180,7 +195,7 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None) -> list[str]:
     d, a = h.pose.as_degrees(), alt.pose.as_degrees()
     std = h.std
     return [str(frame.index), _fmt(d["alpha_deg"]), _fmt(d["beta_deg"]), _fmt(d["dx_mm"]),
-            _fmt(d["dy_mm"]), z, "nan",
+            _fmt(d["dy_mm"]), z, roll,
             _fmt(h.radius_mm), "nan", _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
             _fmt(a["alpha_deg"]), _fmt(a["beta_deg"]), _fmt(a["dx_mm"]), _fmt(a["dy_mm"]),
             "", choice.reason, _fmt(choice.margin, 2), str(fit.n_points), _fmt(fit.coverage, 3),
@@ -191,20 +206,29 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None) -> list[str]:
 
 
 def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
-                    odometry_mm: dict[int, float] | None) -> Path:
+                    z_mm: Mapping[int, float] | None,
+                    roll_deg: Mapping[int, float] | None = None) -> Path:
     """Write poses.csv (SPEC columns first, then the extra ones), atomically.
 
-    ``z_mm`` comes from the odometer when the dataset has one (registration refines
-    it later); ``roll_deg`` and ``ovality`` are not measured by the ring alone and
-    are written as nan until the stages that measure them run.
+    ``z_mm`` comes from registration (``pipestitch run``) or the odometer
+    (``pipestitch pose``); ``roll_deg`` from registration; ``ovality`` is not measured
+    by the circular ring model and is written as nan. Missing values are nan.
     """
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")  # quotes messages that hold commas
     writer.writerow(POSE_COLUMNS + EXTRA_COLUMNS)
     for frame, choice in zip(frames, choices, strict=True):
-        z = odometry_mm.get(frame.index) if odometry_mm else None
-        writer.writerow(_row(frame, choice, z))
+        z = z_mm.get(frame.index) if z_mm else None
+        roll = roll_deg.get(frame.index) if roll_deg else None
+        writer.writerow(_row(frame, choice, z, roll))
     return atomic_write_text(path, buffer.getvalue())
+
+
+def report_frame_messages(messages: Iterable[tuple[int, str]]) -> None:
+    """Print one line per (frame, message) on stderr: nothing is skipped silently."""
+    for index, message in messages:
+        console.print(f"[yellow]frame {index:05d}[/]: {escape(message)}", highlight=False,
+                      soft_wrap=True)
 
 
 @dataclass(frozen=True)
@@ -222,11 +246,7 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
     dataset = open_dataset(root)
     frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers)
-    for f in frames:
-        for message in (f.error, f.warning):
-            if message:
-                console.print(f"[yellow]frame {f.index:05d}[/]: {escape(message)}",
-                              highlight=False, soft_wrap=True)
+    report_frame_messages((f.index, m) for f in frames for m in (f.error, f.warning) if m)
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
                        sum(1 for c in choices if c.ambiguous), path)

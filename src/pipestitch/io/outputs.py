@@ -1,0 +1,94 @@
+"""Writers of the run's outputs (SPEC "Outputs"), each atomic (temp file + rename).
+
+* ``mosaic.png``: 8-bit grey, SPEC's wall-image convention (row i at theta =
+  i·deg_per_px, column j at z0_mm + j·mm_per_px_axial); no-data pixels are 0 and data
+  pixels are at least 1, so 0 always means "not seen".
+* ``mosaic.tif``: the same as a tiled, pyramidal TIFF when the mosaic is large.
+* ``mosaic.json``: scale, origin and references of the mosaic.
+* ``profile.csv``: per frame, the pipe's diameter from the laser ring.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tifffile
+
+from pipestitch.io.atomic import atomic_path, atomic_write_text
+from pipestitch.io.images import write_image
+
+__all__ = ["PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_to_uint8", "write_csv",
+           "write_json", "write_mosaic_png", "write_tiled_tiff"]
+
+PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
+                   "diameter_std_mm", "model")
+TILED_TIFF_MIN_PIXELS = 16_000_000   # mosaics larger than this also get a tiled TIFF
+
+
+def mosaic_to_uint8(image: np.ndarray) -> tuple[np.ndarray, float]:
+    """Float mosaic (NaN = no data) -> uint8 with data in [1, 255] and no data 0.
+
+    Returns the image and the value mapped to 250 (the 99.5th percentile of the data),
+    which mosaic.json records as ``intensity_scale``.
+    """
+    finite = np.isfinite(image)
+    scale = float(np.percentile(image[finite], 99.5)) if finite.any() else 1.0
+    scale = scale if scale > 0 else 1.0
+    out = np.zeros(image.shape, np.uint8)
+    out[finite] = np.clip(np.rint(image[finite] / scale * 250), 1, 255).astype(np.uint8)
+    return out, scale
+
+
+def write_mosaic_png(path: Path, image_u8: np.ndarray) -> Path:
+    """Write the 8-bit mosaic atomically."""
+    return write_image(path, image_u8)
+
+
+def write_tiled_tiff(path: Path, image_u8: np.ndarray, *, tile: int = 256) -> Path:
+    """Tiled TIFF with a 2x pyramid (sub-IFDs) down to one tile, written atomically."""
+    levels = [image_u8]
+    while max(levels[-1].shape) > tile:
+        levels.append(cv2.resize(levels[-1], None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
+    with atomic_path(path) as tmp, tifffile.TiffWriter(tmp) as tif:
+        tif.write(levels[0], tile=(tile, tile), subifds=len(levels) - 1,
+                  compression="zlib", photometric="minisblack")
+        for level in levels[1:]:
+            tif.write(level, tile=(tile, tile), subfiletype=1, compression="zlib",
+                      photometric="minisblack")
+    return Path(path)
+
+
+def write_json(path: Path, data: Mapping[str, object]) -> Path:
+    """Pretty JSON, atomically; non-finite floats become null."""
+    def clean(value: object) -> object:
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, Mapping):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [clean(v) for v in value]
+        return value
+
+    return atomic_write_text(path, json.dumps(clean(data), indent=2) + "\n")
+
+
+def write_csv(path: Path, header: Iterable[str], rows: Iterable[Iterable[object]]) -> Path:
+    """CSV with floats to 6 decimals and nan for missing values, atomically."""
+    def fmt(v: object) -> str:
+        if isinstance(v, float | np.floating):
+            return "nan" if not math.isfinite(v) else f"{v:.6f}"
+        return str(v)
+
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(list(header))
+    for row in rows:
+        writer.writerow([fmt(v) for v in row])
+    return atomic_write_text(path, buffer.getvalue())

@@ -1,0 +1,59 @@
+"""Pixels of the camera that never show the wall: mirror assembly, laser-holder arm, lens rim.
+
+probe.toml does not describe the probe's occluders, and a dataset made by someone
+else may have its arm anywhere, so they are found from the LED frames themselves:
+they are fixed in the image while the wall moves past. A pixel is occluded when it
+is dark relative to its neighbourhood (arm, mirror edge) or absolutely dark (outside
+the lens' image circle, the mirror's face) in most frames of a sample spread over
+the run. Dark wall features (holes, stains) move between frames and so do not
+survive the median. With fewer than 3 frames the mask also covers that frame's dark
+wall features; the caller should sample frames spread along the run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+__all__ = ["occluder_mask"]
+
+
+def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
+                  absolute: float = 0.08, margin_px: int | None = None) -> np.ndarray:
+    """Boolean mask of occluded pixels from grey LED frames of one run.
+
+    Parameters
+    ----------
+    frames : sequence of numpy.ndarray
+        Grey float frames (same shape), ideally 5-15 spread along the run.
+    relative : float
+        A pixel darker than this fraction of its neighbourhood (Gaussian of 1/40 of
+        the image height) in the median frame is an occluder edge or body.
+    absolute : float
+        A pixel darker than this fraction of the median frame's median is outside the
+        image circle or on the mirror's face.
+    margin_px : int, optional
+        Dilation of the mask (default 1/200 of the image height, at least 2 px).
+
+    Returns
+    -------
+    numpy.ndarray
+        bool (H, W), True where the wall is not seen.
+    """
+    if not frames:
+        raise ValueError("occluder_mask: no frames")
+    stack = np.stack([np.asarray(f, np.float32) for f in frames])
+    height = stack.shape[1]
+    sigma = max(3.0, height / 40)
+    ratios = np.empty_like(stack)
+    for k, frame in enumerate(stack):
+        ratios[k] = frame / np.maximum(cv2.GaussianBlur(frame, (0, 0), sigma), 1e-6)
+    ratio = np.median(ratios, axis=0)
+    level = np.median(stack, axis=0)
+    scale = float(np.median(level[level > 0])) if np.any(level > 0) else 1.0
+    mask = (ratio < relative) | (level < absolute * scale)
+    margin = max(2, round(height / 200)) if margin_px is None else margin_px
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)

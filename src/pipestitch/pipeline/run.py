@@ -1,0 +1,206 @@
+"""``pipestitch run``: pose -> unwrap -> register -> mosaic -> profile -> report.
+
+Writes into OUT (SPEC "Outputs"): poses.csv (z and roll now from registration),
+mosaic.png (+ mosaic.tif when large), mosaic.json, profile.csv and report.html, each
+atomically. Frames that fail at any stage are reported on stderr, listed in the report
+and kept in poses.csv with their error; they never stop the run.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch import __version__
+from pipestitch.ambiguity import Choice
+from pipestitch.errors import PipestitchError
+from pipestitch.geometry import PipeSection
+from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.io.outputs import (
+    PROFILE_COLUMNS,
+    TILED_TIFF_MIN_PIXELS,
+    mosaic_to_uint8,
+    write_csv,
+    write_json,
+    write_mosaic_png,
+    write_tiled_tiff,
+)
+from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
+from pipestitch.pipeline.pose import (
+    FramePose,
+    estimate_poses,
+    report_frame_messages,
+    write_poses_csv,
+)
+from pipestitch.pipeline.progress import StageTimer
+from pipestitch.report.html import FrameRow, ReportData, render_report
+
+__all__ = ["RunSummary", "run_dataset"]
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What the CLI reports (and the benchmark reads)."""
+
+    out: Path
+    n_frames: int
+    n_failed: int
+    n_ambiguous: int
+    n_placed: int
+    seconds: float
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    problems: list[tuple[int, str]] = field(default_factory=list)
+    mosaic: MosaicResult | None = None
+
+    @property
+    def pairs_per_second(self) -> float:
+        """End-to-end throughput (decode included)."""
+        return self.n_frames / self.seconds if self.seconds > 0 else math.nan
+
+
+def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameView]:
+    views = {}
+    for frame, choice in zip(frames, choices, strict=True):
+        if not frame.fit.ok or choice.chosen is None:
+            continue
+        h = frame.fit.hypotheses[choice.chosen]
+        alt = None
+        if choice.ambiguous:
+            m = frame.fit.hypotheses[1 - choice.chosen]
+            alt = FrameView(m.pose, PipeSection(m.radius_mm))
+        views[frame.index] = FrameView(h.pose, PipeSection(h.radius_mm), alt)
+    return views
+
+
+def _apply_switches(choices: list[Choice], switched: dict[int, bool]) -> list[Choice]:
+    """Choices after registration's photometric decision on the ambiguous frames."""
+    out = []
+    for k, c in enumerate(choices):
+        if k in switched and c.chosen is not None:
+            chosen = 1 - c.chosen if switched[k] else c.chosen
+            c = Choice(chosen, False, "registration", c.margin)
+        out.append(c)
+    return out
+
+
+def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
+                  plane_distance_mm: float) -> list[list[object]]:
+    """Diameter per frame from the ring (circle model: min = max radius, ovality unmeasured).
+
+    z is the ring's axial position: the camera's z plus the laser plane distance.
+    """
+    rows: list[list[object]] = []
+    for frame, choice in zip(frames, choices, strict=True):
+        if not frame.fit.ok or choice.chosen is None:
+            continue
+        h = frame.fit.hypotheses[choice.chosen]
+        rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
+                     2 * h.radius_mm, math.nan, h.radius_mm, h.radius_mm,
+                     2 * h.std.get("radius_mm", math.nan), frame.fit.model])
+    return rows
+
+
+def _frame_rows(frames: list[FramePose], choices: list[Choice],
+                z: dict[int, float]) -> list[FrameRow]:
+    rows = []
+    for frame, choice in zip(frames, choices, strict=True):
+        if not frame.fit.ok or choice.chosen is None:
+            continue
+        h = frame.fit.hypotheses[choice.chosen]
+        d = h.pose.as_degrees()
+        rows.append(FrameRow(frame.index, z.get(frame.index, math.nan), d["alpha_deg"],
+                             d["beta_deg"], d["dx_mm"], d["dy_mm"], 2 * h.radius_mm,
+                             choice.ambiguous, choice.reason))
+    return rows
+
+
+def _mosaic_json(result: MosaicResult, scale: float, dataset: Dataset,
+                 settings: MosaicSettings) -> dict[str, object]:
+    g = result.grid
+    return {
+        "mm_per_px_axial": g.mm_per_px, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
+        "radius_mm": result.radius_mm, "n_rows": g.n_rows, "n_cols": g.n_cols,
+        "mm_per_px_circumferential": 2 * math.pi * result.radius_mm / g.n_rows,
+        "theta_reference": "relative: theta 0 is the first placed frame's roll",
+        "z_reference": ("odometer (median offset), scale fitted"
+                        if dataset.odometry_mm else "camera of the first placed frame at 0"),
+        "odometer_scale": result.positions.odometer_scale,
+        "intensity_scale": scale, "no_data_value": 0, "unwrap": settings.mode,
+        "frames_placed": result.placed, "frames_skipped": sorted(result.skipped),
+        "window_mm": list(result.window_mm), "pipestitch_version": __version__,
+    }
+
+
+def _problems(frames: list[FramePose], result: MosaicResult | None,
+              choices: list[Choice]) -> list[tuple[int, str]]:
+    problems = [(f.index, m) for f in frames for m in (f.error, f.warning) if m]
+    problems += [(c_i, "pose ambiguous (mirror hypothesis not ruled out)")
+                 for c_i, c in enumerate(choices) if c.ambiguous]
+    if result is not None:
+        problems += [(i, f"not in the mosaic: {m}") for i, m in sorted(result.skipped.items())]
+    return sorted(problems)
+
+
+def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings | None = None,
+                show_progress: bool = True) -> RunSummary:
+    """Process a dataset end to end and write every output into ``out``."""
+    settings = settings or MosaicSettings()
+    start = time.perf_counter()
+    timer = StageTimer()
+    dataset = open_dataset(root)
+    out = Path(out)
+    frames, choices = estimate_poses(dataset, show_progress=show_progress,
+                                     workers=settings.workers, timer=timer)
+    views = _views(frames, choices)
+    if not views:
+        report_frame_messages((f.index, f.error) for f in frames if f.error)
+        raise PipestitchError(f"{dataset.root}: no frame has a pose; nothing to stitch")
+    result = build_mosaic(dataset, views, settings, timer=timer, show_progress=show_progress)
+    choices = _apply_switches(choices, result.switched)
+    z = {i: float(v) for i, v in enumerate(result.positions.z_mm) if np.isfinite(v)}
+    roll = {i: float(v) for i, v in enumerate(result.positions.roll_deg) if np.isfinite(v)}
+    with timer("write"):
+        image, scale = mosaic_to_uint8(result.image)
+        write_mosaic_png(out / "mosaic.png", image)
+        if image.size >= TILED_TIFF_MIN_PIXELS:
+            write_tiled_tiff(out / "mosaic.tif", image)
+        write_json(out / "mosaic.json", _mosaic_json(result, scale, dataset, settings))
+        write_poses_csv(out / "poses.csv", frames, choices, z, roll)
+        write_csv(out / "profile.csv", PROFILE_COLUMNS,
+                  _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm))
+    problems = _problems(frames, result, choices)
+    report_frame_messages(problems)
+    seconds = time.perf_counter() - start
+    summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
+                         sum(1 for c in choices if c.ambiguous), len(result.placed), seconds,
+                         dict(timer.seconds), problems, result)
+    with timer("report"):
+        atomic_write_text(out / "report.html", render_report(_report_data(
+            dataset, frames, choices, z, image, result, summary)))
+    return summary
+
+
+def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice],
+                 z: dict[int, float], image: np.ndarray, result: MosaicResult,
+                 summary: RunSummary) -> ReportData:
+    total = sum(summary.stage_seconds.values()) or 1.0
+    figures = {
+        "frame pairs": str(summary.n_frames),
+        "placed in the mosaic": str(summary.n_placed),
+        "failed (no pose)": str(summary.n_failed),
+        "ambiguous": str(summary.n_ambiguous),
+        "mirror choices settled by registration": str(len(result.switched)),
+        "mosaic scale": f"{result.grid.mm_per_px:g} mm/px, {result.grid.deg_per_px:.4f} deg/px",
+        "wall time": f"{summary.seconds:.1f} s ({summary.pairs_per_second:.2f} pairs/s)",
+        **{f"time in {k}": f"{100 * v / total:.0f} %"
+           for k, v in sorted(summary.stage_seconds.items())},
+    }
+    return ReportData(f"pipestitch report: {dataset.root.name}", image, result.grid.z0_mm,
+                      result.grid.mm_per_px, result.grid.deg_per_px,
+                      dataset.config.pipe.inner_diameter_mm, _frame_rows(frames, choices, z),
+                      summary.problems, figures)

@@ -1,0 +1,208 @@
+"""Registration: axial shift and roll between unwrapped strips, and a global solve.
+
+Two strips of the same grid (each in its own frame's (theta, z)) show the same wall
+up to the probe's advance dz and roll d(gamma) between the frames:
+``strip_j(theta, z) = strip_i(theta + d_gamma, z + dz)``. The shift is measured by
+sub-pixel phase correlation (``cv2.phaseCorrelate``) of the strips' local contrast,
+weighted by their quality and tapered along z only, so the correlation is circular
+in theta as the pipe is. Every frame is linked to the next one and the one after, and
+the positions of the whole run are then solved at once by robust least squares over
+all links and the odometer (scipy ``least_squares`` with a soft-L1 loss), so a bad link
+or an odometer slip is outvoted instead of being chained into every later frame.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from pipestitch.unwrap import Strip, StripGrid, local_contrast
+
+__all__ = ["Link", "Positions", "measure_shift", "registration_image", "solve_positions"]
+
+MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
+
+
+@dataclass(frozen=True)
+class Link:
+    """Measured motion from frame ``i`` to frame ``j``: z_j - z_i and roll_j - roll_i."""
+
+    i: int
+    j: int
+    dz_mm: float
+    droll_deg: float
+    response: float
+    dz_sigma_mm: float
+    droll_sigma_deg: float
+
+
+def _sigma_px(response: float) -> float:
+    """Nominal 1-sigma of a phase-correlation shift in pixels: 0.1 px for a perfect peak,
+    growing as the peak weakens (less common texture)."""
+    return 0.1 / max(response, MIN_RESPONSE) ** 0.5
+
+def registration_image(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
+    """Quality-weighted local contrast of a strip, tapered to 0 at both z ends (float32)."""
+    contrast, _ = local_contrast(strip.values, sigma_px)
+    weight = np.clip(strip.weight, 0, 1)
+    taper = np.hanning(strip.values.shape[1] + 2)[1:-1].astype(np.float32)
+    return (contrast * weight * taper[None, :]).astype(np.float32)
+
+
+def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int,
+                  j: int) -> Link | None:
+    """Link from frame i to frame j by phase correlation of their registration images.
+
+    Returns None when the correlation peak is below ``MIN_RESPONSE`` (no common texture).
+    """
+    if not (np.any(first) and np.any(second)):
+        return None
+    (dx, dy), response = cv2.phaseCorrelate(first, second)
+    if not np.isfinite(response) or response < MIN_RESPONSE:
+        return None
+    # phaseCorrelate: second(x) = first(x - d), and strip_j(x) = strip_i(x + motion).
+    sigma = _sigma_px(response)
+    return Link(i, j, -dx * grid.mm_per_px, -dy * grid.deg_per_px, float(response),
+                sigma * grid.mm_per_px, sigma * grid.deg_per_px)
+
+
+@dataclass(frozen=True)
+class Positions:
+    """Solved axial position and roll of every frame (NaN where unconstrained).
+
+    Attributes
+    ----------
+    z_mm, roll_deg : numpy.ndarray
+        Per frame; z is anchored to the odometer (median offset 0) when there is one,
+        else to frame 0 at 0; roll to the first placed frame at 0.
+    odometer_scale : float
+        Fitted scale of the odometer (1 without one).
+    outliers : dict
+        ``(i, j) -> source`` of measurements the robust solve rejected (beyond 3 sigma).
+    """
+
+    z_mm: np.ndarray
+    roll_deg: np.ndarray
+    odometer_scale: float
+    outliers: dict[tuple[int, int], str]
+
+
+def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Connected-component label of every node (union-find)."""
+    parent = list(range(n))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in edges:
+        parent[find(a)] = find(b)
+    return np.array([find(a) for a in range(n)])
+
+
+def _robust_linear(rows: list[tuple[int, int, float, float]], n: int, n_extra: int = 0,
+                   extra: Sequence[tuple[int, float, float]] = ()) -> tuple[np.ndarray,
+                                                                           np.ndarray]:
+    """Solve (x_j - x_i - value) / sigma = 0 robustly; returns x and the residuals in sigma.
+
+    ``rows`` are (i, j, value, sigma), i = -1 for a prior on x_j alone; ``extra`` are
+    (row index, coefficient, unused) that make that row (x_j - x_i - coefficient·x[n]) /
+    sigma: the odometer increment times the scale unknown x[n].
+    """
+    m = len(rows)
+    a = lil_matrix((m, n + n_extra))
+    b = np.zeros(m)
+    for k, (i, j, value, sigma) in enumerate(rows):
+        if i >= 0:
+            a[k, i] = -1 / sigma
+        a[k, j] = 1 / sigma
+        b[k] = value / sigma
+    for k, coef, _ in extra:
+        a[k, n] = -coef / rows[k][3]
+        b[k] = 0.0
+    a = a.tocsr()
+    x0 = np.zeros(n + n_extra)
+    if n_extra:
+        x0[n] = 1.0
+    res = least_squares(lambda x: a @ x - b, x0, jac=lambda x: a, loss="soft_l1", f_scale=2.0,
+                        method="trf", tr_solver="lsmr")
+    return res.x, a @ res.x - b
+
+
+def solve_positions(n_frames: int, links: Sequence[Link], *,
+                    odometry_mm: Mapping[int, float] | None = None,
+                    odometer_sigma_mm: float = 0.5, odometer_scale_sigma: float = 0.05,
+                    placed: Sequence[int] | None = None) -> Positions:
+    """Global robust solve of every frame's z and roll from registration links and odometry.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the run (indices 0..n-1).
+    links : sequence of Link
+        Registration measurements (any pairs).
+    odometry_mm : mapping, optional
+        Odometer reading per frame; consecutive differences (times a fitted scale,
+        prior 1 ± ``odometer_scale_sigma``) are measurements with ``odometer_sigma_mm``.
+    placed : sequence of int, optional
+        Frames to solve for (default all); the others stay NaN.
+
+    Returns
+    -------
+    Positions
+        Frames not connected to the largest group by any measurement are NaN.
+    """
+    frames = sorted(set(range(n_frames) if placed is None else placed))
+    col = {f: k for k, f in enumerate(frames)}
+    n = len(frames)
+    z_rows: list[tuple[int, int, float, float]] = []
+    r_rows: list[tuple[int, int, float, float]] = []
+    sources: list[tuple[tuple[int, int], str]] = []
+    for ln in links:
+        if ln.i in col and ln.j in col:
+            z_rows.append((col[ln.i], col[ln.j], ln.dz_mm, ln.dz_sigma_mm))
+            r_rows.append((col[ln.i], col[ln.j], ln.droll_deg, ln.droll_sigma_deg))
+            sources.append(((ln.i, ln.j), "registration"))
+    odo_extra = []
+    odo = {f: v for f, v in (odometry_mm or {}).items() if f in col and np.isfinite(v)}
+    odo_frames = sorted(odo)
+    for a, b in itertools.pairwise(odo_frames):
+        odo_extra.append((len(z_rows), odo[b] - odo[a], 0.0))
+        z_rows.append((col[a], col[b], 0.0, odometer_sigma_mm))
+        sources.append(((a, b), "odometer"))
+    n_extra = 1 if odo_extra else 0
+    if n_extra:
+        # Prior on the scale: (s - 1) / sigma, written as x_s - 0 with the 'i = -1' form.
+        z_rows.append((-1, n, 1.0, odometer_scale_sigma))
+    label = _components(n, [(i, j) for i, j, *_ in z_rows if i >= 0 and j < n])
+    main = np.bincount(label).argmax() if n else 0
+    anchor = int(np.flatnonzero(label == main)[0]) if n else 0
+    # Gauge: the anchor frame at 0 (shifted to the odometer afterwards).
+    z_rows.append((-1, anchor, 0.0, 1.0))
+    r_rows.append((-1, anchor, 0.0, 1.0))
+    z, z_res = _robust_linear(z_rows, n, n_extra, odo_extra)
+    roll, r_res = (_robust_linear(r_rows, n) if r_rows else (np.zeros(n), np.zeros(0)))
+    scale = float(z[n]) if n_extra else 1.0
+    z = z[:n]
+    unplaced = label != main
+    z[unplaced], roll[unplaced] = np.nan, np.nan
+    if odo:
+        offsets = [odo[f] * scale - z[col[f]] for f in odo_frames if np.isfinite(z[col[f]])]
+        if offsets:
+            z = z + float(np.median(offsets))
+    outliers = {key: src for (key, src), rz in zip(sources, z_res, strict=False)
+                if abs(rz) > 3}
+    outliers.update({key: "registration roll" for (key, src), rr in
+                     zip(sources, r_res, strict=False) if src == "registration" and abs(rr) > 3})
+    z_all = np.full(n_frames, np.nan)
+    r_all = np.full(n_frames, np.nan)
+    z_all[frames], r_all[frames] = z, roll
+    return Positions(z_all, r_all, scale, outliers)

@@ -1,0 +1,151 @@
+"""The inspection report: one self-contained HTML file, plots embedded as PNG data URIs.
+
+Pure: takes the run's results as plain data and returns the HTML text; the pipeline
+writes it. Plots are drawn with matplotlib's Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from dataclasses import dataclass, field
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+__all__ = ["FrameRow", "ReportData", "render_report"]
+
+MAX_MOSAIC_PX = 2400     # the embedded mosaic is downscaled to at most this many columns
+
+
+@dataclass(frozen=True)
+class FrameRow:
+    """One frame's line in the report (angles in degrees, lengths in mm; NaN = none)."""
+
+    frame: int
+    z_mm: float
+    alpha_deg: float
+    beta_deg: float
+    dx_mm: float
+    dy_mm: float
+    diameter_mm: float
+    ambiguous: bool
+    chosen_by: str
+
+
+@dataclass
+class ReportData:
+    """Everything the report shows."""
+
+    title: str
+    mosaic: np.ndarray                  # uint8, 0 = no data
+    z0_mm: float
+    mm_per_px: float
+    deg_per_px: float
+    nominal_diameter_mm: float
+    frames: list[FrameRow]
+    problems: list[tuple[int, str]] = field(default_factory=list)
+    figures: dict[str, str] = field(default_factory=dict)
+
+
+def _png(fig: plt.Figure) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _mosaic_figure(data: ReportData) -> str:
+    img = data.mosaic
+    step = max(1, int(np.ceil(img.shape[1] / MAX_MOSAIC_PX)))
+    shown = img[::step, ::step]
+    z1 = data.z0_mm + img.shape[1] * data.mm_per_px
+    width = min(16.0, 3 + shown.shape[1] / 120)
+    fig, ax = plt.subplots(figsize=(width, width * shown.shape[0] / shown.shape[1] + 0.8))
+    ax.imshow(np.ma.masked_equal(shown, 0), cmap="gray", vmin=0, vmax=255, aspect="auto",
+              extent=(data.z0_mm, z1, img.shape[0] * data.deg_per_px, 0),
+              interpolation="antialiased")
+    ax.set_facecolor("#402020")
+    ax.set_xlabel("z along the pipe (mm)")
+    ax.set_ylabel("θ around the pipe (deg, relative)")
+    ax.set_yticks(np.arange(0, 361, 45))
+    return _png(fig)
+
+
+def _series(data: ReportData, name: str) -> np.ndarray:
+    return np.array([getattr(f, name) for f in data.frames], dtype=float)
+
+
+def _pose_figure(data: ReportData) -> str:
+    z = _series(data, "z_mm")
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    for name, label in (("alpha_deg", "α"), ("beta_deg", "β")):
+        axes[0].plot(z, _series(data, name), ".-", label=label)
+    for name, label in (("dx_mm", "Δx"), ("dy_mm", "Δy")):
+        axes[1].plot(z, _series(data, name), ".-", label=label)
+    amb = np.array([f.ambiguous for f in data.frames], bool)
+    if amb.any():
+        for ax in axes:
+            ax.plot(z[amb], np.zeros(amb.sum()), "rx", label="ambiguous")
+    axes[0].set_ylabel("tilt (deg)")
+    axes[1].set_ylabel("offset (mm)")
+    axes[1].set_xlabel("z of the camera (mm)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    return _png(fig)
+
+
+def _profile_figure(data: ReportData) -> str:
+    fig, ax = plt.subplots(figsize=(9, 3))
+    ax.plot(_series(data, "z_mm"), _series(data, "diameter_mm"), ".-", label="from the ring")
+    ax.axhline(data.nominal_diameter_mm, color="k", ls="--", lw=1, label="nominal")
+    ax.set_xlabel("z of the camera (mm)")
+    ax.set_ylabel("diameter (mm)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def _table(headers: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
+                   for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+_STYLE = """body{font-family:system-ui,sans-serif;margin:2em;max-width:1400px;color:#222}
+h1{font-size:1.6em}h2{font-size:1.2em;margin-top:1.6em}img{max-width:100%}
+table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ccc;padding:2px 8px}
+th{background:#f0f0f0}.note{color:#555;font-size:.9em}"""
+
+
+def render_report(data: ReportData) -> str:
+    """The report as one HTML string (no external resources)."""
+    figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
+    problems = (_table(["frame", "problem"], [[f"{i:05d}", m] for i, m in data.problems])
+                if data.problems else "<p>None.</p>")
+    rows = [[f"{f.frame:05d}", f"{f.z_mm:.2f}", f"{f.alpha_deg:.3f}", f"{f.beta_deg:.3f}",
+             f"{f.dx_mm:.3f}", f"{f.dy_mm:.3f}", f"{f.diameter_mm:.3f}",
+             "yes" if f.ambiguous else "", f.chosen_by] for f in data.frames]
+    frames = _table(["frame", "z (mm)", "α (°)", "β (°)", "Δx (mm)", "Δy (mm)", "D (mm)",
+                     "ambiguous", "chosen by"], rows)
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
+<style>{_STYLE}</style></head><body>
+<h1>{html.escape(data.title)}</h1>
+<h2>Unrolled wall</h2>
+<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; θ is relative to the first
+frame's roll. Dark red: not seen.</p>
+<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">
+<h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
+<h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
+<h2>Frames that failed, were skipped or stayed ambiguous</h2>{problems}
+<h2>Processing</h2>{figures}
+<h2>Frames</h2>{frames}
+</body></html>
+"""

@@ -53,6 +53,10 @@ class Hypothesis:
         RMS residual of the inliers, on the wall (mm) and in the image (px).
     std : dict
         One-sigma uncertainty of each parameter (radians for angles, mm).
+    information : numpy.ndarray or None
+        4 x 4 information matrix (inverse covariance) of (alpha, beta, dx, dy) from the
+        ring, the radius marginalised out: what the ring says about the pose, for fusing
+        with other evidence (:mod:`pipestitch.refine`).
     """
 
     pose: Pose
@@ -61,6 +65,7 @@ class Hypothesis:
     rms_mm: float
     rms_px: float
     std: dict[str, float] = field(default_factory=dict)
+    information: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -228,16 +233,26 @@ def _refine(pose: Pose, radius: float, pts: np.ndarray, d: float, fit_radius: bo
     return x, float(res.cost)
 
 
-def _std(jac: np.ndarray, residuals: np.ndarray, fit_radius: bool) -> dict[str, float]:
-    """1-sigma of each parameter from the plain (unweighted) Jacobian and residuals."""
+def _uncertainty(jac: np.ndarray, residuals: np.ndarray,
+                 fit_radius: bool) -> tuple[dict[str, float], np.ndarray | None]:
+    """1-sigma of each parameter and the pose's 4 x 4 information matrix.
+
+    From the plain (unweighted) Jacobian and residuals; with the radius fitted it is
+    marginalised out of the information (Schur complement).
+    """
     dof = max(1, len(residuals) - jac.shape[1])
-    sigma2 = float(residuals @ residuals) / dof
+    sigma2 = max(float(residuals @ residuals) / dof, 1e-12)
+    info = jac.T @ jac / sigma2
+    if fit_radius:
+        pose_info = info[:4, :4] - np.outer(info[:4, 4], info[4, :4]) / max(info[4, 4], 1e-300)
+    else:
+        pose_info = info
     try:
-        cov = np.linalg.inv(jac.T @ jac) * sigma2
+        cov = np.linalg.inv(info)
     except np.linalg.LinAlgError:
-        return {}
+        return {}, pose_info
     names = PARAMS if fit_radius else PARAMS[:4]
-    return {n: float(np.sqrt(max(cov[i, i], 0))) for i, n in enumerate(names)}
+    return {n: float(np.sqrt(max(cov[i, i], 0))) for i, n in enumerate(names)}, pose_info
 
 
 def _ransac_conic(pts: np.ndarray, threshold_mm: float,
@@ -317,10 +332,10 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         r = _residuals(x, pts[keep], plane_distance_mm)
         jac = _jacobian(x, pts[keep], plane_distance_mm)[:, :5 if fit_radius else 4]
         pose = Pose(*x[:4])
+        std, info = _uncertainty(jac, r, fit_radius)
         hyps.append(Hypothesis(pose, float(x[4]), cost, float(np.sqrt(np.mean(r**2))),
                                _rms_px(pose, x[4], pixels[keep], pts[keep], camera,
-                                       plane_distance_mm),
-                               _std(jac, r, fit_radius)))
+                                       plane_distance_mm), std, info))
     return PoseFit(True, "", tuple(hyps), int(keep.sum()), float(coverage), "circle")
 
 

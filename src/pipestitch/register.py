@@ -24,7 +24,8 @@ from scipy.sparse import lil_matrix
 
 from pipestitch.unwrap import Strip, StripGrid, local_contrast
 
-__all__ = ["Link", "Positions", "measure_shift", "registration_image", "solve_positions"]
+__all__ = ["Link", "Positions", "measure_shift", "registration_image", "solve_positions",
+           "strip_contrast"]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
 
@@ -47,12 +48,15 @@ def _sigma_px(response: float) -> float:
     growing as the peak weakens (less common texture)."""
     return 0.1 / max(response, MIN_RESPONSE) ** 0.5
 
-def registration_image(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
-    """Quality-weighted local contrast of a strip, tapered to 0 at both z ends (float32)."""
-    contrast, _ = local_contrast(strip.values, sigma_px)
-    weight = np.clip(strip.weight, 0, 1)
-    taper = np.hanning(strip.values.shape[1] + 2)[1:-1].astype(np.float32)
-    return (contrast * weight * taper[None, :]).astype(np.float32)
+def strip_contrast(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
+    """Local contrast of a strip (value / local mean - 1; 0 where masked), float32."""
+    return local_contrast(strip.values, sigma_px)[0]
+
+
+def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Quality-weighted local contrast, tapered to 0 at both z ends (float32)."""
+    taper = np.hanning(contrast.shape[1] + 2)[1:-1].astype(np.float32)
+    return (contrast * np.clip(weight, 0, 1) * taper[None, :]).astype(np.float32)
 
 
 def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int,

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,7 +29,15 @@ from pipestitch.mosaic import Canvas, canvas_grid, frame_grid, vignetting_profil
 from pipestitch.occluder import occluder_mask
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
-from pipestitch.register import Link, Positions, measure_shift, registration_image, solve_positions
+from pipestitch.refine import PatchShifts, node_jacobian, patch_shifts, solve_pose_errors
+from pipestitch.register import (
+    Link,
+    Positions,
+    measure_shift,
+    registration_image,
+    solve_positions,
+    strip_contrast,
+)
 from pipestitch.unwrap import (
     Strip,
     StripGrid,
@@ -69,6 +77,13 @@ class MosaicSettings:
         Nodes drawing on fewer source pixels per output pixel are masked.
     reference_frames : int
         LED frames sampled along the run to find the occluders.
+    refine_iterations : int
+        Rounds of photometric pose refinement (``ours`` only; 0 to use the ring's poses
+        as they are). Each round costs one more unwrapping pass.
+    register_coarsening : int
+        All refinement rounds but the last work on strips this many times coarser than
+        the mosaic (4x fewer pixels for 2); the last round, whose links place the
+        frames, works on the mosaic's scale.
     """
 
     mm_per_px: float | None = None
@@ -77,6 +92,8 @@ class MosaicSettings:
     step: int = 4
     min_resolution: float = 0.5
     reference_frames: int = 11
+    refine_iterations: int = 2
+    register_coarsening: int = 2
 
     def __post_init__(self) -> None:
         if self.mode not in UNWRAP_MODES:
@@ -92,11 +109,15 @@ class FrameView:
 
     ``alternative`` is the mirror hypothesis of a frame the pose step left ambiguous:
     registration then keeps whichever agrees better with the previous frames.
+    ``information`` is the ring's information matrix on (alpha, beta, dx, dy), the
+    prior of the photometric refinement; ``refined`` says the pose has been refined.
     """
 
     pose: Pose
     section: PipeSection
     alternative: FrameView | None = None
+    information: np.ndarray | None = field(default=None, compare=False)
+    refined: bool = False
 
 
 @dataclass
@@ -119,6 +140,7 @@ class MosaicResult:
     skipped: dict[int, str] = field(default_factory=dict)
     gains: dict[int, float] = field(default_factory=dict)
     switched: dict[int, bool] = field(default_factory=dict)
+    views: dict[int, FrameView] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -172,71 +194,128 @@ def _column_levels(strip: Strip) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _Candidate:
+    """One view of a frame unwrapped for registration."""
+
+    contrast: np.ndarray
+    valid: np.ndarray
+    image: np.ndarray
+    level: np.ndarray
+
+
+@dataclass(frozen=True)
 class _Registered:
-    """Pass-1 result of one frame: registration image and levels per candidate view."""
+    """Pass-1 result of one frame: one candidate per view (two for an ambiguous frame)."""
 
     index: int
-    images: list[np.ndarray]
-    levels: list[np.ndarray]
+    candidates: list[_Candidate]
     error: str = ""
 
 
-def _links_to(recent: Sequence[tuple[int, np.ndarray]], image: np.ndarray, grid: StripGrid,
-              i: int) -> list[Link]:
-    found = (measure_shift(previous, image, grid, j, i) for j, previous in recent)
-    return [link for link in found if link is not None]
+@dataclass
+class _Pass1:
+    """What pass 1 gathers over the run."""
+
+    links: list[Link] = field(default_factory=list)
+    levels: list[np.ndarray] = field(default_factory=list)
+    done: list[int] = field(default_factory=list)
+    switched: dict[int, bool] = field(default_factory=dict)
+    patches: list[PatchShifts] = field(default_factory=list)
+
+
+def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
+                      grid: StripGrid, timer: StageTimer) -> _Candidate:
+    with timer("unwrap"):
+        strip = unwrapper.strip(grey, view, grid)
+    with timer("register"):
+        contrast = strip_contrast(strip)
+        return _Candidate(contrast, strip.weight > 0, registration_image(contrast, strip.weight),
+                          _column_levels(strip))
+
+
+def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
+              i: int) -> list[tuple[Link, _Candidate]]:
+    found = ((measure_shift(prev.image, cand.image, grid, j, i), prev) for j, prev in recent)
+    return [(link, prev) for link, prev in found if link is not None]
 
 
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: StripGrid, timer: StageTimer, show_progress: bool,
-              skipped: dict[int, str]) -> tuple[list[Link], list[np.ndarray], list[int],
-                                                 dict[int, bool]]:
+              skipped: dict[int, str], *, patches: bool) -> _Pass1:
     """Pass 1: own-window strips, links to the next frames, vignetting levels.
 
     For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
     one whose strip correlates better with the previous frames is kept (``views`` is
-    updated; the returned dict says which frames switched to their mirror).
+    updated). With ``patches`` the local patch shifts of every link are measured too
+    (for the photometric pose refinement).
     """
     def work(i: int) -> _Registered:
         try:
             grey = _read_grey(dataset, i, timer)
         except DatasetError as exc:
-            return _Registered(i, [], [], f"{exc.path.name}: {exc.problem}")
-        candidates = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
-        images, levels = [], []
-        for view in candidates:
-            with timer("unwrap"):
-                strip = unwrapper.strip(grey, view, own)
-            with timer("register"):
-                images.append(registration_image(strip))
-                levels.append(_column_levels(strip))
-        return _Registered(i, images, levels)
+            return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
+        options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
+        return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer)
+                               for v in options])
 
-    links: list[Link] = []
-    levels: list[np.ndarray] = []
-    done: list[int] = []
-    switched: dict[int, bool] = {}
-    recent: deque[tuple[int, np.ndarray]] = deque(maxlen=LINK_SPAN)
+    out = _Pass1()
+    recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
     for reg in track(ordered_map(work, order, unwrapper.settings.workers), "register",
                      total=len(order), enabled=show_progress):
-        if not reg.images:
+        if not reg.candidates:
             skipped[reg.index] = reg.error
             continue
         with timer("register"):
-            found = [_links_to(recent, image, own, reg.index) for image in reg.images]
+            found = [_links_to(recent, c, own, reg.index) for c in reg.candidates]
         best = 0
         if len(found) > 1 and any(found):
-            scores = [sum(link.response for link in f) for f in found]
-            best = int(np.argmax(scores))
-            switched[reg.index] = best == 1
+            best = int(np.argmax([sum(link.response for link, _ in f) for f in found]))
+            out.switched[reg.index] = best == 1
             if best == 1:
                 views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
-        links += found[best]
-        recent.append((reg.index, reg.images[best]))
-        levels.append(reg.levels[best])
-        done.append(reg.index)
-    return links, levels, done, switched
+        cand = reg.candidates[best]
+        for link, prev in found[best]:
+            out.links.append(link)
+            if patches:
+                with timer("refine"):
+                    out.patches.append(patch_shifts(
+                        prev.contrast, prev.valid, cand.contrast, cand.valid,
+                        (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
+                        link.i, link.j))
+        recent.append((reg.index, cand))
+        out.levels.append(cand.level)
+        out.done.append(reg.index)
+    return out
+
+
+def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraModel,
+                  own: StripGrid) -> tuple[dict[int, FrameView], list[Link]]:
+    """Views with poses corrected by the photometric refinement, and corrected links.
+
+    A link with patches is replaced by the pair's rigid motion from the refinement
+    (free of the warp the old poses left in the strips); the others are kept.
+    """
+    patches = pass1.patches
+    jac = {}
+    for o in patches:
+        if len(o.nodes):
+            jac[(o.i, o.j)] = (
+                node_jacobian(camera, views[o.i].pose, views[o.i].section, own,
+                              o.nodes + o.shift),
+                node_jacobian(camera, views[o.j].pose, views[o.j].section, own, o.nodes))
+    errors, motions = solve_pose_errors(patches, jac,
+                                        {i: v.information for i, v in views.items()})
+    links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px),
+                     droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
+             if (ln.i, ln.j) in motions else ln for ln in pass1.links]
+    out = {}
+    for i, v in views.items():
+        e = errors.get(i, np.zeros(4))
+        p = v.pose
+        out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
+                                      p.dy_mm - e[3]), refined=True)
+    return out, links
 
 
 def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
@@ -296,7 +375,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     radius = float(np.median(radii)) if radii and settings.mode == "ours" else nominal
     mm = settings.mm_per_px or default_mm_per_px(camera, radius)
     window = strip_window_mm(camera, radius, mm, min_resolution=settings.min_resolution)
-    own = StripGrid.window(radius, mm, *window)
+    fine = StripGrid.window(radius, mm, *window)
+    coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window)
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:
@@ -304,8 +384,19 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
     unwrapper = _Unwrapper(camera, settings, radius, occluded)
     views = _views(usable, settings.mode, nominal)
-    links, levels, done, switched = _register(dataset, views, unwrapper, own, timer,
-                                              show_progress, skipped)
+    rounds = settings.refine_iterations if settings.mode == "ours" else 0
+    switched: dict[int, bool] = {}
+    for k in range(max(1, rounds)):
+        # Early rounds on coarse strips (4x cheaper), the last on the mosaic's scale.
+        own = coarse if k < rounds - 1 else fine
+        pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
+                          patches=rounds > 0)
+        switched.update(pass1.switched)
+        links = pass1.links
+        if pass1.patches:
+            with timer("refine"):
+                views, links = _refine_views(views, pass1, camera, own)
+    levels, done = pass1.levels, pass1.done
     with timer("register"):
         positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,
                                     placed=done)
@@ -316,14 +407,14 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if not placed:
         raise DatasetError(dataset.root / "frames", "no frame could be placed in the mosaic")
     prof = vignetting_profile(levels)
-    z_own = own.z0_mm + np.arange(own.n_cols) * mm
+    z_own = own.z0_mm + np.arange(own.n_cols) * own.mm_per_px
 
     def profile(z_local: np.ndarray) -> np.ndarray:
         return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
 
-    canvas = Canvas(canvas_grid(positions.z_mm, window, own))
+    canvas = Canvas(canvas_grid(positions.z_mm, window, fine))
     gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
                     timer, show_progress, skipped)
     image, weights = canvas.image()
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
-                        [i for i in placed if i in gains], skipped, gains, switched)
+                        [i for i in placed if i in gains], skipped, gains, switched, views)

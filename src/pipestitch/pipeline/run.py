@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,8 +72,8 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
         alt = None
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
-            alt = FrameView(m.pose, PipeSection(m.radius_mm))
-        views[frame.index] = FrameView(h.pose, PipeSection(h.radius_mm), alt)
+            alt = FrameView(m.pose, PipeSection(m.radius_mm), information=m.information)
+        views[frame.index] = FrameView(h.pose, PipeSection(h.radius_mm), alt, h.information)
     return views
 
 
@@ -85,6 +85,20 @@ def _apply_switches(choices: list[Choice], switched: dict[int, bool]) -> list[Ch
             chosen = 1 - c.chosen if switched[k] else c.chosen
             c = Choice(chosen, False, "registration", c.margin)
         out.append(c)
+    return out
+
+
+def _with_refined(frames: list[FramePose], choices: list[Choice],
+                  views: dict[int, FrameView]) -> list[FramePose]:
+    """Frames whose chosen hypothesis carries the photometrically refined pose."""
+    out = []
+    for frame, choice in zip(frames, choices, strict=True):
+        view = views.get(frame.index)
+        if view is not None and view.refined and choice.chosen is not None:
+            hyps = list(frame.fit.hypotheses)
+            hyps[choice.chosen] = replace(hyps[choice.chosen], pose=view.pose)
+            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps)))
+        out.append(frame)
     return out
 
 
@@ -162,6 +176,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         raise PipestitchError(f"{dataset.root}: no frame has a pose; nothing to stitch")
     result = build_mosaic(dataset, views, settings, timer=timer, show_progress=show_progress)
     choices = _apply_switches(choices, result.switched)
+    frames = _with_refined(frames, choices, result.views)
     z = {i: float(v) for i, v in enumerate(result.positions.z_mm) if np.isfinite(v)}
     roll = {i: float(v) for i, v in enumerate(result.positions.roll_deg) if np.isfinite(v)}
     with timer("write"):

@@ -25,6 +25,7 @@ __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
 
 PATCH_PX = 64
 MIN_PATCH_RESPONSE = 0.1
+MIN_PATCH_STD = 0.005     # flatter true-wall patches carry no position
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
         for c in range(0, n_cols - PATCH_PX + 1, PATCH_PX):
             m = mosaic.image[r:r + PATCH_PX, c:c + PATCH_PX]
             t = reference[r:r + PATCH_PX, c:c + PATCH_PX]
-            if not (np.isfinite(m).all() and np.isfinite(t).all()) or np.std(t) < 0.02:
+            if not (np.isfinite(m).all() and np.isfinite(t).all()) or np.std(t) < MIN_PATCH_STD:
                 continue
             (dx, dy), resp = cv2.phaseCorrelate(t.astype(np.float32), m.astype(np.float32), win)
             if resp >= MIN_PATCH_RESPONSE and max(abs(dx), abs(dy)) < PATCH_PX / 4:

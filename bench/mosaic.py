@@ -59,7 +59,7 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> N
     print(f"\nMosaic quality ({size} size; reference design: SSIM 0.3502 centralised, "
           "0.3022 uncentred)")
     print(f"{'dataset':>10} | {'unwrap':>7} | {'SSIM':>6} | {'geom RMS mm':>11} | "
-          f"{'patches':>7} | {'placed':>6} | {'pairs/s':>7}")
+          f"{'patches (rejected)':>18} | {'placed':>6} | {'pairs/s':>7}")
     for name in scenarios:
         dataset = root / f"{name}_{size}"
         if not (dataset / "probe.toml").exists():
@@ -69,8 +69,9 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> N
             summary = run_dataset(dataset, root / f"out_{name}_{size}_{mode}",
                                   settings=MosaicSettings(mode=mode), show_progress=False)
             s = score(dataset, summary)
+            patches = f"{s.n_patches} ({s.n_rejected})"
             print(f"{name:>10} | {mode:>7} | {s.ssim:6.3f} | {s.geometric_rms_mm:11.3f} | "
-                  f"{s.n_patches:7d} | {summary.n_placed:3d}/{summary.n_frames:<2d} | "
+                  f"{patches:>18} | {summary.n_placed:3d}/{summary.n_frames:<2d} | "
                   f"{summary.pairs_per_second:7.2f}", flush=True)
 
 

@@ -77,10 +77,13 @@ def test_simulate_bad_options_exit_2(tmp_path: Path, args: list[str], message: s
     assert result.exit_code == 2 and message in result.output
 
 
-def test_demo_writes_a_checked_dataset(tmp_path: Path) -> None:
+def test_demo_simulates_and_processes_a_run(tmp_path: Path) -> None:
     result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--quiet"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "dataset" / "frames" / "led_00011.png").is_file()
+    assert "report:" in result.output
+    for name in ("poses.csv", "mosaic.png", "mosaic.json", "profile.csv", "report.html"):
+        assert (tmp_path / "out" / name).is_file(), name
 
 
 def test_messages_with_brackets_are_printed_verbatim(small_dataset: Path, tmp_path: Path) -> None:

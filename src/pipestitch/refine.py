@@ -31,6 +31,7 @@ from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, rays_to_wall, theta_z_from_points
+from pipestitch.register import phase_shift
 from pipestitch.unwrap import StripGrid
 
 __all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "solve_pose_errors"]
@@ -94,7 +95,7 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
             a = first[rows_i, c1:c1 + PATCH_PX]
             if np.std(b) < MIN_CONTRAST or np.std(a) < MIN_CONTRAST:
                 continue
-            (sx, sy), resp = cv2.phaseCorrelate(a, b, win)
+            sx, sy, resp = phase_shift(a, b, win)
             if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
                 continue
             # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.

@@ -66,15 +66,16 @@ class StripGrid:
 def _upsample(coarse: np.ndarray, step: int, n_rows: int, n_cols: int) -> np.ndarray:
     """Bilinear interpolation of nodes every ``step`` rows/columns to every node.
 
-    Done in float64 with exact weights: ``cv2.resize``/``remap`` quantise the
-    weights to 1/32, which would cost ~0.05 px on a map that moves several pixels
-    per coarse cell.
+    ``coarse`` is (rows, cols, fields). Exact weights: ``cv2.resize``/``remap``
+    quantise them to 1/32, which would cost ~0.05 px on a map that moves several
+    pixels per coarse cell.
     """
-    w = np.arange(step) / step
+    w = (np.arange(step) / step).astype(coarse.dtype)
     for axis, n in ((0, n_rows), (1, n_cols)):
         a = np.moveaxis(coarse, axis, 0)
-        fine = a[:-1, None] * (1 - w)[None, :, None] + a[1:, None] * w[None, :, None]
-        fine = np.concatenate([fine.reshape(-1, a.shape[1]), a[-1:]])[:n]
+        shape = (1, step) + (1,) * (a.ndim - 1)
+        fine = a[:-1, None] * (1 - w).reshape(shape) + a[1:, None] * w.reshape(shape)
+        fine = np.concatenate([fine.reshape(-1, *a.shape[1:]), a[-1:]])[:n]
         coarse = np.moveaxis(fine, 0, axis)
     return coarse
 
@@ -140,19 +141,23 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
     px = np.where(valid[..., None], px, 0.0)
     fields = [px[..., 0], px[..., 1], valid.astype(float)]
     if with_quality:
+        # Smooth quantities: computed on the projected nodes, interpolated with the maps.
         cosine, distance = _line_of_sight(local, section, wall)
-        fields += [cosine.reshape(shape), (section.mean_radius_mm / distance).reshape(shape) ** 2]
+        cosine = np.clip(cosine.reshape(shape), 0, 1)
+        resolution = _resolution(px[..., 0], px[..., 1]) / step
+        fields += [resolution * cosine,
+                   cosine * (section.mean_radius_mm / distance.reshape(shape)) ** 2]
+    # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
+    stacked = np.stack(fields, axis=-1).astype(np.float32)
     if step > 1:
-        fields = [_upsample(f, step, grid.n_rows, grid.n_cols) for f in fields]
-    ok = fields[2] > 0.999
-    map_x = np.where(ok, fields[0], -1.0).astype(np.float32)
-    map_y = np.where(ok, fields[1], -1.0).astype(np.float32)
+        stacked = _upsample(stacked, step, grid.n_rows, grid.n_cols)
+    ok = stacked[..., 2] > 0.999
+    map_x = np.where(ok, stacked[..., 0], -1.0).astype(np.float32)
+    map_y = np.where(ok, stacked[..., 1], -1.0).astype(np.float32)
     if not with_quality:
         return map_x, map_y
-    cosine = np.clip(fields[3], 0, 1)
-    quality = _resolution(fields[0], fields[1]) * cosine
-    return UnwrapMaps(map_x, map_y, np.where(ok, quality, 0).astype(np.float32),
-                      np.where(ok, cosine * fields[4], 0).astype(np.float32))
+    return UnwrapMaps(map_x, map_y, np.where(ok, stacked[..., 3], 0).astype(np.float32),
+                      np.where(ok, stacked[..., 4], 0).astype(np.float32))
 
 
 def _line_of_sight(pose: Pose, section: PipeSection,
@@ -164,14 +169,12 @@ def _line_of_sight(pose: Pose, section: PipeSection,
 
 
 def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Source pixels per output pixel: the smaller of the two directions of the grid."""
-    # Rows wrap around the pipe; columns do not.
-    d_row = np.hypot(np.roll(map_x, -1, 0) - np.roll(map_x, 1, 0),
-                     np.roll(map_y, -1, 0) - np.roll(map_y, 1, 0)) / 2
-    if map_x.shape[1] < 2:
-        return d_row
-    d_col = np.hypot(np.gradient(map_x, axis=1), np.gradient(map_y, axis=1))
-    return np.minimum(d_row, d_col)
+    """Source pixels per grid step: the smaller of the two directions of the grid."""
+    steps = []
+    for axis in (0, 1):
+        if map_x.shape[axis] >= 2:
+            steps.append(np.hypot(np.gradient(map_x, axis=axis), np.gradient(map_y, axis=axis)))
+    return np.minimum(*steps) if len(steps) == 2 else steps[0]
 
 
 def unwrap(frame: np.ndarray, camera: CameraModel, pose: Pose, section: PipeSection,

@@ -184,8 +184,12 @@ def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
 
 
 def _column_levels(strip: Strip) -> np.ndarray:
-    """Median over theta of strip / shading per column (NaN where a column has no data)."""
-    ratio = np.where(strip.weight > 0, strip.values / np.maximum(strip.shading, 1e-6), np.nan)
+    """Median over theta of strip / shading per column (NaN where a column has no data).
+
+    Every 4th row is enough for a median over ~1000 rows (and 4x faster).
+    """
+    valid = strip.weight[::4] > 0
+    ratio = np.where(valid, strip.values[::4] / np.maximum(strip.shading[::4], 1e-6), np.nan)
     out = np.full(ratio.shape[1], np.nan)
     enough = np.sum(np.isfinite(ratio), axis=0) > 0.1 * ratio.shape[0]
     if enough.any():

@@ -150,9 +150,11 @@ def _mosaic_json(result: MosaicResult, scale: float, dataset: Dataset,
     }
 
 
-def _problems(frames: list[FramePose], result: MosaicResult | None,
-              choices: list[Choice]) -> list[tuple[int, str]]:
+def _problems(frames: list[FramePose], result: MosaicResult | None, choices: list[Choice],
+              dataset: Dataset) -> list[tuple[int, str]]:
     problems = [(f.index, m) for f in frames for m in (f.error, f.warning) if m]
+    if not dataset.has_led:
+        problems.append((0, "the dataset has no LED frames: no mosaic"))
     problems += [(c_i, "pose ambiguous (mirror hypothesis not ruled out)")
                  for c_i, c in enumerate(choices) if c.ambiguous]
     if result is not None:
@@ -174,34 +176,53 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     if not views:
         report_frame_messages((f.index, f.error) for f in frames if f.error)
         raise PipestitchError(f"{dataset.root}: no frame has a pose; nothing to stitch")
-    result = build_mosaic(dataset, views, settings, timer=timer, show_progress=show_progress)
-    choices = _apply_switches(choices, result.switched)
-    frames = _with_refined(frames, choices, result.views)
-    z = {i: float(v) for i, v in enumerate(result.positions.z_mm) if np.isfinite(v)}
-    roll = {i: float(v) for i, v in enumerate(result.positions.roll_deg) if np.isfinite(v)}
+    result = None
+    if dataset.has_led:
+        result = build_mosaic(dataset, views, settings, timer=timer, show_progress=show_progress)
+        choices = _apply_switches(choices, result.switched)
+        frames = _with_refined(frames, choices, result.views)
+        z = _finite(result.positions.z_mm)
+        roll = _finite(result.positions.roll_deg)
+    else:
+        # Laser frames only: poses and the profile, no mosaic (z from the odometer).
+        z, roll = dict(dataset.odometry_mm or {}), {}
     with timer("write"):
-        image, scale = mosaic_to_uint8(result.image)
-        write_mosaic_png(out / "mosaic.png", image)
-        if image.size >= TILED_TIFF_MIN_PIXELS:
-            write_tiled_tiff(out / "mosaic.tif", image)
-        write_json(out / "mosaic.json", _mosaic_json(result, scale, dataset, settings))
+        image = _write_mosaic(out, result, dataset, settings)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
                   _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm))
-    problems = _problems(frames, result, choices)
+    problems = _problems(frames, result, choices, dataset)
     report_frame_messages(problems)
     seconds = time.perf_counter() - start
     summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
-                         sum(1 for c in choices if c.ambiguous), len(result.placed), seconds,
-                         dict(timer.seconds), problems, result)
+                         sum(1 for c in choices if c.ambiguous),
+                         len(result.placed) if result else 0, seconds, dict(timer.seconds),
+                         problems, result)
     with timer("report"):
         atomic_write_text(out / "report.html", render_report(_report_data(
             dataset, frames, choices, z, image, result, summary)))
     return summary
 
 
+def _finite(values: np.ndarray) -> dict[int, float]:
+    return {i: float(v) for i, v in enumerate(values) if np.isfinite(v)}
+
+
+def _write_mosaic(out: Path, result: MosaicResult | None, dataset: Dataset,
+                  settings: MosaicSettings) -> np.ndarray | None:
+    """mosaic.png, mosaic.json (and mosaic.tif when large); the 8-bit image or None."""
+    if result is None:
+        return None
+    image, scale = mosaic_to_uint8(result.image)
+    write_mosaic_png(out / "mosaic.png", image)
+    if image.size >= TILED_TIFF_MIN_PIXELS:
+        write_tiled_tiff(out / "mosaic.tif", image)
+    write_json(out / "mosaic.json", _mosaic_json(result, scale, dataset, settings))
+    return image
+
+
 def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice],
-                 z: dict[int, float], image: np.ndarray, result: MosaicResult,
+                 z: dict[int, float], image: np.ndarray | None, result: MosaicResult | None,
                  summary: RunSummary) -> ReportData:
     total = sum(summary.stage_seconds.values()) or 1.0
     figures = {
@@ -209,13 +230,16 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
         "placed in the mosaic": str(summary.n_placed),
         "failed (no pose)": str(summary.n_failed),
         "ambiguous": str(summary.n_ambiguous),
-        "mirror choices settled by registration": str(len(result.switched)),
-        "mosaic scale": f"{result.grid.mm_per_px:g} mm/px, {result.grid.deg_per_px:.4f} deg/px",
+        "mirror choices settled by registration": str(len(result.switched) if result else 0),
+        "mosaic scale": (f"{result.grid.mm_per_px:g} mm/px, {result.grid.deg_per_px:.4f} deg/px"
+                         if result else "no mosaic"),
         "wall time": f"{summary.seconds:.1f} s ({summary.pairs_per_second:.2f} pairs/s)",
         **{f"time in {k}": f"{100 * v / total:.0f} %"
            for k, v in sorted(summary.stage_seconds.items())},
     }
-    return ReportData(f"pipestitch report: {dataset.root.name}", image, result.grid.z0_mm,
-                      result.grid.mm_per_px, result.grid.deg_per_px,
+    grid = result.grid if result else None
+    return ReportData(f"pipestitch report: {dataset.root.name}", image,
+                      grid.z0_mm if grid else 0.0, grid.mm_per_px if grid else 1.0,
+                      grid.deg_per_px if grid else 1.0,
                       dataset.config.pipe.inner_diameter_mm, _frame_rows(frames, choices, z),
                       summary.problems, figures)

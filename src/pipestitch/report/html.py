@@ -42,7 +42,7 @@ class ReportData:
     """Everything the report shows."""
 
     title: str
-    mosaic: np.ndarray                  # uint8, 0 = no data
+    mosaic: np.ndarray | None           # uint8, 0 = no data; None: no mosaic
     z0_mm: float
     mm_per_px: float
     deg_per_px: float
@@ -124,6 +124,14 @@ table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ccc;paddin
 th{background:#f0f0f0}.note{color:#555;font-size:.9em}"""
 
 
+def _mosaic_section(data: ReportData) -> str:
+    if data.mosaic is None:
+        return "<p>No mosaic: the dataset has no LED frames.</p>"
+    return (f'<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; θ is relative '
+            "to the first frame's roll. Dark red: not seen.</p>\n"
+            f'<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">')
+
+
 def render_report(data: ReportData) -> str:
     """The report as one HTML string (no external resources)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
@@ -139,9 +147,7 @@ def render_report(data: ReportData) -> str:
 <style>{_STYLE}</style></head><body>
 <h1>{html.escape(data.title)}</h1>
 <h2>Unrolled wall</h2>
-<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; θ is relative to the first
-frame's roll. Dark red: not seen.</p>
-<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">
+{_mosaic_section(data)}
 <h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
 <h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
 <h2>Frames that failed, were skipped or stayed ambiguous</h2>{problems}

@@ -11,6 +11,10 @@ allowed to get wrong. Then:
   arbitrary);
 * local geometric error: the RMS displacement (mm) of 64 x 64 patches against the
   true wall, measured by phase correlation, after removing the median displacement.
+  A patch of periodic texture (gratings, checkers) can lock onto the wrong period:
+  patches further than max(0.5 mm, 5 robust sigma) from the median are counted as
+  failed matches (``n_rejected``), not as geometry; for a warped baseline the robust
+  sigma is large, so its real errors are kept.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from skimage.metrics import structural_similarity
+
+from pipestitch.register import phase_shift
 
 __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
 
@@ -45,6 +51,7 @@ class MosaicScore:
     ssim: float
     geometric_rms_mm: float
     n_patches: int
+    n_rejected: int
     coverage: float
     z_offset_mm: float
     roll_offset_deg: float
@@ -87,7 +94,7 @@ def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
             t = reference[r:r + PATCH_PX, c:c + PATCH_PX]
             if not (np.isfinite(m).all() and np.isfinite(t).all()) or np.std(t) < MIN_PATCH_STD:
                 continue
-            (dx, dy), resp = cv2.phaseCorrelate(t.astype(np.float32), m.astype(np.float32), win)
+            dx, dy, resp = phase_shift(t.astype(np.float32), m.astype(np.float32), win)
             if resp >= MIN_PATCH_RESPONSE and max(abs(dx), abs(dy)) < PATCH_PX / 4:
                 out.append((dx * mosaic.mm_per_px, dy * arc_mm))
     return np.array(out, float).reshape(-1, 2)
@@ -121,8 +128,13 @@ def score_mosaic(mosaic: WallImage, truth: WallImage, radius_mm: float, z_offset
         roll_offset_deg -= np.rad2deg(ds / radius_mm)
         reference = truth_on_grid(truth, mosaic, z_offset_mm, roll_offset_deg)
         disp = _patch_displacements(mosaic, reference, radius_mm)
-    rms = (float(np.sqrt(np.mean(np.sum((disp - np.median(disp, axis=0)) ** 2, axis=1))))
-           if len(disp) else float("nan"))
+    rms, n_rejected = float("nan"), 0
+    if len(disp):
+        dist = np.hypot(*(disp - np.median(disp, axis=0)).T)
+        robust_sigma = 1.4826 * float(np.median(dist))
+        kept = dist <= max(0.5, 5 * robust_sigma)
+        n_rejected = int(np.sum(~kept))
+        rms = float(np.sqrt(np.mean(dist[kept] ** 2)))
     coverage = float(np.mean(np.isfinite(mosaic.image)))
-    return MosaicScore(_ssim(mosaic.image, reference), rms, len(disp), coverage, z_offset_mm,
-                       roll_offset_deg)
+    return MosaicScore(_ssim(mosaic.image, reference), rms, int(len(disp) - n_rejected),
+                       n_rejected, coverage, z_offset_mm, roll_offset_deg)

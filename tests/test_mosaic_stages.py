@@ -1,0 +1,263 @@
+"""Unwrap quality and maps, occluders, registration, global solve, refinement, stitching.
+
+Ground truth comes from the simulator's renderer (true poses, true wall) and from
+synthetic shifts of a random texture, never from the code under test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import PipeSection, Pose
+from pipestitch.mosaic import Canvas, _feather, frame_grid
+from pipestitch.occluder import occluder_mask
+from pipestitch.refine import node_jacobian, patch_shifts
+from pipestitch.register import (
+    Link,
+    measure_shift,
+    registration_image,
+    solve_positions,
+    strip_contrast,
+)
+from pipestitch.simulate.evaluate import WallImage, score_mosaic
+from pipestitch.simulate.render import Optics, Renderer, WallTexture
+from pipestitch.simulate.textures import WallGrid, make_wall
+from pipestitch.unwrap import (
+    Strip,
+    StripGrid,
+    default_mm_per_px,
+    polar_unwrap_maps,
+    strip_window_mm,
+    to_grey,
+    unwrap_maps,
+    unwrap_with_quality,
+)
+
+R = 32.5
+CAMERA = default_camera("half")
+
+
+@pytest.fixture(scope="module")
+def wall() -> tuple[WallGrid, np.ndarray]:
+    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
+    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
+
+
+@pytest.fixture(scope="module")
+def renderer(wall: tuple[WallGrid, np.ndarray]) -> Renderer:
+    grid, albedo = wall
+    texture = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    return Renderer(CAMERA, PipeSection.circle(2 * R), texture, 16.0, Optics())
+
+
+def _truth(wall: tuple[WallGrid, np.ndarray]) -> WallImage:
+    grid, albedo = wall
+    return WallImage(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+
+
+def _strip_score(renderer: Renderer, wall: tuple[WallGrid, np.ndarray], true_pose: Pose,
+                 used_pose: Pose) -> tuple[float, float]:
+    """SSIM and geometric RMS of one LED frame unwrapped with ``used_pose``."""
+    _, led = renderer.render_pair(true_pose, np.random.default_rng(0))
+    mm = default_mm_per_px(CAMERA, R)
+    grid = StripGrid.window(R, mm, 0.0, 30.0)
+    maps = unwrap_maps(CAMERA, used_pose, PipeSection(R), grid, step=4, with_quality=True)
+    strip = unwrap_with_quality(to_grey(led), maps)
+    image = np.where(strip.weight > 0, strip.values / strip.shading, np.nan)
+    s = score_mosaic(WallImage(image, grid.deg_per_px, mm, grid.z0_mm), _truth(wall), R,
+                     true_pose.z_mm, np.rad2deg(true_pose.roll))
+    return s.ssim, s.geometric_rms_mm
+
+
+def test_centred_frame_unwraps_to_the_true_wall(renderer: Renderer, wall) -> None:
+    pose = Pose.from_degrees(0, 0, 0, 0, 10.0, 40.0)
+    ssim, rms = _strip_score(renderer, wall, pose, pose)
+    assert ssim > 0.85 and rms < 0.05
+
+
+def test_offset_tilted_frame_needs_its_pose(renderer: Renderer, wall) -> None:
+    pose = Pose.from_degrees(3.0, -2.0, 4.0, -3.0, 10.0, 40.0)
+    ssim, rms = _strip_score(renderer, wall, pose, pose)
+    ssim_c, rms_c = _strip_score(renderer, wall, pose, Pose(z_mm=40.0, roll=pose.roll))
+    # The wall 7 mm further on one side is seen more coarsely than in the centred case,
+    # so the bound is the issue's mosaic target (SSIM 0.8), not the centred frame's.
+    assert ssim > 0.8 and rms < 0.05
+    assert rms_c > 5 * rms and ssim_c < ssim - 0.2
+
+
+def test_coarse_maps_match_exact_projection() -> None:
+    grid = StripGrid.window(R, 0.135, -13.0, 50.0)
+    pose = Pose.from_degrees(3, -2, 4, -3)
+    mx, my = unwrap_maps(CAMERA, pose, PipeSection(R), grid)
+    fast = unwrap_maps(CAMERA, pose, PipeSection(R), grid, step=4, with_quality=True)
+    ok = (mx >= 0) & (fast.map_x >= 0) & (fast.quality > 0.5)
+    assert ok.mean() > 0.3
+    assert np.max(np.hypot(mx - fast.map_x, my - fast.map_y)[ok]) < 0.05
+    assert np.mean((mx >= 0) != (fast.map_x >= 0)) < 1e-3   # same visible region
+
+
+def test_quality_falls_with_distance_and_shading_with_offset() -> None:
+    grid = StripGrid.window(R, 0.135, 0.0, 60.0)
+    m = unwrap_maps(CAMERA, Pose.from_degrees(0, 0, 5.0, 0), PipeSection(R), grid, step=4,
+                    with_quality=True)
+    q = m.quality.mean(axis=0)
+    assert q[10] > 2 * q[-10] > 0
+    near = round(0 / grid.deg_per_px)          # theta 0: the wall 5 mm closer
+    far = round(180 / grid.deg_per_px)
+    assert m.shading[near, 50] > 1.3 * m.shading[far, 50]
+
+
+def test_polar_baseline_equals_centred_unwrap_for_a_centred_principal_point() -> None:
+    cam = dataclasses.replace(CAMERA, center_col=(CAMERA.width - 1) / 2,
+                              center_row=(CAMERA.height - 1) / 2, c=1.0, d=0.0, e=0.0)
+    grid = StripGrid.window(R, 0.2, 5.0, 40.0)
+    ours = unwrap_maps(cam, Pose(), PipeSection(R), grid)
+    polar = polar_unwrap_maps(cam, R, grid)
+    assert np.max(np.abs(ours[0] - polar.map_x)) < 1e-3
+    assert np.max(np.abs(ours[1] - polar.map_y)) < 1e-3
+
+
+def test_default_scale_and_window() -> None:
+    mm = default_mm_per_px(CAMERA, R)
+    assert 0.1 < mm < 0.2
+    assert default_mm_per_px(default_camera("full"), R) == pytest.approx(mm / 2, rel=0.02)
+    z0, z1 = strip_window_mm(CAMERA, R, mm)
+    assert z0 < 0 < 20 < z1 < 6 * R
+
+
+def test_to_grey_handles_16_bit_and_colour() -> None:
+    img = np.full((4, 5, 3), 65535, np.uint16)
+    assert np.allclose(to_grey(img), 1.0)
+    assert to_grey(np.full((4, 5), 128, np.uint8)).max() == pytest.approx(128 / 255)
+
+
+def test_occluder_mask_keeps_static_dark_and_drops_moving_dark() -> None:
+    rng = np.random.default_rng(0)
+    frames = []
+    for k in range(7):
+        f = (0.5 + 0.2 * cv2.GaussianBlur(rng.random((200, 240)), (0, 0), 2)).astype(np.float32)
+        f[:, 100:110] = 0.02                     # the arm: always there
+        cv2.circle(f, (30 + 25 * k, 50), 6, 0.02, -1)   # a hole moving with the wall
+        frames.append(f)
+    mask = occluder_mask(frames)
+    assert mask[:, 102:108].all()
+    assert not mask[50, 30] and not mask[50, 130]
+    assert mask.mean() < 0.15
+    with pytest.raises(ValueError):
+        occluder_mask([])
+
+
+def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
+
+
+def _shifted(img: np.ndarray, d_rows: float, d_cols: float) -> np.ndarray:
+    """img(x + d), rows wrapping (as the pipe does)."""
+    rows, cols = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(np.float32)
+    return cv2.remap(img, cols + d_cols, rows + d_rows, cv2.INTER_CUBIC,
+                     borderMode=cv2.BORDER_WRAP)
+
+
+def test_registration_recovers_axial_shift_and_roll() -> None:
+    grid = StripGrid(360 / 720, 0.1, 0.0, 300)
+    wall = _texture((720, 420))
+    first = wall[:, :300]
+    second = _shifted(wall, 13.4, 37.3)[:, :300]     # frame j: 3.73 mm on, 6.7 deg of roll
+    images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),
+                                 np.ones_like(s)) for s in (first, second)]
+    link = measure_shift(images[0], images[1], grid, 0, 1)
+    assert link is not None
+    assert link.dz_mm == pytest.approx(3.73, abs=0.01)
+    assert link.droll_deg == pytest.approx(13.4 * 0.5, abs=0.01)
+    assert measure_shift(images[0], np.zeros_like(images[1]), grid, 0, 1) is None
+
+
+def _link(i: int, j: int, dz: float, droll: float = 0.0) -> Link:
+    return Link(i, j, dz, droll, 0.5, 0.02, 0.02)
+
+
+def test_global_solve_outvotes_a_bad_link_and_an_odometer_slip() -> None:
+    z_true = np.array([0.0, 5.1, 9.8, 15.2, 20.0, 25.3])
+    roll_true = np.array([0.0, 0.3, 0.5, 0.6, 0.5, 0.2])
+    links = [_link(i, j, z_true[j] - z_true[i], roll_true[j] - roll_true[i])
+             for i in range(6) for j in (i + 1, i + 2) if j < 6]
+    links[3] = dataclasses.replace(links[3], dz_mm=links[3].dz_mm + 4.0)   # a wrong peak
+    odometer = {i: 1.02 * (z - 0.0) + 100.0 for i, z in enumerate(z_true)}
+    odometer.update({k: v - 3.0 for k, v in odometer.items() if k >= 4})  # the wheel slips
+    pos = solve_positions(6, links, odometry_mm=odometer)
+    dz = np.diff(pos.z_mm)
+    assert np.allclose(dz, np.diff(z_true), atol=0.01)
+    assert np.allclose(pos.roll_deg - pos.roll_deg[0], roll_true, atol=0.01)
+    assert pos.outliers[(links[3].i, links[3].j)] == "registration"
+    assert "odometer" in pos.outliers.values()
+
+
+def test_global_solve_leaves_unconnected_frames_unplaced() -> None:
+    links = [_link(0, 1, 5.0), _link(1, 2, 5.0), _link(3, 4, 5.0)]
+    pos = solve_positions(5, links)
+    assert np.all(np.isfinite(pos.z_mm[:3])) and np.all(np.isnan(pos.z_mm[3:]))
+    pos = solve_positions(5, links, odometry_mm={i: 5.0 * i for i in range(5)})
+    assert np.allclose(np.diff(pos.z_mm), 5.0, atol=1e-6)
+
+
+def test_patch_shifts_measure_local_motion() -> None:
+    wall = _texture((400, 400), seed=2)
+    first = wall[:, :300] - 0.5
+    second = (_shifted(wall, 3.0, 20.25)[:, :300] - 0.5).astype(np.float32)
+    valid = np.ones_like(first, bool)
+    found = patch_shifts(first, valid, second, valid, (3.0, 20.0), 0, 1)
+    assert len(found.nodes) > 10
+    assert np.allclose(found.shift, [3.0, 20.25], atol=0.05)
+
+
+def test_node_jacobian_predicts_the_strip_warp_of_a_pose_error() -> None:
+    """Unwrap one frame with the true pose and with a slightly wrong one: the wall
+    moves between the two strips by G·e, as node_jacobian says."""
+    grid = StripGrid.window(R, 0.135, 5.0, 40.0)
+    true = Pose.from_degrees(1.0, -0.5, 2.0, 1.0)
+    error = np.array([np.deg2rad(0.3), np.deg2rad(-0.2), 0.1, -0.05])
+    wrong = Pose(true.alpha + error[0], true.beta + error[1], true.dx_mm + error[2],
+                 true.dy_mm + error[3])
+    nodes = np.array([[100.0, 50.0], [600.0, 120.0], [1200.0, 200.0]])
+    g = node_jacobian(CAMERA, wrong, PipeSection(R), grid, nodes)
+    # Ground truth: where the wrong strip's node really is on the wall, found by
+    # projecting it with the wrong pose and locating that pixel in the true strip.
+    mx_t, my_t = unwrap_maps(CAMERA, true, PipeSection(R), grid)
+    mx_w, my_w = unwrap_maps(CAMERA, wrong, PipeSection(R), grid)
+    for (r, c), gn in zip(nodes.astype(int), g, strict=True):
+        px = np.array([mx_w[r, c], my_w[r, c]])
+        d = np.hypot(mx_t - px[0], my_t - px[1])
+        rr, cc = np.unravel_index(np.argmin(d), d.shape)
+        predicted = np.array([r, c]) + gn @ error
+        assert np.allclose(predicted, [rr, cc], atol=1.0)
+
+
+def test_frame_grid_places_frames_by_z_and_roll() -> None:
+    canvas_grid = StripGrid(0.5, 0.1, -10.0, 1000)
+    grid, col = frame_grid(canvas_grid, 12.34, 2.0, (-5.0, 30.0))
+    assert grid.theta0_deg == -2.0
+    assert canvas_grid.z0_mm + col * 0.1 - 12.34 == pytest.approx(grid.z0_mm)
+    assert grid.z0_mm >= -5.0 and grid.z0_mm + (grid.n_cols - 1) * 0.1 <= 30.0
+
+
+def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> None:
+    grid = StripGrid(1.0, 0.1, 0.0, 120)
+    canvas = Canvas(grid)
+    level = np.ones(80)
+    wall = _texture((360, 120), seed=5)
+    ones = np.ones((360, 80), np.float32)
+    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0, level)
+    gain = canvas.add(Strip(2.0 * wall[:, 40:120], ones, ones), 40, level)
+    image, weights = canvas.image()
+    assert np.all(weights > 0)
+    assert gain == pytest.approx(0.5, rel=0.02)
+    assert np.allclose(image, wall, atol=0.02)
+    feather = _feather(np.ones((360, 80), bool))
+    assert feather[0, 40] == 1.0 and feather[-1, 40] == 1.0   # rows wrap: no seam at 0/360
+    assert feather[100, 0] < 0.1

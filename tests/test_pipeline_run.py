@@ -1,0 +1,130 @@
+"""``pipestitch run`` end to end on a small simulated dataset, checked against its truth."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli import app
+from pipestitch.io.dataset import read_csv_columns
+from pipestitch.io.images import read_image
+from pipestitch.simulate.evaluate import WallImage, score_mosaic
+
+runner = CliRunner()
+POSE = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("run") / "ds"
+    result = runner.invoke(app, ["simulate", "--out", str(root), "--size", "half", "--pairs",
+                                 "6", "--quiet", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    return root
+
+
+@pytest.fixture(scope="module")
+def output(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("run") / "out"
+    result = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "6 pairs: 6 in the mosaic" in result.output
+    return out
+
+
+def test_run_writes_every_output(output: Path) -> None:
+    for name in ("poses.csv", "mosaic.png", "mosaic.json", "profile.csv", "report.html"):
+        assert (output / name).stat().st_size > 0, name
+    header = (output / "profile.csv").read_text().splitlines()[0]
+    assert header.startswith("frame,z_mm,diameter_mm,ovality,min_radius_mm,max_radius_mm")
+    html = (output / "report.html").read_text()
+    assert 'id="mosaic"' in html and "data:image/png;base64," in html
+    assert "http://" not in html and "https://" not in html   # self-contained
+
+
+def test_mosaic_scale_matches_the_truth(dataset: Path, output: Path) -> None:
+    meta = json.loads((output / "mosaic.json").read_text())
+    truth = json.loads((dataset / "truth" / "wall.json").read_text())
+    image = read_image(output / "mosaic.png")
+    assert image.shape == (meta["n_rows"], meta["n_cols"])
+    assert meta["deg_per_px"] * meta["n_rows"] == pytest.approx(360.0)
+    assert meta["radius_mm"] == pytest.approx(truth["radius_mm"], rel=0.003)
+    assert meta["mm_per_px_circumferential"] == pytest.approx(meta["mm_per_px_axial"], rel=0.01)
+    assert meta["frames_placed"] == list(range(6)) and meta["frames_skipped"] == []
+
+
+def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
+    meta = json.loads((output / "mosaic.json").read_text())
+    image = read_image(output / "mosaic.png").astype(np.float32)
+    image[image == 0] = np.nan
+    est = read_csv_columns(output / "poses.csv", POSE)
+    truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
+    wall_meta = json.loads((dataset / "truth" / "wall.json").read_text())
+    wall = read_image(dataset / "truth" / "wall.png").astype(np.float32) / 255
+    score = score_mosaic(
+        WallImage(image, meta["deg_per_px"], meta["mm_per_px_axial"], meta["z0_mm"]),
+        WallImage(wall, wall_meta["deg_per_px"], wall_meta["mm_per_px_axial"],
+                  wall_meta["z0_mm"]),
+        wall_meta["radius_mm"], float(np.median(truth["z_mm"] - est["z_mm"])),
+        float(np.median(truth["roll_deg"] - est["roll_deg"])))
+    assert score.ssim > 0.9
+    assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
+
+
+def test_poses_carry_registration_z_and_roll(dataset: Path, output: Path) -> None:
+    est = read_csv_columns(output / "poses.csv", POSE)
+    truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
+    assert np.allclose(np.diff(est["z_mm"]), np.diff(truth["z_mm"]), atol=0.1)
+    assert np.allclose(np.diff(est["roll_deg"]), np.diff(truth["roll_deg"]), atol=0.1)
+    for name in ("alpha_deg", "beta_deg"):
+        assert np.max(np.abs(est[name] - truth[name])) < 0.3
+    for name in ("dx_mm", "dy_mm"):
+        assert np.max(np.abs(est[name] - truth[name])) < 0.1
+
+
+def test_run_reports_and_skips_corrupt_frames(dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    (copy / "frames" / "led_00003.png").write_bytes(b"not a png")
+    (copy / "frames" / "laser_00001.png").write_bytes(b"")
+    result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "led_00003.png" in result.output and "laser_00001.png" in result.output
+    meta = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    assert meta["frames_placed"] == [0, 2, 4, 5]
+    rows = (tmp_path / "out" / "poses.csv").read_text().splitlines()
+    assert len(rows) == 7                      # every frame keeps its row
+    assert "laser_00001.png" in rows[2]
+
+
+def test_run_without_led_frames_gives_poses_and_no_mosaic(dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    for led in (copy / "frames").glob("led_*.png"):
+        led.unlink()
+    result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "no LED frames" in result.output
+    assert (tmp_path / "out" / "poses.csv").is_file()
+    assert (tmp_path / "out" / "report.html").is_file()
+    assert not (tmp_path / "out" / "mosaic.png").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--mm-per-px", "-1"], "mm_per_px"),
+    (["--unwrap", "fisheye"], "mode"),
+])
+def test_run_bad_options_exit_2(dataset: Path, tmp_path: Path, args: list[str],
+                                message: str) -> None:
+    result = runner.invoke(app, ["run", str(dataset), "--out", str(tmp_path), *args])
+    assert result.exit_code == 2 and message in result.output
+
+
+def test_run_missing_dataset_exit_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["run", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "nope" in result.output

@@ -4,10 +4,12 @@ probe.toml does not describe the probe's occluders, and a dataset made by someon
 else may have its arm anywhere, so they are found from the LED frames themselves:
 they are fixed in the image while the wall moves past. A pixel is occluded when it
 is dark relative to its neighbourhood (arm, mirror edge) or absolutely dark (outside
-the lens' image circle, the mirror's face) in most frames of a sample spread over
-the run. Dark wall features (holes, stains) move between frames and so do not
-survive the median. With fewer than 3 frames the mask also covers that frame's dark
-wall features; the caller should sample frames spread along the run.
+the lens' image circle, the mirror's face) in nearly all frames of a sample spread
+over the run (the 85th percentile over frames is dark). Dark wall features (holes,
+stains, the black of a test chart) move between frames and so are dark in only some
+of them: a median would not do, since a wall that is 40 % black is black in most of
+11 frames at a quarter of its pixels. With fewer than 3 frames the mask also covers
+that frame's dark wall features; the caller should sample frames spread along the run.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import cv2
 import numpy as np
 
 __all__ = ["occluder_mask"]
+
+NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
 
 
 def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
@@ -30,10 +34,10 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
         Grey float frames (same shape), ideally 5-15 spread along the run.
     relative : float
         A pixel darker than this fraction of its neighbourhood (Gaussian of 1/40 of
-        the image height) in the median frame is an occluder edge or body.
+        the image height) in nearly all frames is an occluder edge or body.
     absolute : float
-        A pixel darker than this fraction of the median frame's median is outside the
-        image circle or on the mirror's face.
+        A pixel darker than this fraction of the frames' median level in nearly all
+        frames is outside the image circle or on the mirror's face.
     margin_px : int, optional
         Dilation of the mask (default 1/200 of the image height, at least 2 px).
 
@@ -50,9 +54,10 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     ratios = np.empty_like(stack)
     for k, frame in enumerate(stack):
         ratios[k] = frame / np.maximum(cv2.GaussianBlur(frame, (0, 0), sigma), 1e-6)
-    ratio = np.median(ratios, axis=0)
-    level = np.median(stack, axis=0)
-    scale = float(np.median(level[level > 0])) if np.any(level > 0) else 1.0
+    ratio = np.quantile(ratios, NEARLY_ALL, axis=0)
+    level = np.quantile(stack, NEARLY_ALL, axis=0)
+    typical = np.median(stack, axis=0)
+    scale = float(np.median(typical[typical > 0])) if np.any(typical > 0) else 1.0
     mask = (ratio < relative) | (level < absolute * scale)
     margin = max(2, round(height / 200)) if margin_px is None else margin_px
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))

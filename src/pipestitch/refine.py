@@ -37,7 +37,7 @@ from pipestitch.unwrap import StripGrid
 __all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "solve_pose_errors"]
 
 PATCH_PX = 64
-PATCH_STEP_PX = 48
+PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
 MIN_RESPONSE = 0.1
 MIN_CONTRAST = 0.01          # patches flatter than this (std of local contrast) are skipped
 SHIFT_SIGMA_PX = 0.15        # 1-sigma of a patch shift at response 1
@@ -95,7 +95,7 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
             a = first[rows_i, c1:c1 + PATCH_PX]
             if np.std(b) < MIN_CONTRAST or np.std(a) < MIN_CONTRAST:
                 continue
-            sx, sy, resp = phase_shift(a, b, win)
+            sx, sy, resp = phase_shift(a, b, win, iterations=2)
             if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
                 continue
             # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.

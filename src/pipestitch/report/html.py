@@ -11,6 +11,7 @@ import html
 import io
 from dataclasses import dataclass, field
 
+import cv2
 import matplotlib
 
 matplotlib.use("Agg")
@@ -19,7 +20,7 @@ import numpy as np
 
 __all__ = ["FrameRow", "ReportData", "render_report"]
 
-MAX_MOSAIC_PX = 2400     # the embedded mosaic is downscaled to at most this many columns
+MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 
 
 @dataclass(frozen=True)
@@ -61,14 +62,15 @@ def _png(fig: plt.Figure) -> str:
 
 def _mosaic_figure(data: ReportData) -> str:
     img = data.mosaic
-    step = max(1, int(np.ceil(img.shape[1] / MAX_MOSAIC_PX)))
-    shown = img[::step, ::step]
+    scale = min(1.0, MAX_MOSAIC_PX / max(img.shape))
+    shown = img if scale == 1.0 else cv2.resize(img, None, fx=scale, fy=scale,
+                                                interpolation=cv2.INTER_AREA)
     z1 = data.z0_mm + img.shape[1] * data.mm_per_px
     width = min(16.0, 3 + shown.shape[1] / 120)
     fig, ax = plt.subplots(figsize=(width, width * shown.shape[0] / shown.shape[1] + 0.8))
     ax.imshow(np.ma.masked_equal(shown, 0), cmap="gray", vmin=0, vmax=255, aspect="auto",
               extent=(data.z0_mm, z1, img.shape[0] * data.deg_per_px, 0),
-              interpolation="antialiased")
+              interpolation="nearest")
     ax.set_facecolor("#402020")
     ax.set_xlabel("z along the pipe (mm)")
     ax.set_ylabel("θ around the pipe (deg, relative)")

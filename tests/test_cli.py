@@ -16,12 +16,8 @@ runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("cli") / "ds"
-    result = runner.invoke(app, ["simulate", "--out", str(root), "--size", "half", "--pairs",
-                                 "2", "--quiet", "--seed", "1"])
-    assert result.exit_code == 0, result.output
-    return root
+def small_dataset(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    return simulate_small(tmp_path_factory.mktemp("cli") / "ds", "--pairs", "2", "--seed", "1")
 
 
 def test_help_explains_every_command() -> None:

@@ -20,12 +20,8 @@ POSE = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("run") / "ds"
-    result = runner.invoke(app, ["simulate", "--out", str(root), "--size", "half", "--pairs",
-                                 "6", "--quiet", "--seed", "1"])
-    assert result.exit_code == 0, result.output
-    return root
+def dataset(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    return simulate_small(tmp_path_factory.mktemp("run") / "ds", "--pairs", "6", "--seed", "1")
 
 
 @pytest.fixture(scope="module")
@@ -128,3 +124,26 @@ def test_run_bad_options_exit_2(dataset: Path, tmp_path: Path, args: list[str],
 def test_run_missing_dataset_exit_2(tmp_path: Path) -> None:
     result = runner.invoke(app, ["run", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
     assert result.exit_code == 2 and "nope" in result.output
+
+
+def test_run_exit_1_when_no_frame_can_be_placed(dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    for led in (copy / "frames").glob("led_*.png"):
+        led.write_bytes(b"broken")
+    result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 1, result.output
+    assert "no mosaic" in result.output
+    assert (tmp_path / "out" / "poses.csv").is_file()      # the poses are still written
+
+
+@pytest.mark.parametrize("scenario", ["hard", "oval"])
+def test_run_on_colour_16_bit_and_oval_scenarios(scenario: str, tmp_path: Path,
+                                                 simulate_small) -> None:
+    root = simulate_small(tmp_path / "ds", "--scenario", scenario, "--pairs", "4")
+    result = runner.invoke(app, ["run", str(root), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    for name in ("poses.csv", "mosaic.png", "mosaic.json", "profile.csv", "report.html"):
+        assert (tmp_path / "out" / name).is_file(), name
+    meta = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    assert meta["frames_placed"] == [0, 1, 2, 3]

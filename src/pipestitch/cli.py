@@ -186,6 +186,8 @@ def run(
 
     Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, profile.csv
     and report.html. Frames that fail are reported and skipped, never dropped silently.
+    A dataset without LED frames gets poses, profile and report only; exit 1 when it has
+    LED frames but no mosaic could be made.
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """
@@ -196,6 +198,9 @@ def run(
         raise typer.Exit(2) from None
     summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet)
     _print_run(summary)
+    if summary.mosaic_failed:
+        console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")
+        raise typer.Exit(1)
 
 
 def _print_run(summary: RunSummary) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["CalibrationError", "ConfigError", "DatasetError", "PipestitchError"]
+__all__ = ["CalibrationError", "ConfigError", "DatasetError", "PipestitchError", "StageError"]
 
 
 class PipestitchError(Exception):
@@ -36,3 +36,7 @@ class CalibrationError(PipestitchError):
     """A calibration could not be computed from the given data."""
 
     exit_code = 2
+
+
+class StageError(PipestitchError):
+    """A processing stage could not produce its output from valid input (exit 1)."""

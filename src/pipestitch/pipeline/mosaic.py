@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pipestitch.camera import CameraModel
-from pipestitch.errors import DatasetError
+from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
 from pipestitch.mosaic import Canvas, canvas_grid, frame_grid, vignetting_profile
@@ -178,7 +178,7 @@ def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
         except DatasetError:
             continue  # reported when the frame itself is processed
     if not greys:
-        raise DatasetError(dataset.root / "frames", "no readable LED frame")
+        raise StageError("no LED frame could be read")
     with timer("occluders"):
         return occluder_mask(greys)
 
@@ -384,7 +384,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:
-        raise DatasetError(dataset.root / "frames", "no frame has both a pose and an LED frame")
+        raise StageError("no frame has both a pose and an LED frame")
     occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
     unwrapper = _Unwrapper(camera, settings, radius, occluded)
     views = _views(usable, settings.mode, nominal)
@@ -409,7 +409,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         if i not in placed:
             skipped[i] = "not registered to the run (no common texture, no odometer)"
     if not placed:
-        raise DatasetError(dataset.root / "frames", "no frame could be placed in the mosaic")
+        raise StageError("no frame could be placed in the mosaic")
     prof = vignetting_profile(levels)
     z_own = own.z0_mm + np.arange(own.n_cols) * own.mm_per_px
 

@@ -225,10 +225,10 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
 
 
 def report_frame_messages(messages: Iterable[tuple[int, str]]) -> None:
-    """Print one line per (frame, message) on stderr: nothing is skipped silently."""
+    """Print one line per (frame, message) on stderr (frame -1: the whole run)."""
     for index, message in messages:
-        console.print(f"[yellow]frame {index:05d}[/]: {escape(message)}", highlight=False,
-                      soft_wrap=True)
+        where = f"frame {index:05d}" if index >= 0 else "run"
+        console.print(f"[yellow]{where}[/]: {escape(message)}", highlight=False, soft_wrap=True)
 
 
 @dataclass(frozen=True)

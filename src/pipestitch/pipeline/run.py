@@ -17,7 +17,7 @@ import numpy as np
 
 from pipestitch import __version__
 from pipestitch.ambiguity import Choice
-from pipestitch.errors import PipestitchError
+from pipestitch.errors import PipestitchError, StageError
 from pipestitch.geometry import PipeSection
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
@@ -56,6 +56,8 @@ class RunSummary:
     stage_seconds: dict[str, float] = field(default_factory=dict)
     problems: list[tuple[int, str]] = field(default_factory=list)
     mosaic: MosaicResult | None = None
+    no_mosaic: str = ""        # why there is no mosaic ("" when there is one)
+    mosaic_failed: bool = False  # the dataset has LED frames but no mosaic could be made
 
     @property
     def pairs_per_second(self) -> float:
@@ -151,10 +153,11 @@ def _mosaic_json(result: MosaicResult, scale: float, dataset: Dataset,
 
 
 def _problems(frames: list[FramePose], result: MosaicResult | None, choices: list[Choice],
-              dataset: Dataset) -> list[tuple[int, str]]:
+              no_mosaic: str) -> list[tuple[int, str]]:
+    """(frame, message) of everything that went wrong; frame -1 for the whole run."""
     problems = [(f.index, m) for f in frames for m in (f.error, f.warning) if m]
-    if not dataset.has_led:
-        problems.append((0, "the dataset has no LED frames: no mosaic"))
+    if no_mosaic:
+        problems.append((-1, no_mosaic))
     problems += [(c_i, "pose ambiguous (mirror hypothesis not ruled out)")
                  for c_i, c in enumerate(choices) if c.ambiguous]
     if result is not None:
@@ -176,28 +179,35 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     if not views:
         report_frame_messages((f.index, f.error) for f in frames if f.error)
         raise PipestitchError(f"{dataset.root}: no frame has a pose; nothing to stitch")
-    result = None
+    result, no_mosaic = None, ""
     if dataset.has_led:
-        result = build_mosaic(dataset, views, settings, timer=timer, show_progress=show_progress)
+        try:
+            result = build_mosaic(dataset, views, settings, timer=timer,
+                                  show_progress=show_progress)
+        except StageError as exc:
+            no_mosaic = f"no mosaic: {exc}"
+    else:
+        no_mosaic = "the dataset has no LED frames: no mosaic"
+    if result is not None:
         choices = _apply_switches(choices, result.switched)
         frames = _with_refined(frames, choices, result.views)
         z = _finite(result.positions.z_mm)
         roll = _finite(result.positions.roll_deg)
     else:
-        # Laser frames only: poses and the profile, no mosaic (z from the odometer).
+        # Poses and the profile still; z from the odometer.
         z, roll = dict(dataset.odometry_mm or {}), {}
     with timer("write"):
         image = _write_mosaic(out, result, dataset, settings)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
                   _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm))
-    problems = _problems(frames, result, choices, dataset)
+    problems = _problems(frames, result, choices, no_mosaic)
     report_frame_messages(problems)
     seconds = time.perf_counter() - start
     summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
                          sum(1 for c in choices if c.ambiguous),
                          len(result.placed) if result else 0, seconds, dict(timer.seconds),
-                         problems, result)
+                         problems, result, no_mosaic, dataset.has_led and result is None)
     with timer("report"):
         atomic_write_text(out / "report.html", render_report(_report_data(
             dataset, frames, choices, z, image, result, summary)))

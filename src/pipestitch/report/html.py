@@ -137,7 +137,8 @@ def _mosaic_section(data: ReportData) -> str:
 def render_report(data: ReportData) -> str:
     """The report as one HTML string (no external resources)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
-    problems = (_table(["frame", "problem"], [[f"{i:05d}", m] for i, m in data.problems])
+    problems = (_table(["frame", "problem"], [[f"{i:05d}" if i >= 0 else "run", m]
+                                              for i, m in data.problems])
                 if data.problems else "<p>None.</p>")
     rows = [[f"{f.frame:05d}", f"{f.z_mm:.2f}", f"{f.alpha_deg:.3f}", f"{f.beta_deg:.3f}",
              f"{f.dx_mm:.3f}", f"{f.dy_mm:.3f}", f"{f.diameter_mm:.3f}",

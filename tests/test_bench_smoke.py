@@ -16,6 +16,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
     ("render.py", "pairs/s"),
     ("table1.py", "speed: ours"),
     ("mosaic.py", "pairs/s"),
+    ("holes.py", "spacing err"),
 ])
 def test_benchmark_smoke(script: str, expect: str) -> None:
     proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,

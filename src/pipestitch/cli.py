@@ -19,6 +19,7 @@ from rich.markup import escape
 from pipestitch import __version__
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import run_check
+from pipestitch.pipeline.measure import measure_run
 from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.pose import run_pose
 from pipestitch.pipeline.progress import console
@@ -184,8 +185,8 @@ def run(
 ) -> None:
     """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
 
-    Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, profile.csv
-    and report.html. Frames that fail are reported and skipped, never dropped silently.
+    Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, defects.csv,
+    profile.csv and report.html. Frames that fail are reported and skipped, never dropped silently.
     A dataset without LED frames gets poses, profile and report only; exit 1 when it has
     LED frames but no mosaic could be made.
 
@@ -208,6 +209,25 @@ def _print_run(summary: RunSummary) -> None:
                f"{summary.n_failed} without a pose, {summary.n_ambiguous} ambiguous; "
                f"{summary.seconds:.1f} s ({summary.pairs_per_second:.2f} pairs/s)")
     typer.echo(f"report: {summary.out / 'report.html'}")
+
+
+@app.command()
+@_handle_errors
+def measure(
+    out: Annotated[Path, typer.Argument(help="Output folder of `pipestitch run` (mosaic.png "
+                                             "and mosaic.json).")],
+) -> None:
+    """Find and measure defects (holes, spots) on an existing run's mosaic: OUT/defects.csv.
+
+    z and theta are in the mosaic's coordinates; clock positions have 12 o'clock at the
+    first frame's image up, clockwise looking along the survey (docs/conventions.md).
+
+    Example: pipestitch measure out/test_piece
+    """
+    path, defects = measure_run(out)
+    holes = sum(1 for d in defects if d.kind == "hole")
+    typer.echo(f"wrote {path}: {len(defects)} defects ({holes} holes, "
+               f"{len(defects) - holes} spots)")
 
 
 @app.command()

@@ -24,8 +24,8 @@ from scipy.sparse import lil_matrix
 
 from pipestitch.unwrap import Strip, StripGrid, local_contrast
 
-__all__ = ["Link", "Positions", "measure_shift", "phase_shift", "registration_image",
-           "solve_positions", "strip_contrast"]
+__all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "phase_shift", "predict_motion",
+           "registration_image", "solve_positions", "strip_contrast"]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
 
@@ -67,13 +67,20 @@ def phase_shift(first: np.ndarray, second: np.ndarray, window: np.ndarray | None
     first = first - np.float32(np.sum(weight * first) / max(float(np.sum(weight)), 1e-12))
     second = second - np.float32(np.sum(weight * second) / max(float(np.sum(weight)), 1e-12))
     (dx, dy), response = cv2.phaseCorrelate(first, second, window)
+    dx, dy = _polish(first, second, weight, dx, dy, iterations)
+    return dx, dy, float(response)
+
+
+def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray, dx: float, dy: float,
+            iterations: int) -> tuple[float, float]:
+    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``."""
     if not (np.isfinite(dx) and np.isfinite(dy)):
-        return float(dx), float(dy), float(response)
+        return float(dx), float(dy)
     gy, gx = np.gradient(first.astype(np.float32))
     a11, a12, a22 = (float(np.sum(weight * v)) for v in (gx * gx, gx * gy, gy * gy))
     det = a11 * a22 - a12 * a12
     if det <= 1e-12 * max(a11 * a22, 1e-30):
-        return float(dx), float(dy), float(response)
+        return float(dx), float(dy)
     for _ in range(iterations):
         back = cv2.warpAffine(second, np.float32([[1, 0, dx], [0, 1, dy]]),
                               (second.shape[1], second.shape[0]),
@@ -88,7 +95,66 @@ def phase_shift(first: np.ndarray, second: np.ndarray, window: np.ndarray | None
         dx, dy = dx + step_x, dy + step_y
         if abs(step_x) < 1e-3 and abs(step_y) < 1e-3:
             break
-    return float(dx), float(dy), float(response)
+    return float(dx), float(dy)
+
+
+@dataclass(frozen=True)
+class MotionPrior:
+    """Expected motion from frame i to frame j and its 1-sigma slack (mm, degrees)."""
+
+    dz_mm: float
+    droll_deg: float
+    dz_sigma_mm: float
+    droll_sigma_deg: float
+
+
+def predict_motion(i: int, j: int, links: Sequence[Link],
+                   odometry_mm: Mapping[int, float] | None = None) -> MotionPrior:
+    """What the probe most likely did between frames i and j, from the run so far.
+
+    The odometer when it has both frames (slack 3 mm + 20 %: it slips); otherwise k
+    times the median of the last consecutive steps found (slack max(3 mm, k·step/2));
+    with neither, z is free. Roll: k times the recent roll rate, slack 5° per frame.
+    A wall with a periodic pattern (a row of equally spaced holes, a chart) correlates
+    almost as well one period off: the prior keeps registration on the probe's
+    plausible motion.
+    """
+    k = j - i
+    steps = [ln for ln in links if ln.j - ln.i == 1][-5:]
+    rate_roll = float(np.median([ln.droll_deg for ln in steps])) if steps else 0.0
+    roll = (k * rate_roll, 5.0 * abs(k))
+    if odometry_mm and i in odometry_mm and j in odometry_mm:
+        dz = odometry_mm[j] - odometry_mm[i]
+        return MotionPrior(dz, roll[0], 3.0 + 0.2 * abs(dz), roll[1])
+    if steps:
+        step = float(np.median([ln.dz_mm for ln in steps]))
+        return MotionPrior(k * step, roll[0], max(3.0, abs(k * step) / 2), roll[1])
+    return MotionPrior(0.0, roll[0], np.inf, roll[1])
+
+
+def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float, float],
+                sigma_px: tuple[float, float]) -> tuple[float, float, float]:
+    """Phase-correlation peak weighted by a Gaussian prior on the shift (whole pixels).
+
+    Returns (dx, dy, response) with ``second(x) = first(x - d)``; rows are circular.
+    The response is the correlation surface summed over the 5 x 5 pixels around the
+    peak, as ``cv2.phaseCorrelate`` reports it.
+    """
+    fa = cv2.dft(first, flags=cv2.DFT_COMPLEX_OUTPUT)
+    fb = cv2.dft(second, flags=cv2.DFT_COMPLEX_OUTPUT)
+    cross = cv2.mulSpectrums(fb, fa, 0, conjB=True)
+    cross /= np.maximum(np.hypot(cross[..., 0], cross[..., 1]), 1e-12)[..., None]
+    surface = cv2.idft(cross, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    n_rows, n_cols = surface.shape
+    sy = (np.arange(n_rows) + n_rows // 2) % n_rows - n_rows // 2
+    sx = (np.arange(n_cols) + n_cols // 2) % n_cols - n_cols // 2
+    wy = (sy - expected_px[1] + n_rows / 2) % n_rows - n_rows / 2
+    log_w = (-0.5 * (wy[:, None] / sigma_px[1]) ** 2
+             - 0.5 * ((sx[None, :] - expected_px[0]) / sigma_px[0]) ** 2)
+    row, col = np.unravel_index(np.argmax(np.where(surface > 0, surface, 0) * np.exp(log_w)),
+                                surface.shape)
+    near = surface[np.ix_((row + np.arange(-2, 3)) % n_rows, (col + np.arange(-2, 3)) % n_cols)]
+    return float(sx[col]), float(sy[row]), float(np.sum(near))
 
 
 def strip_contrast(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
@@ -103,15 +169,24 @@ def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 
 def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int,
-                  j: int) -> Link | None:
+                  j: int, prior: MotionPrior | None = None) -> Link | None:
     """Link from frame i to frame j by phase correlation of their registration images.
 
-    Returns None when the correlation peak is below ``MIN_RESPONSE`` (no common texture).
+    With a ``prior`` the correlation peak is sought near the expected motion
+    (:func:`predict_motion`). Returns None when the peak is below ``MIN_RESPONSE``
+    (no common texture).
     """
     if not (np.any(first) and np.any(second)):
         return None
+    if prior is None or not (np.isfinite(prior.dz_sigma_mm) or np.isfinite(prior.droll_sigma_deg)):
+        dx, dy, response = phase_shift(first, second, iterations=0)
+    else:
+        # Motion m and correlation shift d are opposite: strip_j(x) = strip_i(x + m).
+        expected = (-prior.dz_mm / grid.mm_per_px, -prior.droll_deg / grid.deg_per_px)
+        sigma = (prior.dz_sigma_mm / grid.mm_per_px, prior.droll_sigma_deg / grid.deg_per_px)
+        dx, dy, response = _prior_peak(first, second, expected, sigma)
     # One polishing step: ~0.03 px, and the refinement replaces most links anyway.
-    dx, dy, response = phase_shift(first, second, iterations=1)
+    dx, dy = _polish(first, second, np.ones_like(first), dx, dy, 1)
     if not np.isfinite(response) or response < MIN_RESPONSE:
         return None
     # phaseCorrelate: second(x) = first(x - d), and strip_j(x) = strip_i(x + motion).

@@ -21,14 +21,18 @@ import cv2
 import numpy as np
 import tifffile
 
+from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_path, atomic_write_text
-from pipestitch.io.images import write_image
+from pipestitch.io.images import read_image, write_image
 
-__all__ = ["PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_to_uint8", "write_csv",
-           "write_json", "write_mosaic_png", "write_tiled_tiff"]
+__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_to_uint8",
+           "read_mosaic", "write_csv", "write_json", "write_mosaic_png", "write_tiled_tiff"]
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
                    "diameter_std_mm", "model")
+DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2", "z_min_mm",
+                  "z_max_mm", "theta_min_deg", "theta_max_deg", "contrast", "confidence",
+                  "partial")
 TILED_TIFF_MIN_PIXELS = 16_000_000   # mosaics larger than this also get a tiled TIFF
 
 
@@ -92,3 +96,26 @@ def write_csv(path: Path, header: Iterable[str], rows: Iterable[Iterable[object]
     for row in rows:
         writer.writerow([fmt(v) for v in row])
     return atomic_write_text(path, buffer.getvalue())
+
+
+def read_mosaic(out: Path) -> tuple[np.ndarray, dict]:
+    """OUT/mosaic.png as float (NaN where no data) and OUT/mosaic.json.
+
+    Raises DatasetError naming the file when either is missing or unreadable.
+    """
+    meta_path = Path(out) / "mosaic.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(meta_path, "missing (run `pipestitch run` first)") from None
+    except (OSError, ValueError) as exc:
+        raise DatasetError(meta_path, f"unreadable: {exc}") from None
+    missing = [k for k in ("mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm")
+               if not isinstance(meta.get(k), int | float)]
+    if missing:
+        raise DatasetError(meta_path, f"missing or non-numeric: {', '.join(missing)}")
+    image = read_image(Path(out) / "mosaic.png").astype(np.float32)
+    if image.ndim != 2:
+        raise DatasetError(Path(out) / "mosaic.png", f"expected a grey image, got {image.shape}")
+    image[image == 0] = np.nan
+    return image, meta

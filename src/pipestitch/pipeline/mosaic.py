@@ -34,6 +34,7 @@ from pipestitch.register import (
     Link,
     Positions,
     measure_shift,
+    predict_motion,
     registration_image,
     solve_positions,
     strip_contrast,
@@ -238,8 +239,11 @@ def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
-              i: int) -> list[tuple[Link, _Candidate]]:
-    found = ((measure_shift(prev.image, cand.image, grid, j, i), prev) for j, prev in recent)
+              i: int, links: Sequence[Link],
+              odometry_mm: Mapping[int, float] | None) -> list[tuple[Link, _Candidate]]:
+    found = ((measure_shift(prev.image, cand.image, grid, j, i,
+                            predict_motion(j, i, links, odometry_mm)), prev)
+             for j, prev in recent)
     return [(link, prev) for link, prev in found if link is not None]
 
 
@@ -271,7 +275,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             skipped[reg.index] = reg.error
             continue
         with timer("register"):
-            found = [_links_to(recent, c, own, reg.index) for c in reg.candidates]
+            found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
+                     for c in reg.candidates]
         best = 0
         if len(found) > 1 and any(found):
             best = int(np.argmax([sum(link.response for link, _ in f) for f in found]))

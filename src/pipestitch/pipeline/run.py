@@ -1,7 +1,8 @@
 """``pipestitch run``: pose -> unwrap -> register -> mosaic -> profile -> report.
 
 Writes into OUT (SPEC "Outputs"): poses.csv (z and roll now from registration),
-mosaic.png (+ mosaic.tif when large), mosaic.json, profile.csv and report.html, each
+mosaic.png (+ mosaic.tif when large), mosaic.json, defects.csv, profile.csv and
+report.html, each
 atomically. Frames that fail at any stage are reported on stderr, listed in the report
 and kept in poses.csv with their error; they never stop the run.
 """
@@ -30,6 +31,8 @@ from pipestitch.io.outputs import (
     write_mosaic_png,
     write_tiled_tiff,
 )
+from pipestitch.measure.defects import Defect
+from pipestitch.pipeline.measure import measure_mosaic, write_defects_csv
 from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
 from pipestitch.pipeline.pose import (
     FramePose,
@@ -196,8 +199,16 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     else:
         # Poses and the profile still; z from the odometer.
         z, roll = dict(dataset.odometry_mm or {}), {}
+    defects: list[Defect] = []
+    if result is not None:
+        with timer("measure"):
+            g = result.grid
+            defects = measure_mosaic(result.image, g.deg_per_px, g.mm_per_px, g.z0_mm,
+                                     result.radius_mm)
     with timer("write"):
         image = _write_mosaic(out, result, dataset, settings)
+        if result is not None:
+            write_defects_csv(out / "defects.csv", defects)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
                   _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm))
@@ -209,8 +220,9 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
                          len(result.placed) if result else 0, seconds, dict(timer.seconds),
                          problems, result, no_mosaic, dataset.has_led and result is None)
     with timer("report"):
-        atomic_write_text(out / "report.html", render_report(_report_data(
-            dataset, frames, choices, z, image, result, summary)))
+        data = _report_data(dataset, frames, choices, z, image, result, summary)
+        data.defects = defects
+        atomic_write_text(out / "report.html", render_report(data))
     return summary
 
 

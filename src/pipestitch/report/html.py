@@ -17,6 +17,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Ellipse
+
+from pipestitch.measure.defects import Defect
 
 __all__ = ["FrameRow", "ReportData", "render_report"]
 
@@ -51,6 +54,7 @@ class ReportData:
     frames: list[FrameRow]
     problems: list[tuple[int, str]] = field(default_factory=list)
     figures: dict[str, str] = field(default_factory=dict)
+    defects: list[Defect] = field(default_factory=list)
 
 
 def _png(fig: plt.Figure) -> str:
@@ -75,7 +79,19 @@ def _mosaic_figure(data: ReportData) -> str:
     ax.set_xlabel("z along the pipe (mm)")
     ax.set_ylabel("θ around the pipe (deg, relative)")
     ax.set_yticks(np.arange(0, 361, 45))
+    _outline_defects(ax, data)
     return _png(fig)
+
+
+def _outline_defects(ax: plt.Axes, data: ReportData) -> None:
+    """Each defect as an ellipse of its equivalent diameter (in mm and degrees), labelled."""
+    deg_per_mm = 360.0 / (data.mosaic.shape[0] * data.mm_per_px) if data.mosaic is not None else 1
+    for k, d in enumerate(data.defects, start=1):
+        colour = "#ff3030" if d.kind == "hole" else "#ffb000"
+        ax.add_patch(Ellipse((d.z_mm, d.theta_deg), 1.6 * d.diameter_mm,
+                             1.6 * d.diameter_mm * deg_per_mm, fill=False, color=colour, lw=1.2))
+        ax.annotate(f"D{k}", (d.z_mm + d.diameter_mm, d.theta_deg), color=colour, fontsize=8,
+                    weight="bold")
 
 
 def _series(data: ReportData, name: str) -> np.ndarray:
@@ -134,6 +150,16 @@ def _mosaic_section(data: ReportData) -> str:
             f'<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">')
 
 
+def _defect_table(data: ReportData) -> str:
+    if not data.defects:
+        return "<p>No defects found.</p>"
+    rows = [[f"D{k}", d.kind, f"{d.z_mm:.1f}", f"{d.theta_deg:.1f}", d.clock,
+             f"{d.diameter_mm:.2f}", f"{d.area_mm2:.1f}", f"{d.confidence:.2f}",
+             "yes" if d.partial else ""] for k, d in enumerate(data.defects, start=1)]
+    return _table(["id", "kind", "z (mm)", "θ (deg)", "clock", "diameter (mm)", "area (mm²)",
+                   "confidence", "partial"], rows)
+
+
 def render_report(data: ReportData) -> str:
     """The report as one HTML string (no external resources)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
@@ -151,6 +177,11 @@ def render_report(data: ReportData) -> str:
 <h1>{html.escape(data.title)}</h1>
 <h2>Unrolled wall</h2>
 {_mosaic_section(data)}
+<h2>Defects</h2>
+<p class="note">Holes (red) and spots (amber), outlined on the mosaic; z and θ in the
+mosaic's coordinates; 12 o'clock = the first frame's image up (θ = 270°), clockwise
+looking along the survey.</p>
+{_defect_table(data)}
 <h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
 <h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
 <h2>Frames that failed, were skipped or stayed ambiguous</h2>{problems}

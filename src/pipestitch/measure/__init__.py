@@ -1,0 +1,1 @@
+"""Measurement on the mosaic and the rings: defects (holes, spots), clock positions."""

@@ -124,6 +124,7 @@ def _profile_figure(data: ReportData) -> str:
     ax.axhline(data.nominal_diameter_mm, color="k", ls="--", lw=1, label="nominal")
     ax.set_xlabel("z of the camera (mm)")
     ax.set_ylabel("diameter (mm)")
+    ax.ticklabel_format(axis="y", useOffset=False)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _png(fig)

@@ -39,6 +39,9 @@ def test_run_writes_every_output(output: Path) -> None:
         assert (output / name).stat().st_size > 0, name
     header = (output / "profile.csv").read_text().splitlines()[0]
     assert header.startswith("frame,z_mm,diameter_mm,ovality,min_radius_mm,max_radius_mm")
+    profile = read_csv_columns(output / "profile.csv", ("diameter_mm", "within_tolerance"))
+    assert np.allclose(profile["diameter_mm"], 65.0, atol=0.1)   # the simulated pipe
+    assert np.all(profile["within_tolerance"] == 1)
     html = (output / "report.html").read_text()
     assert 'id="mosaic"' in html and "data:image/png;base64," in html
     assert "http://" not in html and "https://" not in html   # self-contained
@@ -115,6 +118,7 @@ def test_run_without_led_frames_gives_poses_and_no_mosaic(dataset: Path, tmp_pat
 @pytest.mark.parametrize("args,message", [
     (["--mm-per-px", "-1"], "mm_per_px"),
     (["--unwrap", "fisheye"], "mode"),
+    (["--diameter-tolerance-pct", "-3"], "tolerance"),
 ])
 def test_run_bad_options_exit_2(dataset: Path, tmp_path: Path, args: list[str],
                                 message: str) -> None:
@@ -204,3 +208,12 @@ def test_holes_of_the_true_wall_are_found_and_sized(dataset: Path, output: Path)
 def test_measure_without_a_run_exit_2(tmp_path: Path) -> None:
     result = runner.invoke(app, ["measure", str(tmp_path)])
     assert result.exit_code == 2 and "mosaic.json" in result.output
+
+
+def test_profile_flags_diameters_out_of_tolerance(dataset: Path, tmp_path: Path) -> None:
+    """A tolerance of 0 % flags every ring (none is exactly nominal to the micron)."""
+    result = runner.invoke(app, ["run", str(dataset), "--out", str(tmp_path), "--quiet",
+                                 "--diameter-tolerance-pct", "0"])
+    assert result.exit_code == 0, result.output
+    profile = read_csv_columns(tmp_path / "profile.csv", ("within_tolerance",))
+    assert np.all(profile["within_tolerance"] == 0)

@@ -181,6 +181,9 @@ def run(
         help="ours (centralised, default), centred (pose forced to a centred probe) or "
              "polar (prior-art polar unwrap about the image centre).")] = "ours",
     workers: Annotated[int, typer.Option(help="Threads (frames stay in order).")] = 2,
+    tolerance_pct: Annotated[float, typer.Option(
+        "--diameter-tolerance-pct", help="profile.csv flags diameters further than this "
+        "from the nominal (probe.toml), in %.")] = 1.0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
@@ -194,10 +197,13 @@ def run(
     """
     try:
         settings = MosaicSettings(mm_per_px=mm_per_px, mode=unwrap, workers=max(1, workers))
+        if not 0 <= tolerance_pct < 100:
+            raise ValueError(f"--diameter-tolerance-pct: expected 0 to 100, got {tolerance_pct}")
     except ValueError as exc:
         console.print(f"[bold red]error:[/] {escape(str(exc))}")
         raise typer.Exit(2) from None
-    summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet)
+    summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet,
+                          tolerance_pct=tolerance_pct)
     _print_run(summary)
     if summary.mosaic_failed:
         console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")

@@ -57,10 +57,21 @@ class StripGrid:
         return round(360.0 / self.deg_per_px)
 
     @classmethod
-    def window(cls, radius_mm: float, mm_per_px: float, z0_mm: float, z1_mm: float) -> StripGrid:
-        """Square pixels in mm on the wall (arc length = axial step) from z0 to z1."""
+    def window(cls, radius_mm: float, mm_per_px: float, z0_mm: float, z1_mm: float, *,
+               fft_sizes: bool = False) -> StripGrid:
+        """Square pixels in mm on the wall (arc length = axial step) from z0 to z1.
+
+        With ``fft_sizes`` both sizes are rounded up to sizes the FFT is fast for
+        (``cv2.getOptimalDFTSize``: products of 2, 3, 5): rows then are slightly
+        narrower than the axial step and the window slightly longer. For registration
+        strips, whose circular (unpadded) correlation would otherwise run on sizes
+        like 1513 = 17 x 89.
+        """
         n_rows = max(8, round(2 * np.pi * radius_mm / mm_per_px))
-        return cls(360.0 / n_rows, mm_per_px, z0_mm, max(1, round((z1_mm - z0_mm) / mm_per_px)))
+        n_cols = max(1, round((z1_mm - z0_mm) / mm_per_px))
+        if fft_sizes:
+            n_rows, n_cols = cv2.getOptimalDFTSize(n_rows), cv2.getOptimalDFTSize(n_cols)
+        return cls(360.0 / n_rows, mm_per_px, z0_mm, n_cols)
 
 
 def _upsample(coarse: np.ndarray, step: int, n_rows: int, n_cols: int) -> np.ndarray:

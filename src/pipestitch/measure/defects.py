@@ -88,14 +88,14 @@ def clock_position(theta_deg: float, up_theta_deg: float = 270.0) -> str:
 def _background(image: np.ndarray, valid: np.ndarray, window_px: int) -> np.ndarray:
     """Running median of the seen wall (unseen nodes filled from their neighbourhood).
 
-    Computed at a quarter resolution (a median over a 16 mm window does not need more)
-    with rows wrapping around the pipe.
+    Computed at an eighth of the resolution (a median over a 16 mm window does not need
+    more) with rows wrapping around the pipe.
     """
     fill = cv2.GaussianBlur(np.where(valid, image, 0).astype(np.float32), (0, 0), 8)
     support = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), 8)
     filled = np.where(valid, image, fill / np.maximum(support, 1e-6)).astype(np.float32)
-    small = cv2.resize(filled, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-    size = max(3, window_px // 4 | 1)
+    small = cv2.resize(filled, None, fx=0.125, fy=0.125, interpolation=cv2.INTER_AREA)
+    size = max(3, window_px // 8 | 1)
     pad = size // 2 + 1
     padded = np.pad(small, ((pad, pad), (pad, pad)), mode="wrap")
     padded[:, :pad] = padded[:, pad:pad + 1]

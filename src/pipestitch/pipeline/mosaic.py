@@ -384,8 +384,10 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     radius = float(np.median(radii)) if radii and settings.mode == "ours" else nominal
     mm = settings.mm_per_px or default_mm_per_px(camera, radius)
     window = strip_window_mm(camera, radius, mm, min_resolution=settings.min_resolution)
-    fine = StripGrid.window(radius, mm, *window)
-    coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window)
+    # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
+    fine = StripGrid.window(radius, mm, *window, fft_sizes=True)
+    coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window,
+                              fft_sizes=True)
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:
@@ -421,7 +423,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     def profile(z_local: np.ndarray) -> np.ndarray:
         return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
 
-    canvas = Canvas(canvas_grid(positions.z_mm, window, fine))
+    canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
     gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
                     timer, show_progress, skipped)
     image, weights = canvas.image()

@@ -108,10 +108,12 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
 
 
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
-                  plane_distance_mm: float) -> list[list[object]]:
+                  plane_distance_mm: float, nominal_mm: float,
+                  tolerance_pct: float) -> list[list[object]]:
     """Diameter per frame from the ring (circle model: min = max radius, ovality unmeasured).
 
-    z is the ring's axial position: the camera's z plus the laser plane distance.
+    z is the ring's axial position: the camera's z plus the laser plane distance;
+    ``within_tolerance`` is 1 when the diameter is within ``tolerance_pct`` % of nominal.
     """
     rows: list[list[object]] = []
     for frame, choice in zip(frames, choices, strict=True):
@@ -120,7 +122,8 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
         h = frame.fit.hypotheses[choice.chosen]
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, math.nan, h.radius_mm, h.radius_mm,
-                     2 * h.std.get("radius_mm", math.nan), frame.fit.model])
+                     2 * h.std.get("radius_mm", math.nan), frame.fit.model,
+                     int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm)])
     return rows
 
 
@@ -169,8 +172,11 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
 
 
 def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings | None = None,
-                show_progress: bool = True) -> RunSummary:
-    """Process a dataset end to end and write every output into ``out``."""
+                show_progress: bool = True, tolerance_pct: float = 1.0) -> RunSummary:
+    """Process a dataset end to end and write every output into ``out``.
+
+    ``tolerance_pct``: profile.csv flags diameters further than this from nominal.
+    """
     settings = settings or MosaicSettings()
     start = time.perf_counter()
     timer = StageTimer()
@@ -211,7 +217,8 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
             write_defects_csv(out / "defects.csv", defects)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
-                  _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm))
+                  _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm,
+                                dataset.config.pipe.inner_diameter_mm, tolerance_pct))
     problems = _problems(frames, result, choices, no_mosaic)
     report_frame_messages(problems)
     seconds = time.perf_counter() - start
@@ -222,6 +229,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     with timer("report"):
         data = _report_data(dataset, frames, choices, z, image, result, summary)
         data.defects = defects
+        data.tolerance_pct = tolerance_pct
         atomic_write_text(out / "report.html", render_report(data))
     return summary
 

@@ -55,6 +55,7 @@ class ReportData:
     problems: list[tuple[int, str]] = field(default_factory=list)
     figures: dict[str, str] = field(default_factory=dict)
     defects: list[Defect] = field(default_factory=list)
+    tolerance_pct: float = 1.0
 
 
 def _png(fig: plt.Figure) -> str:
@@ -122,6 +123,9 @@ def _profile_figure(data: ReportData) -> str:
     fig, ax = plt.subplots(figsize=(9, 3))
     ax.plot(_series(data, "z_mm"), _series(data, "diameter_mm"), ".-", label="from the ring")
     ax.axhline(data.nominal_diameter_mm, color="k", ls="--", lw=1, label="nominal")
+    tol = data.tolerance_pct / 100 * data.nominal_diameter_mm
+    ax.axhspan(data.nominal_diameter_mm - tol, data.nominal_diameter_mm + tol, color="g",
+               alpha=0.08, label=f"±{data.tolerance_pct:g} % tolerance")
     ax.set_xlabel("z of the camera (mm)")
     ax.set_ylabel("diameter (mm)")
     ax.ticklabel_format(axis="y", useOffset=False)

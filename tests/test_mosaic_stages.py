@@ -194,8 +194,29 @@ def test_global_solve_outvotes_a_bad_link_and_an_odometer_slip() -> None:
     dz = np.diff(pos.z_mm)
     assert np.allclose(dz, np.diff(z_true), atol=0.01)
     assert np.allclose(pos.roll_deg - pos.roll_deg[0], roll_true, atol=0.01)
-    assert pos.outliers[(links[3].i, links[3].j)] == "registration"
-    assert "odometer" in pos.outliers.values()
+    assert (links[3].i, links[3].j, "registration") in pos.outliers
+    assert any(src == "odometer" for *_, src in pos.outliers)
+
+
+def test_roll_of_frames_tied_only_by_the_odometer_is_interpolated_and_reported() -> None:
+    links = [_link(0, 1, 5.0, 10.0), _link(2, 3, 5.0, 10.0)]
+    pos = solve_positions(4, links, odometry_mm={i: 5.0 * i for i in range(4)})
+    assert np.allclose(np.diff(pos.z_mm), 5.0, atol=1e-6)
+    assert pos.roll_deg[0] == pytest.approx(0.0, abs=1e-6)
+    assert pos.roll_deg[1] == pytest.approx(10.0, abs=1e-3)
+    assert pos.roll_deg[3] - pos.roll_deg[2] == pytest.approx(10.0, abs=1e-3)
+    assert sorted(pos.roll_guessed) == [2, 3]
+
+
+def test_a_frame_whose_only_links_are_rejected_is_not_placed() -> None:
+    """Frame 4's two links disagree by 10 mm: neither can be trusted, so it is left out
+    instead of being put somewhere in between."""
+    good = [_link(0, 1, 5.0), _link(1, 2, 5.0), _link(0, 2, 10.0), _link(1, 3, 10.0),
+            _link(2, 3, 5.0)]
+    pos = solve_positions(5, [*good, _link(3, 4, 5.0), _link(2, 4, 20.0)])
+    assert np.allclose(pos.z_mm[:4], [0.0, 5.0, 10.0, 15.0], atol=1e-6)
+    assert np.isnan(pos.z_mm[4])
+    assert {(3, 4, "registration"), (2, 4, "registration")} <= set(pos.outliers)
 
 
 def test_global_solve_leaves_unconnected_frames_unplaced() -> None:

@@ -190,8 +190,8 @@ def run(
 
     Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, defects.csv,
     profile.csv and report.html. Frames that fail are reported and skipped, never dropped silently.
-    A dataset without LED frames gets poses, profile and report only; exit 1 when it has
-    LED frames but no mosaic could be made.
+    A dataset without LED frames gets poses, profile and report only; exit 1 (outputs
+    still written) when no frame has a pose or the LED frames give no mosaic.
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """

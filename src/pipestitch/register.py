@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -28,6 +28,7 @@ __all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "phase_shift", "
            "registration_image", "solve_positions", "strip_contrast"]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
+PRIOR_FLOOR = 0.1       # weight of the motion prior far from the expected motion
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,10 @@ def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float,
     wy = (sy - expected_px[1] + n_rows / 2) % n_rows - n_rows / 2
     log_w = (-0.5 * (wy[:, None] / sigma_px[1]) ** 2
              - 0.5 * ((sx[None, :] - expected_px[0]) / sigma_px[0]) ** 2)
-    row, col = np.unravel_index(np.argmax(np.where(surface > 0, surface, 0) * np.exp(log_w)),
+    # The floor lets a clearly stronger peak far from the prior win (an odometer that
+    # slipped by more than its slack) while a comparable one (one period off) does not.
+    weight = PRIOR_FLOOR + (1 - PRIOR_FLOOR) * np.exp(log_w)
+    row, col = np.unravel_index(np.argmax(np.where(surface > 0, surface, 0) * weight),
                                 surface.shape)
     near = surface[np.ix_((row + np.arange(-2, 3)) % n_rows, (col + np.arange(-2, 3)) % n_cols)]
     return float(sx[col]), float(sy[row]), float(np.sum(near))
@@ -203,17 +207,22 @@ class Positions:
     ----------
     z_mm, roll_deg : numpy.ndarray
         Per frame; z is anchored to the odometer (median offset 0) when there is one,
-        else to frame 0 at 0; roll to the first placed frame at 0.
+        else to the first placed frame at 0; roll to 0 at the first frame of the
+        largest group of frames linked by registration.
     odometer_scale : float
         Fitted scale of the odometer (1 without one).
-    outliers : dict
-        ``(i, j) -> source`` of measurements the robust solve rejected (beyond 3 sigma).
+    outliers : list
+        ``(i, j, source)`` of measurements the robust solve rejected (beyond 3 sigma).
+    roll_guessed : list
+        Placed frames not linked to the roll reference by registration (only by the
+        odometer): their roll is interpolated, not measured.
     """
 
     z_mm: np.ndarray
     roll_deg: np.ndarray
     odometer_scale: float
-    outliers: dict[tuple[int, int], str]
+    outliers: list[tuple[int, int, str]]
+    roll_guessed: list[int] = field(default_factory=list)
 
 
 def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:
@@ -234,7 +243,7 @@ def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:
 def _robust_linear(rows: list[tuple[int, int, float, float]], n: int, n_extra: int = 0,
                    extra: Sequence[tuple[int, float, float]] = ()) -> tuple[np.ndarray,
                                                                            np.ndarray]:
-    """Solve (x_j - x_i - value) / sigma = 0 robustly; returns x and the residuals in sigma.
+    """Solve (x_j - x_i - value) / sigma = 0 robustly; returns x and the rows kept.
 
     ``rows`` are (i, j, value, sigma), i = -1 for a prior on x_j alone; ``extra`` are
     (row index, coefficient, unused) that make that row (x_j - x_i - coefficient·x[n]) /
@@ -264,7 +273,7 @@ def _robust_linear(rows: list[tuple[int, int, float, float]], n: int, n_extra: i
     ak, bk = a[keep], b[keep]
     x = least_squares(lambda v: ak @ v - bk, res.x, jac=lambda v: ak, method="trf",
                       tr_solver="lsmr").x
-    return x, a @ x - b
+    return x, keep
 
 
 def solve_positions(n_frames: int, links: Sequence[Link], *,
@@ -293,47 +302,53 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
     frames = sorted(set(range(n_frames) if placed is None else placed))
     col = {f: k for k, f in enumerate(frames)}
     n = len(frames)
-    z_rows: list[tuple[int, int, float, float]] = []
-    r_rows: list[tuple[int, int, float, float]] = []
-    sources: list[tuple[tuple[int, int], str]] = []
-    for ln in links:
-        if ln.i in col and ln.j in col:
-            z_rows.append((col[ln.i], col[ln.j], ln.dz_mm, ln.dz_sigma_mm))
-            r_rows.append((col[ln.i], col[ln.j], ln.droll_deg, ln.droll_sigma_deg))
-            sources.append(((ln.i, ln.j), "registration"))
-    odo_extra = []
+    if n == 0:
+        return Positions(np.full(n_frames, np.nan), np.full(n_frames, np.nan), 1.0, [])
+    reg = [ln for ln in links if ln.i in col and ln.j in col]
+    z_rows = [(col[ln.i], col[ln.j], ln.dz_mm, ln.dz_sigma_mm) for ln in reg]
     odo = {f: v for f, v in (odometry_mm or {}).items() if f in col and np.isfinite(v)}
-    odo_frames = sorted(odo)
-    for a, b in itertools.pairwise(odo_frames):
-        odo_extra.append((len(z_rows), odo[b] - odo[a], 0.0))
-        z_rows.append((col[a], col[b], 0.0, odometer_sigma_mm))
-        sources.append(((a, b), "odometer"))
-    n_extra = 1 if odo_extra else 0
+    odo_pairs = list(itertools.pairwise(sorted(odo)))
+    odo_extra = [(len(z_rows) + k, odo[b] - odo[a], 0.0) for k, (a, b) in enumerate(odo_pairs)]
+    z_rows += [(col[a], col[b], 0.0, odometer_sigma_mm) for a, b in odo_pairs]
+    n_measured = len(z_rows)
+    n_extra = 1 if odo_pairs else 0
     if n_extra:
-        # Prior on the scale: (s - 1) / sigma, written as x_s - 0 with the 'i = -1' form.
-        z_rows.append((-1, n, 1.0, odometer_scale_sigma))
-    label = _components(n, [(i, j) for i, j, *_ in z_rows if i >= 0 and j < n])
-    main = np.bincount(label).argmax() if n else 0
-    anchor = int(np.flatnonzero(label == main)[0]) if n else 0
-    # Gauge: the anchor frame at 0 (shifted to the odometer afterwards).
-    z_rows.append((-1, anchor, 0.0, 1.0))
-    r_rows.append((-1, anchor, 0.0, 1.0))
-    z, z_res = _robust_linear(z_rows, n, n_extra, odo_extra)
-    roll, r_res = (_robust_linear(r_rows, n) if r_rows else (np.zeros(n), np.zeros(0)))
-    scale = float(z[n]) if n_extra else 1.0
-    z = z[:n]
+        z_rows.append((-1, n, 1.0, odometer_scale_sigma))   # scale prior: s = 1 +- sigma
+    z_rows.append((-1, 0, 0.0, 1e6))   # a loose gauge; fixed below per component
+    z, keep = _robust_linear(z_rows, n, n_extra, odo_extra)
+    kept = keep[:n_measured]
+    # Placement: frames connected to the largest group by measurements that survived.
+    label = _components(n, [(i, j) for (i, j, *_), k in zip(z_rows, kept, strict=False) if k])
+    main = np.bincount(label).argmax()
     unplaced = label != main
+    scale = float(z[n]) if n_extra else 1.0
+    z = z[:n] - z[int(np.flatnonzero(~unplaced)[0])]
+    # Roll from the registration links kept in z, plus weak continuity (5 deg per frame)
+    # between consecutive frames so that frames tied only by the odometer get a smooth
+    # guess instead of an arbitrary one; they are reported.
+    reg_kept = [ln for ln, k in zip(reg, kept[:len(reg)], strict=True) if k]
+    roll_label = _components(n, [(col[ln.i], col[ln.j]) for ln in reg_kept])
+    placed_cols = np.flatnonzero(~unplaced)
+    anchor = int(placed_cols[np.argmax(np.bincount(roll_label[placed_cols])[
+        roll_label[placed_cols]])])
+    r_rows = [(col[ln.i], col[ln.j], ln.droll_deg, ln.droll_sigma_deg) for ln in reg_kept]
+    r_rows += [(int(a), int(b), 0.0, 5.0 * (frames[b] - frames[a]))
+               for a, b in itertools.pairwise(placed_cols)]
+    r_rows.append((-1, anchor, 0.0, 1e-3))
+    roll, r_keep = _robust_linear(r_rows, n)
+    roll_guessed = [frames[k] for k in placed_cols if roll_label[k] != roll_label[anchor]]
     z[unplaced], roll[unplaced] = np.nan, np.nan
     if odo:
-        offsets = [odo[f] * scale - z[col[f]] for f in odo_frames if np.isfinite(z[col[f]])]
+        offsets = [odo[f] * scale - z[col[f]] for f in odo if np.isfinite(z[col[f]])]
         if offsets:
             z = z + float(np.median(offsets))
-    outliers = {key: src for (key, src), rz in zip(sources, z_res, strict=False)
-                if abs(rz) > 3}
-    for (key, src), rr in zip(sources, r_res, strict=False):
-        if src == "registration" and abs(rr) > 3:
-            outliers[key] = "registration (z and roll)" if key in outliers else "registration roll"
+    outliers = [(ln.i, ln.j, "registration") for ln, k in zip(reg, kept[:len(reg)], strict=True)
+                if not k]
+    outliers += [(a, b, "odometer") for (a, b), k in zip(odo_pairs, kept[len(reg):],
+                                                           strict=True) if not k]
+    outliers += [(ln.i, ln.j, "registration roll")
+                 for ln, k in zip(reg_kept, r_keep[:len(reg_kept)], strict=True) if not k]
     z_all = np.full(n_frames, np.nan)
     r_all = np.full(n_frames, np.nan)
     z_all[frames], r_all[frames] = z, roll
-    return Positions(z_all, r_all, scale, outliers)
+    return Positions(z_all, r_all, scale, outliers, roll_guessed)

@@ -14,7 +14,9 @@ robust noise (scikit-image labels and region properties do the rest):
   on the true rim); equivalent diameter = that of a disc of the same area;
 * kind: a **hole** shows (almost) no wall, darker than 40 % of its surroundings
   (median contrast below -0.6); anything else is a **spot** (stain, pit, deposit);
-* regions touching unseen wall are flagged ``partial`` (their size is a lower bound).
+* regions touching unseen wall are flagged ``partial`` (their size is a lower bound);
+* for a defect across theta = 0/360, ``theta_min_deg`` > ``theta_max_deg`` (the range
+  wraps).
 
 Rows wrap around the pipe: the mosaic is rolled so that a row without detections is
 at the top before labelling, so a defect across theta = 0/360 stays whole.
@@ -105,10 +107,26 @@ def _background(image: np.ndarray, valid: np.ndarray, window_px: int) -> np.ndar
 
 
 def _roll_for_labelling(mask: np.ndarray) -> int:
-    """Rows to roll by so that row 0 has no detection (0 when every row has one)."""
-    counts = mask.sum(axis=1)
-    empty = np.flatnonzero(counts == 0)
-    return int(-empty[0]) if empty.size else 0
+    """Rows to roll by so that row 0 is the middle of the longest run of rows without
+    detections (rows wrap), keeping every defect and its sizing box away from the cut;
+    0 when every row has one."""
+    empty = mask.sum(axis=1) == 0
+    if not empty.any():
+        return 0
+    if empty.all():
+        return 0
+    start = int(np.argmin(empty))          # a non-empty row: runs do not wrap from here
+    rolled = np.roll(empty, -start)
+    best, best_len, run_start = 0, 0, None
+    for k, e in enumerate(np.append(rolled, False)):
+        if e and run_start is None:
+            run_start = k
+        elif not e and run_start is not None:
+            if k - run_start > best_len:
+                best, best_len = run_start, k - run_start
+            run_start = None
+    middle = (start + best + best_len // 2) % len(empty)
+    return -middle
 
 
 def _region_size(contrast: np.ndarray, box: tuple[slice, slice], depth: float,

@@ -247,6 +247,26 @@ def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: 
     return [(link, prev) for link, prev in found if link is not None]
 
 
+MIRROR_RATIO = 1.3     # a hypothesis must correlate this much better to be chosen
+
+
+def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None:
+    """Which of an ambiguous frame's two unwraps registers clearly better, or None.
+
+    Compared over the previous frames both registered with; the better one needs
+    ``MIRROR_RATIO`` times the summed response of the other (near zero tilt the two
+    unwraps are nearly the same and their difference is noise: the frame stays
+    ambiguous).
+    """
+    common = {ln.i for ln, _ in found[0]} & {ln.i for ln, _ in found[1]}
+    scores = [sum(ln.response for ln, _ in f if ln.i in common) for f in found]
+    if not common:
+        # Only one hypothesis registered at all: that is evidence too.
+        return (0 if found[0] else 1) if (bool(found[0]) != bool(found[1])) else None
+    best = int(np.argmax(scores))
+    return best if scores[best] >= MIRROR_RATIO * scores[1 - best] else None
+
+
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: StripGrid, timer: StageTimer, show_progress: bool,
               skipped: dict[int, str], *, patches: bool) -> _Pass1:
@@ -277,12 +297,12 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
         with timer("register"):
             found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
                      for c in reg.candidates]
-        best = 0
-        if len(found) > 1 and any(found):
-            best = int(np.argmax([sum(link.response for link, _ in f) for f in found]))
+        best = _better_hypothesis(found) if len(found) > 1 else None
+        if best is not None:
             out.switched[reg.index] = best == 1
             if best == 1:
                 views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
+        best = best or 0
         cand = reg.candidates[best]
         for link, prev in found[best]:
             out.links.append(link)
@@ -317,10 +337,13 @@ def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraMode
                                         {i: v.information for i, v in views.items()})
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
-             if (ln.i, ln.j) in motions else ln for ln in pass1.links]
+             if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
+             for ln in pass1.links]
     out = {}
     for i, v in views.items():
         e = errors.get(i, np.zeros(4))
+        if not np.all(np.isfinite(e)):
+            e = np.zeros(4)   # keep the ring's pose rather than lose the frame
         p = v.pose
         out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
                                       p.dy_mm - e[3]), refined=True)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -139,12 +140,22 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
 
 
 def ordered_map(func: Callable[[int], T], indices: Iterable[int], workers: int) -> Iterator[T]:
-    """``func`` over ``indices`` on ``workers`` threads, results in order (lazily)."""
+    """``func`` over ``indices`` on ``workers`` threads, results in order (lazily).
+
+    At most ``2 * workers`` results are computed ahead of the consumer, so memory does
+    not grow with the run when the consumer is the slower side.
+    """
     if workers <= 1:
         yield from map(func, indices)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(func, indices)
+        pending: deque = deque()
+        for index in indices:
+            pending.append(pool.submit(func, index))
+            if len(pending) >= 2 * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 def resolve_frames(frames_in: Iterable[FramePose],

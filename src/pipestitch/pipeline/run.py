@@ -18,7 +18,7 @@ import numpy as np
 
 from pipestitch import __version__
 from pipestitch.ambiguity import Choice
-from pipestitch.errors import PipestitchError, StageError
+from pipestitch.errors import PipestitchError
 from pipestitch.geometry import PipeSection
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
@@ -164,6 +164,11 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
     problems = [(f.index, m) for f in frames for m in (f.error, f.warning) if m]
     if no_mosaic:
         problems.append((-1, no_mosaic))
+    if result is not None:
+        problems += [(j, f"{src} from frame {i:05d} rejected by the global solve")
+                     for i, j, src in result.positions.outliers]
+        problems += [(k, "roll interpolated (not linked to the roll reference by registration)")
+                     for k in result.positions.roll_guessed]
     problems += [(c_i, "pose ambiguous (mirror hypothesis not ruled out)")
                  for c_i, c in enumerate(choices) if c.ambiguous]
     if result is not None:
@@ -185,16 +190,19 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer)
     views = _views(frames, choices)
-    if not views:
-        report_frame_messages((f.index, f.error) for f in frames if f.error)
-        raise PipestitchError(f"{dataset.root}: no frame has a pose; nothing to stitch")
     result, no_mosaic = None, ""
-    if dataset.has_led:
+    if not views:
+        no_mosaic = "no mosaic: no frame has a pose"
+    elif dataset.has_led:
         try:
             result = build_mosaic(dataset, views, settings, timer=timer,
                                   show_progress=show_progress)
-        except StageError as exc:
+        except PipestitchError as exc:
             no_mosaic = f"no mosaic: {exc}"
+        except (ValueError, MemoryError) as exc:
+            # e.g. a --mm-per-px at which no wall is resolved, or a canvas too large:
+            # the poses are still worth writing.
+            no_mosaic = f"no mosaic: {exc!r}"
     else:
         no_mosaic = "the dataset has no LED frames: no mosaic"
     if result is not None:
@@ -206,13 +214,16 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         # Poses and the profile still; z from the odometer.
         z, roll = dict(dataset.odometry_mm or {}), {}
     defects: list[Defect] = []
-    if result is not None:
-        with timer("measure"):
-            g = result.grid
-            defects = measure_mosaic(result.image, g.deg_per_px, g.mm_per_px, g.z0_mm,
-                                     result.radius_mm)
     with timer("write"):
         image = _write_mosaic(out, result, dataset, settings)
+    if result is not None and image is not None:
+        with timer("measure"):
+            # On the 8-bit image that mosaic.png holds, so `pipestitch measure OUT`
+            # finds exactly the same defects.
+            g = result.grid
+            defects = measure_mosaic(_as_float(image), g.deg_per_px, g.mm_per_px, g.z0_mm,
+                                     result.radius_mm)
+    with timer("write"):
         if result is not None:
             write_defects_csv(out / "defects.csv", defects)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
@@ -225,7 +236,8 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
                          sum(1 for c in choices if c.ambiguous),
                          len(result.placed) if result else 0, seconds, dict(timer.seconds),
-                         problems, result, no_mosaic, dataset.has_led and result is None)
+                         problems, result, no_mosaic,
+                         not views or (dataset.has_led and result is None))
     with timer("report"):
         data = _report_data(dataset, frames, choices, z, image, result, summary)
         data.defects = defects
@@ -234,13 +246,27 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     return summary
 
 
+def _as_float(image_u8: np.ndarray) -> np.ndarray:
+    out = image_u8.astype(np.float32)
+    out[image_u8 == 0] = np.nan
+    return out
+
+
 def _finite(values: np.ndarray) -> dict[int, float]:
     return {i: float(v) for i, v in enumerate(values) if np.isfinite(v)}
 
 
 def _write_mosaic(out: Path, result: MosaicResult | None, dataset: Dataset,
                   settings: MosaicSettings) -> np.ndarray | None:
-    """mosaic.png, mosaic.json (and mosaic.tif when large); the 8-bit image or None."""
+    """mosaic.png, mosaic.json (and mosaic.tif when large); the 8-bit image or None.
+
+    Outputs of an earlier run into the same folder that this run does not produce are
+    removed, so `pipestitch measure` never reads a stale mosaic.
+    """
+    stale = ["mosaic.png", "mosaic.json", "mosaic.tif", "defects.csv"] if result is None else (
+        ["mosaic.tif"] if result.image.size < TILED_TIFF_MIN_PIXELS else [])
+    for name in stale:
+        (out / name).unlink(missing_ok=True)
     if result is None:
         return None
     image, scale = mosaic_to_uint8(result.image)

@@ -148,7 +148,9 @@ def _mosaic_json(result: MosaicResult, scale: float, dataset: Dataset,
         "mm_per_px_axial": g.mm_per_px, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
         "radius_mm": result.radius_mm, "n_rows": g.n_rows, "n_cols": g.n_cols,
         "mm_per_px_circumferential": 2 * math.pi * result.radius_mm / g.n_rows,
-        "theta_reference": "relative: theta 0 is the first placed frame's roll",
+        "theta_reference": ("relative: theta 0 is the roll of the first frame of the largest "
+                            "group linked by registration"),
+        "roll_interpolated_frames": result.positions.roll_guessed,
         "z_reference": ("odometer (median offset), scale fitted"
                         if dataset.odometry_mm else "camera of the first placed frame at 0"),
         "odometer_scale": result.positions.odometer_scale,

@@ -25,7 +25,8 @@ from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_path, atomic_write_text
 from pipestitch.io.images import read_image, write_image
 
-__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_to_uint8",
+__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_from_uint8",
+           "mosaic_to_uint8",
            "read_mosaic", "write_csv", "write_json", "write_mosaic_png", "write_tiled_tiff"]
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
@@ -48,6 +49,13 @@ def mosaic_to_uint8(image: np.ndarray) -> tuple[np.ndarray, float]:
     out = np.zeros(image.shape, np.uint8)
     out[finite] = np.clip(np.rint(image[finite] / scale * 250), 1, 255).astype(np.uint8)
     return out, scale
+
+
+def mosaic_from_uint8(image_u8: np.ndarray) -> np.ndarray:
+    """The 8-bit mosaic back as float, NaN where there is no data (0)."""
+    out = image_u8.astype(np.float32)
+    out[image_u8 == 0] = np.nan
+    return out
 
 
 def write_mosaic_png(path: Path, image_u8: np.ndarray) -> Path:
@@ -114,8 +122,7 @@ def read_mosaic(out: Path) -> tuple[np.ndarray, dict]:
                if not isinstance(meta.get(k), int | float)]
     if missing:
         raise DatasetError(meta_path, f"missing or non-numeric: {', '.join(missing)}")
-    image = read_image(Path(out) / "mosaic.png").astype(np.float32)
+    image = read_image(Path(out) / "mosaic.png")
     if image.ndim != 2:
         raise DatasetError(Path(out) / "mosaic.png", f"expected a grey image, got {image.shape}")
-    image[image == 0] = np.nan
-    return image, meta
+    return mosaic_from_uint8(image), meta

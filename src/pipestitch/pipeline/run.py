@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.outputs import (
     PROFILE_COLUMNS,
     TILED_TIFF_MIN_PIXELS,
+    mosaic_from_uint8,
     mosaic_to_uint8,
     write_csv,
     write_json,
@@ -41,6 +43,7 @@ from pipestitch.pipeline.pose import (
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
+from pipestitch.pose_fit import Hypothesis
 from pipestitch.report.html import FrameRow, ReportData, render_report
 
 __all__ = ["RunSummary", "run_dataset"]
@@ -68,12 +71,17 @@ class RunSummary:
         return self.n_frames / self.seconds if self.seconds > 0 else math.nan
 
 
+def _chosen(frames: list[FramePose],
+            choices: list[Choice]) -> Iterator[tuple[FramePose, Choice, Hypothesis]]:
+    """(frame, choice, chosen hypothesis) of every frame that has a pose."""
+    for frame, choice in zip(frames, choices, strict=True):
+        if frame.fit.ok and choice.chosen is not None:
+            yield frame, choice, frame.fit.hypotheses[choice.chosen]
+
+
 def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameView]:
     views = {}
-    for frame, choice in zip(frames, choices, strict=True):
-        if not frame.fit.ok or choice.chosen is None:
-            continue
-        h = frame.fit.hypotheses[choice.chosen]
+    for frame, choice, h in _chosen(frames, choices):
         alt = None
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
@@ -116,10 +124,7 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
     ``within_tolerance`` is 1 when the diameter is within ``tolerance_pct`` % of nominal.
     """
     rows: list[list[object]] = []
-    for frame, choice in zip(frames, choices, strict=True):
-        if not frame.fit.ok or choice.chosen is None:
-            continue
-        h = frame.fit.hypotheses[choice.chosen]
+    for frame, _, h in _chosen(frames, choices):
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, math.nan, h.radius_mm, h.radius_mm,
                      2 * h.std.get("radius_mm", math.nan), frame.fit.model,
@@ -130,10 +135,7 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
 def _frame_rows(frames: list[FramePose], choices: list[Choice],
                 z: dict[int, float]) -> list[FrameRow]:
     rows = []
-    for frame, choice in zip(frames, choices, strict=True):
-        if not frame.fit.ok or choice.chosen is None:
-            continue
-        h = frame.fit.hypotheses[choice.chosen]
+    for frame, choice, h in _chosen(frames, choices):
         d = h.pose.as_degrees()
         rows.append(FrameRow(frame.index, z.get(frame.index, math.nan), d["alpha_deg"],
                              d["beta_deg"], d["dx_mm"], d["dy_mm"], 2 * h.radius_mm,
@@ -223,7 +225,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
             # On the 8-bit image that mosaic.png holds, so `pipestitch measure OUT`
             # finds exactly the same defects.
             g = result.grid
-            defects = measure_mosaic(_as_float(image), g.deg_per_px, g.mm_per_px, g.z0_mm,
+            defects = measure_mosaic(mosaic_from_uint8(image), g.deg_per_px, g.mm_per_px, g.z0_mm,
                                      result.radius_mm)
     with timer("write"):
         if result is not None:
@@ -246,12 +248,6 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         data.tolerance_pct = tolerance_pct
         atomic_write_text(out / "report.html", render_report(data))
     return summary
-
-
-def _as_float(image_u8: np.ndarray) -> np.ndarray:
-    out = image_u8.astype(np.float32)
-    out[image_u8 == 0] = np.nan
-    return out
 
 
 def _finite(values: np.ndarray) -> dict[int, float]:

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose_fit import ConicModel, fit_pose, pose_from_conic
+from pipestitch.pose_fit import ConicModel, LaserPlane, fit_pose, model_conic, pose_from_conic
 from pipestitch.ring import RingDetection, detect_ring
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 
@@ -46,13 +46,50 @@ def test_closed_form_recovers_pose_and_its_mirror(a, b, dx, dy, diameter) -> Non
     assert mirror.beta == pytest.approx(-b, abs=1e-7)
 
 
+TILTED = np.array([np.sin(np.deg2rad(1.0)) * np.cos(0.7), np.sin(np.deg2rad(1.0)) * np.sin(0.7),
+                   np.cos(np.deg2rad(1.0))])   # a laser plane misaligned by 1°
+
+
+@settings(max_examples=40, deadline=None)
+@given(a=st.floats(-0.2, 0.2), b=st.floats(-0.2, 0.2), dx=st.floats(-6, 6), dy=st.floats(-6, 6))
+def test_closed_form_with_a_tilted_laser_plane(a, b, dx, dy) -> None:
+    pose = Pose(a, b, dx, dy)
+    ring = laser_ring(pose, PipeSection.circle(65.0), D, n_points=60, plane_normal=TILTED)
+    uv = LaserPlane.of(D, TILTED)
+    conic = ConicModel.from_estimate((ring - D * uv.normal) @ uv.basis.T)
+    sols = pose_from_conic(*conic.normalised(), D, TILTED)
+    errs = [np.abs(as_vec(p) - as_vec(pose)).max() for p, _ in sols]
+    assert min(errs) < 1e-5
+    for p, r in sols:   # both put the ring on the wall, and the model conic maps back
+        assert r == pytest.approx(32.5, abs=1e-7)
+        w = p.to_world(ring)
+        np.testing.assert_allclose(np.hypot(w[:, 0], w[:, 1]), 32.5, atol=1e-6)
+        again = pose_from_conic(*model_conic(p, r, uv), D, TILTED)
+        assert min(np.abs(as_vec(q) - as_vec(p)).max() for q, _ in again) < 1e-5
+
+
+def test_calibrated_plane_normal_removes_the_pose_bias() -> None:
+    """A 1° plane misalignment left out biases the pose; given the normal, it does not."""
+    pose = Pose.from_degrees(3.0, -2.0, 2.0, -1.0)
+    cam, laser, led = _render(pose, plane_normal=TILTED)
+    det = detect_ring(laser, cam, reflectance=led)
+
+    def tilt_error(fit) -> float:
+        return min(np.abs(as_vec(h.pose) - as_vec(pose))[:2].max() for h in fit.hypotheses)
+
+    ignored = fit_pose(det, cam, D, plane_normal=None)
+    calibrated = fit_pose(det, cam, D, plane_normal=TILTED)
+    assert tilt_error(ignored) > 0.5       # about the 1° misalignment
+    assert tilt_error(calibrated) < 0.15   # the round-trip accuracy of an aligned plane
+
+
 def _render(pose: Pose, size: str = "half", optics: Optics | None = None,
-            diameter: float = 65.0):
+            diameter: float = 65.0, plane_normal: np.ndarray | None = None):
     rng = np.random.default_rng(0)
     base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
     albedo = np.kron(base, np.ones((100, 60), np.float32))
     r = Renderer(default_camera(size), PipeSection.circle(diameter),
-                 WallTexture(albedo, 0.1, 0.1, -50.0), D, optics)
+                 WallTexture(albedo, 0.1, 0.1, -50.0), D, optics, plane_normal=plane_normal)
     laser, led = r.render_pair(pose, np.random.default_rng(3))
     return r.camera, laser, led
 

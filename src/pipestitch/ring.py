@@ -56,7 +56,9 @@ class RingDetection:
     @property
     def coverage(self) -> float:
         """Fraction of azimuths with at least one candidate."""
-        return float(np.unique(self.azimuth).size / self.n_azimuths) if self.n_azimuths else 0.0
+        if not self.n_azimuths or not self.azimuth.size:
+            return 0.0
+        return float(np.count_nonzero(np.bincount(self.azimuth)) / self.n_azimuths)
 
     def best(self) -> np.ndarray:
         """The strongest candidate of every ray, (M, 2)."""

@@ -89,13 +89,15 @@ class PoseSettings:
     plane_distance_mm: float
     nominal_radius_mm: float
     body: BodyEnvelope
+    plane_normal: np.ndarray | None = None   # calibrated laser-plane normal; None: SPEC's +z
 
     @classmethod
     def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
         """Settings of a dataset's probe.toml."""
+        normal = None if cfg.laser.normal is None else np.asarray(cfg.laser.normal, float)
         return cls(cfg.camera_model(), cfg.laser.plane_distance_mm,
                    cfg.pipe.inner_diameter_mm / 2,
-                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm))
+                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm), normal)
 
 
 def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
@@ -103,7 +105,8 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     """Ring, both hypotheses and (when possible) photometric strips of one frame pair."""
     detection = detect_ring(laser, settings.camera, reflectance=led)
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
-                   nominal_radius_mm=settings.nominal_radius_mm)
+                   nominal_radius_mm=settings.nominal_radius_mm,
+                   plane_normal=settings.plane_normal)
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
     return FramePose(index, fit, "" if fit.ok else fit.reason, strips)
@@ -253,9 +256,9 @@ class PoseSummary:
 
 
 def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
-             workers: int = 2) -> PoseSummary:
+             workers: int = 2, video: Path | None = None) -> PoseSummary:
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
-    dataset = open_dataset(root)
+    dataset = open_dataset(root, video=video)
     frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers)
     report_frame_messages((f.index, m) for f in frames for m in (f.error, f.warning) if m)
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)

@@ -17,10 +17,12 @@ FORBIDDEN = {
                  "pipeline", "cli", "config"},
     "ring": {"io", "pipeline", "cli", "simulate"},
     "pose_fit": {"io", "pipeline", "cli", "simulate"},
+    "section_fit": {"io", "pipeline", "cli", "simulate"},
     "ambiguity": {"io", "pipeline", "cli", "simulate"},
     "unwrap": {"io", "pipeline", "cli", "simulate"},
     "photometric": {"io", "pipeline", "cli", "simulate"},
     "simulate": {"io", "pipeline", "cli"},
+    "standards": {"io", "pipeline", "cli", "simulate", "report", "config"},
     "io": {"pipeline", "cli"},
     "pipeline": {"cli"},
 }

@@ -17,6 +17,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
     ("table1.py", "speed: ours"),
     ("mosaic.py", "pairs/s"),
     ("holes.py", "spacing err"),
+    ("ovality.py", "ours (refined tilt)"),
+    ("scale.py", "speed ratio cluster vs sequential"),
 ])
 def test_benchmark_smoke(script: str, expect: str) -> None:
     proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,

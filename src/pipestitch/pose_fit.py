@@ -29,11 +29,20 @@ import numpy as np
 from skimage.measure import ransac
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import Pose, plane_basis, rot_x, rot_y
+from pipestitch.geometry import PipeSection, Pose, plane_basis, rot_x, rot_y
 from pipestitch.ring import RingDetection
 
-__all__ = ["ConicModel", "Hypothesis", "LaserPlane", "PoseFit", "fit_pose", "model_conic",
-           "plane_points", "pose_from_conic"]
+__all__ = [
+    "ConicModel",
+    "Hypothesis",
+    "LaserPlane",
+    "PoseFit",
+    "RingPoints",
+    "fit_pose",
+    "model_conic",
+    "plane_points",
+    "pose_from_conic",
+]
 
 PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
 
@@ -67,6 +76,29 @@ class Hypothesis:
     rms_px: float
     std: dict[str, float] = field(default_factory=dict)
     information: np.ndarray | None = field(default=None, compare=False)
+    section: PipeSection | None = None
+
+    @property
+    def pipe_section(self) -> PipeSection:
+        """The fitted cross-section: an oval when one was fitted, else the circle."""
+        return self.section if self.section is not None else PipeSection(self.radius_mm)
+
+
+@dataclass(frozen=True)
+class RingPoints:
+    """A frame's ring inliers, kept for later fits (subsampled to at most 720).
+
+    ``uv`` are in-plane coordinates (mm), ``pixels`` the image points they came from.
+    """
+
+    uv: np.ndarray
+    pixels: np.ndarray
+    plane: LaserPlane
+
+    @property
+    def points_mm(self) -> np.ndarray:
+        """(N, 3) probe-frame points on the laser plane."""
+        return self.plane.to_probe(self.uv)
 
 
 @dataclass(frozen=True)
@@ -83,6 +115,7 @@ class PoseFit:
     n_points: int = 0
     coverage: float = 0.0
     model: str = "circle"
+    ring: RingPoints | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -425,9 +458,11 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
                        coverage=coverage)
+    step = max(1, int(keep.sum()) // 720)
+    ring = RingPoints(pts[keep][::step], pixels[keep][::step], plane)
     return PoseFit(True, "", _both_hypotheses(starts[0], pts[keep], pixels[keep], camera, plane,
                                               nominal_radius_mm, fit_radius, noise_mm),
-                   int(keep.sum()), float(coverage), "circle")
+                   int(keep.sum()), float(coverage), "circle", ring)
 
 
 def _both_hypotheses(start: tuple[Pose, float], uv: np.ndarray, pixels: np.ndarray,
@@ -452,7 +487,7 @@ def _both_hypotheses(start: tuple[Pose, float], uv: np.ndarray, pixels: np.ndarr
                                              p3)
         std, info = _uncertainty(jac[:, :5 if fit_radius else 4], resid, fit_radius)
         if not hyps:  # the same curve in the image for both
-            rms_px = _rms_px(h, radius, pixels, uv, resid, camera, plane)
+            rms_px = ring_rms_px(h, radius, pixels, uv, resid, camera, plane)
         hyps.append(Hypothesis(h, radius, cost, float(np.sqrt(np.mean(resid**2))), rms_px, std,
                                info))
     return hyps[0], hyps[1]
@@ -488,7 +523,7 @@ def _one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) -
     return keep
 
 
-def _rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
+def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
             resid_mm: np.ndarray, camera: CameraModel, plane: LaserPlane) -> float:
     """RMS image distance between observed points and the model ring at the same angle.
 

@@ -29,6 +29,7 @@ from pipestitch.mosaic import Canvas, canvas_grid, frame_grid, vignetting_profil
 from pipestitch.occluder import occluder_mask
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
+from pipestitch.pose_fit import RingPoints
 from pipestitch.refine import PatchShifts, node_jacobian, patch_shifts, solve_pose_errors
 from pipestitch.register import (
     Link,
@@ -39,6 +40,7 @@ from pipestitch.register import (
     solve_positions,
     strip_contrast,
 )
+from pipestitch.section_fit import SectionFit, fit_section
 from pipestitch.unwrap import (
     Strip,
     StripGrid,
@@ -112,6 +114,10 @@ class FrameView:
     registration then keeps whichever agrees better with the previous frames.
     ``information`` is the ring's information matrix on (alpha, beta, dx, dy), the
     prior of the photometric refinement; ``refined`` says the pose has been refined.
+    ``ring`` keeps the ring points; after each refinement round ``measured`` is the
+    section (oval) fitted to them with the refined tilt, which then replaces
+    ``section`` and the offset when the pose step fitted an oval (``oval``) or the
+    measured ovality is significant.
     """
 
     pose: Pose
@@ -119,6 +125,9 @@ class FrameView:
     alternative: FrameView | None = None
     information: np.ndarray | None = field(default=None, compare=False)
     refined: bool = False
+    ring: RingPoints | None = field(default=None, compare=False)
+    oval: bool = False                     # the pose step fitted an oval section
+    measured: SectionFit | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -350,6 +359,25 @@ def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraMode
     return out, links
 
 
+# Ovality this far above its uncertainty (and at least this large) is taken as real:
+# the view is then unwrapped with the oval section.
+OVAL_SIGNIFICANCE = 5.0
+OVAL_MIN = 0.005
+
+
+def _refit_section(view: FrameView) -> FrameView:
+    """The view with its section fitted to the ring at the refined tilt (see FrameView)."""
+    if view.ring is None or not view.refined:
+        return view
+    start = view.measured.section if view.measured is not None else view.section
+    measured = fit_section(view.ring.points_mm, view.pose, view.section.mean_radius_mm,
+                           start=start)
+    oval = measured.section.ovality
+    if view.oval or oval > max(OVAL_SIGNIFICANCE * measured.ovality_std, OVAL_MIN):
+        return replace(view, pose=measured.pose, section=measured.section, measured=measured)
+    return replace(view, measured=measured)
+
+
 def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
             positions: Positions, placed: list[int], canvas: Canvas, window: tuple[float, float],
             profile: Callable[[np.ndarray], np.ndarray], timer: StageTimer,
@@ -430,6 +458,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         if pass1.patches:
             with timer("refine"):
                 views, links = _refine_views(views, pass1, camera, own)
+                views = {i: _refit_section(v) for i, v in views.items()}
     levels, done = pass1.levels, pass1.done
     with timer("register"):
         positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,

@@ -36,6 +36,7 @@ from pipestitch.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pose_fit import PoseFit, fit_pose
 from pipestitch.ring import detect_ring, prepare_laser_frame
+from pipestitch.section_fit import oval_if_circle_infeasible
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
            "ordered_map", "report_frame_messages", "resolve_frames", "run_pose",
@@ -48,7 +49,7 @@ POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "rol
                 "alt_dx_mm", "alt_dy_mm")
 EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model",
                  "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm",
-                 "warning")
+                 "warning", "ovality_std")
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,9 @@ class FramePose:
     strips: StripPair | None = None
     warning: str = ""
 
+
+OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; `pipestitch run` "
+                     "measures it from the LED frames)")
 
 # Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
 # README) makes even the true hypothesis disagree photometrically with its
@@ -107,9 +111,11 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
+    fit = oval_if_circle_infeasible(fit, settings.body, settings.camera)
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    return FramePose(index, fit, "" if fit.ok else fit.reason, strips)
+    warning = (OVAL_TILT_WARNING if fit.ok and fit.model == "oval/tilt-0" else "")
+    return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning)
 
 
 def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
@@ -130,7 +136,8 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
                 warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
     try:
         with timer("ring + pose"):
-            return replace(fit_frame(index, laser, led, settings), warning=warning)
+            frame = fit_frame(index, laser, led, settings)
+            return replace(frame, warning="; ".join(m for m in (frame.warning, warning) if m))
     except Exception as exc:  # one bad frame never stops the run
         return FramePose(index, PoseFit(False, repr(exc)),
                          f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
@@ -203,20 +210,21 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None,
         # No pose: every pose value is nan, "ambiguous" does not apply (0), the error says why.
         return [str(frame.index), *["nan"] * 4, z, *["nan"] * 4, "0", *["nan"] * 4,
                 frame.error or fit.reason, "none", "nan", str(fit.n_points),
-                _fmt(fit.coverage, 3), fit.model, *["nan"] * 5, frame.warning]
+                _fmt(fit.coverage, 3), fit.model, *["nan"] * 5, frame.warning, "nan"]
     h = fit.hypotheses[choice.chosen]
     alt = fit.hypotheses[1 - choice.chosen]
     d, a = h.pose.as_degrees(), alt.pose.as_degrees()
     std = h.std
     return [str(frame.index), _fmt(d["alpha_deg"]), _fmt(d["beta_deg"]), _fmt(d["dx_mm"]),
             _fmt(d["dy_mm"]), z, roll,
-            _fmt(h.radius_mm), "nan", _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
+            _fmt(h.radius_mm), _fmt(h.section.ovality if h.section else math.nan),
+            _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
             _fmt(a["alpha_deg"]), _fmt(a["beta_deg"]), _fmt(a["dx_mm"]), _fmt(a["dy_mm"]),
             "", choice.reason, _fmt(choice.margin, 2), str(fit.n_points), _fmt(fit.coverage, 3),
             fit.model, _fmt(math.degrees(std.get("alpha", math.nan))),
             _fmt(math.degrees(std.get("beta", math.nan))), _fmt(std.get("dx_mm", math.nan)),
             _fmt(std.get("dy_mm", math.nan)), _fmt(std.get("radius_mm", math.nan)),
-            frame.warning]
+            frame.warning, _fmt(std.get("ovality", math.nan))]
 
 
 def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
@@ -225,8 +233,9 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
     """Write poses.csv (SPEC columns first, then the extra ones), atomically.
 
     ``z_mm`` comes from registration (``pipestitch run``) or the odometer
-    (``pipestitch pose``); ``roll_deg`` from registration; ``ovality`` is not measured
-    by the circular ring model and is written as nan. Missing values are nan.
+    (``pipestitch pose``); ``roll_deg`` from registration; ``ovality`` where an oval
+    section was fitted (model ``oval/...``; the circle model cannot see it). Missing
+    values are nan.
     """
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")  # quotes messages that hold commas

@@ -20,7 +20,6 @@ import numpy as np
 from pipestitch import __version__
 from pipestitch.ambiguity import Choice
 from pipestitch.errors import PipestitchError
-from pipestitch.geometry import PipeSection
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.outputs import (
@@ -43,6 +42,7 @@ from pipestitch.pipeline.pose import (
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
+from pipestitch.pipeline.standards import code_run
 from pipestitch.pose_fit import Hypothesis
 from pipestitch.report.html import FrameRow, ReportData, render_report
 
@@ -85,8 +85,10 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
         alt = None
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
-            alt = FrameView(m.pose, PipeSection(m.radius_mm), information=m.information)
-        views[frame.index] = FrameView(h.pose, PipeSection(h.radius_mm), alt, h.information)
+            alt = FrameView(m.pose, m.pipe_section, information=m.information,
+                            ring=frame.fit.ring, oval=m.section is not None)
+        views[frame.index] = FrameView(h.pose, h.pipe_section, alt, h.information,
+                                       ring=frame.fit.ring, oval=h.section is not None)
     return views
 
 
@@ -109,8 +111,16 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
         view = views.get(frame.index)
         if view is not None and view.refined and choice.chosen is not None:
             hyps = list(frame.fit.hypotheses)
-            hyps[choice.chosen] = replace(hyps[choice.chosen], pose=view.pose)
-            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps)))
+            h = replace(hyps[choice.chosen], pose=view.pose)
+            model = frame.fit.model
+            if view.measured is not None:  # the section fitted at the refined tilt
+                m = view.measured
+                h = replace(h, radius_mm=m.section.mean_radius_mm, section=m.section,
+                            std={**h.std, "radius_mm": m.radius_std_mm,
+                                 "ovality": m.ovality_std})
+                model = "oval/refined-tilt"
+            hyps[choice.chosen] = h
+            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model))
         out.append(frame)
     return out
 
@@ -118,17 +128,25 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
                   plane_distance_mm: float, nominal_mm: float,
                   tolerance_pct: float) -> list[list[object]]:
-    """Diameter per frame from the ring (circle model: min = max radius, ovality unmeasured).
+    """Diameter and ovality per frame from the ring.
 
-    z is the ring's axial position: the camera's z plus the laser plane distance;
-    ``within_tolerance`` is 1 when the diameter is within ``tolerance_pct`` % of nominal.
+    With an oval section fitted (model ``oval/...``) the min/max radius are its
+    semi-axes and ovality (Dmax - Dmin)/Dmean (SPEC); with the circle model alone
+    (``pipestitch pose`` on a round pipe, frames not refined) min = max and the
+    ovality is nan: a ring alone cannot tell ovality from tilt. z is the ring's
+    axial position: the camera's z plus the laser plane distance;
+    ``within_tolerance`` is 1 when the mean diameter is within ``tolerance_pct`` %
+    of nominal.
     """
     rows: list[list[object]] = []
     for frame, _, h in _chosen(frames, choices):
+        sec = h.pipe_section
+        lo, hi = sorted((sec.a_mm, sec.b_mm))
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
-                     2 * h.radius_mm, math.nan, h.radius_mm, h.radius_mm,
-                     2 * h.std.get("radius_mm", math.nan), frame.fit.model,
-                     int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm)])
+                     2 * h.radius_mm, sec.ovality if h.section is not None else math.nan,
+                     lo, hi, 2 * h.std.get("radius_mm", math.nan), frame.fit.model,
+                     int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm),
+                     h.std.get("ovality", math.nan)])
     return rows
 
 
@@ -181,15 +199,18 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
 
 
 def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings | None = None,
-                show_progress: bool = True, tolerance_pct: float = 1.0) -> RunSummary:
+                show_progress: bool = True, tolerance_pct: float = 1.0,
+                video: Path | None = None, crown_deg: float | None = None) -> RunSummary:
     """Process a dataset end to end and write every output into ``out``.
 
     ``tolerance_pct``: profile.csv flags diameters further than this from nominal.
+    ``crown_deg``: mosaic theta of 12 o'clock for the clock positions (the standards
+    stage; default: imu.csv, else a detected invert, else relative).
     """
     settings = settings or MosaicSettings()
     start = time.perf_counter()
     timer = StageTimer()
-    dataset = open_dataset(root)
+    dataset = open_dataset(root, video=video)
     out = Path(out)
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer)
@@ -242,10 +263,14 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
                          len(result.placed) if result else 0, seconds, dict(timer.seconds),
                          problems, result, no_mosaic,
                          not views or (dataset.has_led and result is None))
+    with timer("standards"):
+        coded = code_run(out, dataset=dataset.root, crown_deg=crown_deg,
+                         nominal_diameter_mm=dataset.config.pipe.inner_diameter_mm)
     with timer("report"):
         data = _report_data(dataset, frames, choices, z, image, result, summary)
-        data.defects = defects
+        data.defects = coded.defects if result is not None else defects
         data.tolerance_pct = tolerance_pct
+        data.standards = coded.report_view()
         atomic_write_text(out / "report.html", render_report(data))
     return summary
 

@@ -24,6 +24,19 @@ __all__ = ["occluder_mask"]
 NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
 
 
+def _smooth(frame: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur of width ``sigma`` (px), computed on a 4x smaller image.
+
+    The neighbourhood is tens of pixels wide, so blurring the area-averaged image
+    with sigma / 4 and enlarging it back differs from the full blur by far less than
+    the 35 % contrast the mask looks for, at a twentieth of the cost.
+    """
+    h, w = frame.shape
+    small = cv2.resize(frame, (max(1, w // 4), max(1, h // 4)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma / 4)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
                   absolute: float = 0.08, margin_px: int | None = None) -> np.ndarray:
     """Boolean mask of occluded pixels from grey LED frames of one run.
@@ -53,7 +66,7 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     sigma = max(3.0, height / 40)
     ratios = np.empty_like(stack)
     for k, frame in enumerate(stack):
-        ratios[k] = frame / np.maximum(cv2.GaussianBlur(frame, (0, 0), sigma), 1e-6)
+        ratios[k] = frame / np.maximum(_smooth(frame, sigma), 1e-6)
     ratio = np.quantile(ratios, NEARLY_ALL, axis=0)
     level = np.quantile(stack, NEARLY_ALL, axis=0)
     typical = np.median(stack, axis=0)

@@ -16,6 +16,7 @@ are equally strong (it returns both, ranked) or know the pose.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -102,9 +103,13 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarr
     return arr
 
 
+@functools.lru_cache(maxsize=8)
 def _polar_grid(camera: CameraModel, n_azimuths: int,
                 step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sampling maps of rays from the image of the optical axis out to the lens edge."""
+    """Sampling maps of rays from the image of the optical axis out to the lens edge.
+
+    The same for every frame of a run: cached (read-only arrays).
+    """
     centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
     edge_theta = min(camera.max_incidence_rad, np.deg2rad(100.0))
     phi = np.linspace(0, 2 * np.pi, n_azimuths, endpoint=False)
@@ -115,6 +120,8 @@ def _polar_grid(camera: CameraModel, n_azimuths: int,
     radii = np.arange(2.0, r_max, step_px)
     map_x = (centre[0] + np.cos(phi)[:, None] * radii[None, :]).astype(np.float32)
     map_y = (centre[1] + np.sin(phi)[:, None] * radii[None, :]).astype(np.float32)
+    for arr in (map_x, map_y, radii, centre):
+        arr.flags.writeable = False
     return map_x, map_y, radii, centre
 
 

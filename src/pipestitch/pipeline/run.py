@@ -33,6 +33,7 @@ from pipestitch.io.outputs import (
     write_tiled_tiff,
 )
 from pipestitch.measure.defects import Defect
+from pipestitch.pipeline.frame_cache import CachedLedFrames
 from pipestitch.pipeline.measure import measure_mosaic, write_defects_csv
 from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
 from pipestitch.pipeline.pose import (
@@ -210,7 +211,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     settings = settings or MosaicSettings()
     start = time.perf_counter()
     timer = StageTimer()
-    dataset = open_dataset(root, video=video)
+    dataset = CachedLedFrames(open_dataset(root, video=video))
     out = Path(out)
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer)

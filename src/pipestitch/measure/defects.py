@@ -21,9 +21,11 @@ robust noise (scikit-image labels and region properties do the rest):
 Rows wrap around the pipe: the mosaic is rolled so that a row without detections is
 at the top before labelling, so a defect across theta = 0/360 stays whole.
 
-Clock positions (see docs/conventions.md): 12 o'clock is the image's up direction of
-the roll reference frame (theta = 270° in pipe coordinates), 3 o'clock theta = 0°,
-clockwise as seen looking in the direction of survey (theta increasing).
+Clock positions (see docs/conventions.md): by default ("relative") 12 o'clock is the
+image's up direction of the roll reference frame (theta = 270° in pipe coordinates),
+3 o'clock theta = 0°, clockwise as seen looking in the direction of survey (theta
+increasing); ``up_theta_deg`` moves 12 o'clock to the crown of a roll reference
+(pipestitch.standards).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 from skimage import measure
+
+from pipestitch.standards.clock import clock_hhmm
 
 __all__ = ["Defect", "MosaicGeometry", "clock_position", "find_defects"]
 
@@ -82,9 +86,7 @@ class Defect:
 
 def clock_position(theta_deg: float, up_theta_deg: float = 270.0) -> str:
     """Clock position "H:MM" (to 5 minutes): 12 at ``up_theta_deg``, theta increasing clockwise."""
-    minutes = round(((theta_deg - up_theta_deg) % 360.0) / 360.0 * 720 / 5) * 5 % 720
-    hour, minute = divmod(int(minutes), 60)
-    return f"{hour or 12}:{minute:02d}"
+    return clock_hhmm(theta_deg, up_theta_deg)
 
 
 def _background(image: np.ndarray, valid: np.ndarray, window_px: int) -> np.ndarray:

@@ -20,8 +20,10 @@ import numpy as np
 from matplotlib.patches import Ellipse
 
 from pipestitch.measure.defects import Defect
+from pipestitch.standards import DEFINITIONS, Observation
+from pipestitch.standards.observations import ProfileSection
 
-__all__ = ["FrameRow", "ReportData", "render_report"]
+__all__ = ["FrameRow", "ReportData", "StandardsView", "render_report"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 
@@ -41,6 +43,17 @@ class FrameRow:
     chosen_by: str
 
 
+@dataclass(frozen=True)
+class StandardsView:
+    """The standards stage's results as the report shows them."""
+
+    reference_source: str            # "imu", "invert-detected", "user (--crown-deg)", "relative"
+    reference_detail: str
+    crown_theta_deg: float           # mosaic theta of 12 o'clock
+    observations: list[Observation] = field(default_factory=list)
+    sections: list[ProfileSection] = field(default_factory=list)
+
+
 @dataclass
 class ReportData:
     """Everything the report shows."""
@@ -56,6 +69,7 @@ class ReportData:
     figures: dict[str, str] = field(default_factory=dict)
     defects: list[Defect] = field(default_factory=list)
     tolerance_pct: float = 1.0
+    standards: StandardsView | None = None
 
 
 def _png(fig: plt.Figure) -> str:
@@ -81,7 +95,22 @@ def _mosaic_figure(data: ReportData) -> str:
     ax.set_ylabel("θ around the pipe (deg, relative)")
     ax.set_yticks(np.arange(0, 361, 45))
     _outline_defects(ax, data)
+    if data.standards is not None:
+        _clock_axis(ax, data.standards.crown_theta_deg, img.shape[0] * data.deg_per_px)
     return _png(fig)
+
+
+def _clock_axis(ax: plt.Axes, crown_theta_deg: float, theta_max: float) -> None:
+    """Clock positions on a right-hand axis; 12, 3, 6 and 9 o'clock as dotted lines."""
+    right = ax.twinx()
+    right.set_ylim(ax.get_ylim())
+    ticks = [((crown_theta_deg + 30 * h) % 360, h or 12) for h in range(12)]
+    ticks = sorted(t for t in ticks if t[0] <= theta_max)
+    right.set_yticks([t for t, _ in ticks], [f"{h}" for _, h in ticks])
+    right.set_ylabel("clock position (12 = crown)")
+    for theta, hour in ticks:
+        if hour in (12, 3, 6, 9):
+            ax.axhline(theta, color="#30a0ff", lw=0.8, ls=":", alpha=0.8)
 
 
 def _outline_defects(ax: plt.Axes, data: ReportData) -> None:
@@ -91,8 +120,8 @@ def _outline_defects(ax: plt.Axes, data: ReportData) -> None:
         colour = "#ff3030" if d.kind == "hole" else "#ffb000"
         ax.add_patch(Ellipse((d.z_mm, d.theta_deg), 1.6 * d.diameter_mm,
                              1.6 * d.diameter_mm * deg_per_mm, fill=False, color=colour, lw=1.2))
-        ax.annotate(f"D{k}", (d.z_mm + d.diameter_mm, d.theta_deg), color=colour, fontsize=8,
-                    weight="bold")
+        ax.annotate(f"D{k} {d.clock}", (d.z_mm + d.diameter_mm, d.theta_deg), color=colour,
+                    fontsize=8, weight="bold")
 
 
 def _series(data: ReportData, name: str) -> np.ndarray:
@@ -165,6 +194,75 @@ def _defect_table(data: ReportData) -> str:
                    "confidence", "partial"], rows)
 
 
+def _clock_text(o: Observation) -> str:
+    if o.clock_from is None:
+        return ""
+    return f"{o.clock_from}" if o.clock_to is None else f"{o.clock_from}–{o.clock_to}"
+
+
+def _q(value: int | None) -> str:
+    return "" if value is None else str(value)
+
+
+def _clock_note(data: ReportData) -> str:
+    if data.standards is None:
+        return "12 o'clock = the first frame's image up (θ = 270°)"
+    return html.escape(f"12 o'clock = crown at mosaic θ = {data.standards.crown_theta_deg:.1f}° "
+                       f"(reference: {data.standards.reference_source})")
+
+
+def _observation_section(data: ReportData) -> str:
+    view = data.standards
+    if view is None:
+        return "<p>Not coded (the standards stage did not run).</p>"
+    note = (f'<p class="note">Clock reference: <b>{html.escape(view.reference_source)}</b> '
+            f"({html.escape(view.reference_detail)}); 12 = crown, 3 = right, 6 = invert, "
+            "9 = left, clockwise looking along the survey. Distance from the first wall seen "
+            "(the mosaic's left edge), m. Codes: EN 13508-2 main codes (docs/standards.md); "
+            "edit observations.csv and run <code>pipestitch export</code> to re-export.</p>")
+    if not view.observations:
+        return note + "<p>No observations.</p>"
+    rows = [[f"{o.distance_m:.2f}", o.code, o.char1, o.char2, _q(o.quant1), _q(o.quant2),
+             _clock_text(o), o.continuous, o.remark, o.ref] for o in view.observations]
+    return note + _table(["distance (m)", "code", "char. 1", "char. 2", "quant. 1",
+                          "quant. 2", "clock", "continuous", "remark", "reference"], rows)
+
+
+def _fmt_pct(value: float) -> str:
+    return f"{value:.2f}" if np.isfinite(value) else "—"
+
+
+def _ovality_figure(sections: list[ProfileSection]) -> str:
+    z = np.array([s.z_mm for s in sections])
+    fig, ax = plt.subplots(figsize=(9, 3))
+    for name, label in (("f1216_mean_min_pct", "ASTM F1216 (mean−min)/mean"),
+                        ("f1216_max_mean_pct", "ASTM F1216 (max−mean)/mean"),
+                        ("deflection_pct", "deflection (base−min)/base")):
+        ax.plot(z, [getattr(s.figures, name) for s in sections], ".-", label=label)
+    ax.set_xlabel("z of the ring (mm)")
+    ax.set_ylabel("%")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def _ovality_section(data: ReportData) -> str:
+    view = data.standards
+    defs = _table(["column", "definition"], [[k, v] for k, v in DEFINITIONS.items()])
+    if view is None or not view.sections:
+        return defs + "<p>No diameter profile.</p>"
+    measured = [s for s in view.sections if np.isfinite(s.figures.f1216_mean_min_pct)]
+    if not measured:
+        return (defs + "<p>Ovality not measured: the rings were fitted with the circle model "
+                "(minimum = maximum diameter by construction), so no figure is reported.</p>")
+    rows = [[f"{s.frame:05d}", f"{s.z_mm:.1f}", f"{s.mean_id_mm:.3f}", f"{s.min_id_mm:.3f}",
+             f"{s.max_id_mm:.3f}", *(_fmt_pct(getattr(s.figures, k)) for k in DEFINITIONS)]
+            for s in view.sections]
+    return (defs + f'<img alt="ovality along the pipe" src="{_ovality_figure(measured)}">'
+            + _table(["frame", "z (mm)", "mean ID (mm)", "min ID (mm)", "max ID (mm)",
+                      *DEFINITIONS], rows))
+
+
 def render_report(data: ReportData) -> str:
     """The report as one HTML string (no external resources)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
@@ -184,9 +282,13 @@ def render_report(data: ReportData) -> str:
 {_mosaic_section(data)}
 <h2>Defects</h2>
 <p class="note">Holes (red) and spots (amber), outlined on the mosaic; z and θ in the
-mosaic's coordinates; 12 o'clock = the first frame's image up (θ = 270°), clockwise
-looking along the survey.</p>
+mosaic's coordinates; clock: {_clock_note(data)}, clockwise looking along the survey
+(right-hand axis of the mosaic).</p>
 {_defect_table(data)}
+<h2>Coded observations</h2>
+{_observation_section(data)}
+<h2>Ovality and deflection</h2>
+{_ovality_section(data)}
 <h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
 <h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
 <h2>Frames that failed, were skipped or stayed ambiguous</h2>{problems}

@@ -1,0 +1,44 @@
+"""Optional ``DATASET/imu.csv``: ``frame,roll_deg``, the probe's roll about the pipe axis
+measured against gravity (an inclinometer/IMU on the probe).
+
+``roll_deg`` is SPEC's gamma of that frame in a pipe frame whose +y points down (so the
+crown is at theta = 270 deg): 0 when the image's up direction points at the crown;
+image up then points at theta = 270 + roll_deg, so +90 puts it at 3 o'clock (see
+docs/conventions.md, "Clock positions"). Extra columns are ignored.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.errors import DatasetError
+from pipestitch.io.dataset import read_csv_columns
+
+__all__ = ["IMU_FILE", "read_imu"]
+
+IMU_FILE = "imu.csv"
+
+
+def read_imu(dataset: str | Path) -> dict[int, float] | None:
+    """Roll per frame from ``dataset/imu.csv``, or None when the file is absent.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file: missing columns, non-numeric values, frame numbers that are
+        not whole numbers >= 0, or repeated frames.
+    """
+    path = Path(dataset) / IMU_FILE
+    if not path.is_file():
+        return None
+    cols = read_csv_columns(path, ("frame", "roll_deg"))
+    frames = cols["frame"]
+    if np.any(frames != np.round(frames)) or np.any(frames < 0):
+        raise DatasetError(path, "frame numbers must be whole numbers >= 0")
+    if len(np.unique(frames)) != len(frames):
+        raise DatasetError(path, "a frame is listed more than once")
+    if not len(frames):
+        raise DatasetError(path, "no rows (expected frame,roll_deg per frame)")
+    return {int(f): float(r) for f, r in zip(frames, cols["roll_deg"], strict=True)}

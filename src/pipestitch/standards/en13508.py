@@ -1,0 +1,153 @@
+"""EN 13508-2 text exchange file: write and parse.
+
+Layout (EN 13508-2 annex on data transfer; checked against a published example file,
+docs/standards.md): a file header of ``#A<n>=`` lines (A1 character set, A2 language,
+A3 field separator, A4 decimal mark, A5 quote character, A6 format version), then per
+inspection a header block ``#B01=<codes>`` with one line of values, an observation
+block ``#C=<field letters>`` with one line per observation, and ``#Z`` closing it.
+
+Observation field letters used: I distance (m), A main code, B/C characterisation 1/2,
+D/E quantification 1/2, F remark, G/H circumferential location (clock hour at/from, to),
+J continuous defect code, M photograph reference (our mosaic/frame reference).
+Inspection header codes used: AAA pipe reference, ABA standard, ABF date, ABG time,
+ABQ anticipated length (m), ACB height, ACC width (mm), ADE general remark (which
+carries the clock reference).
+
+The parser reads any field order and separator the ``#A`` lines declare, ignores
+fields it does not know (e.g. K joint, N video reference) and returns one
+(Survey, observations) pair per inspection.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+
+from pipestitch.standards.observations import Observation, Survey, parse_int
+
+__all__ = ["parse_en13508", "write_en13508"]
+
+OBS_FIELDS = {"I": "distance_m", "A": "code", "B": "char1", "C": "char2", "D": "quant1",
+              "E": "quant2", "F": "remark", "G": "clock_from", "H": "clock_to",
+              "J": "continuous", "M": "ref"}
+HEADER_FIELDS = {"AAA": "pipe_ref", "ABA": "standard", "ABF": "date", "ABG": "time",
+                 "ABQ": "length_m", "ACB": "nominal_diameter_mm", "ADE": "reference"}
+REFERENCE_PREFIX = "clock reference: "
+FILE_HEADER = {"A1": "ISO-8859-1", "A2": "en", "A3": ";", "A4": ".", "A5": '"', "A6": "2010"}
+
+
+def _line(values: Sequence[str], sep: str, quote: str) -> str:
+    buffer = io.StringIO()
+    csv.writer(buffer, delimiter=sep, quotechar=quote, lineterminator="",
+               quoting=csv.QUOTE_MINIMAL).writerow(values)
+    return buffer.getvalue()
+
+
+def _num(value: float | int | None, decimal: str) -> str:
+    if value is None:
+        return ""
+    text = f"{value:.2f}" if isinstance(value, float) else str(value)
+    return text.replace(".", decimal)
+
+
+def write_en13508(surveys: Sequence[tuple[Survey, Sequence[Observation]]]) -> str:
+    """The exchange file text for one or more inspections (ISO-8859-1 safe when the
+    remarks are)."""
+    sep, dec, quote = FILE_HEADER["A3"], FILE_HEADER["A4"], FILE_HEADER["A5"]
+    lines = [f"#{k}={v}" for k, v in FILE_HEADER.items()]
+    for survey, observations in surveys:
+        header = {"AAA": survey.pipe_ref, "ABA": survey.standard, "ABF": survey.date,
+                  "ABG": survey.time, "ABQ": _num(float(survey.length_m), dec),
+                  "ACB": str(survey.nominal_diameter_mm), "ACC": str(survey.nominal_diameter_mm),
+                  "ADE": REFERENCE_PREFIX + survey.reference}
+        lines += ["#B01=" + sep.join(header), _line(list(header.values()), sep, quote)]
+        lines.append("#C=" + sep.join(OBS_FIELDS))
+        for o in observations:
+            row = []
+            for name in OBS_FIELDS.values():
+                value = getattr(o, name)
+                row.append(_num(value, dec) if name != "remark" and isinstance(value, float | int)
+                           else ("" if value is None else str(value)))
+            lines.append(_line(row, sep, quote))
+        lines.append("#Z")
+    return "\n".join(lines) + "\n"
+
+
+def _split(line: str, sep: str, quote: str) -> list[str]:
+    return next(csv.reader([line], delimiter=sep, quotechar=quote or None))
+
+
+def _survey(header: dict[str, str], dec: str) -> Survey:
+    ref = header.get("ADE", "")
+    length = header.get("ABQ", "").replace(dec, ".")
+    try:
+        length_m = float(length) if length else float("nan")
+        diameter = parse_int(header.get("ACB", ""), "ACB") or 0
+    except ValueError as exc:
+        raise ValueError(f"inspection header: {exc}") from None
+    return Survey(header.get("AAA", ""), header.get("ABF", ""), header.get("ABG", ""), length_m,
+                  diameter, ref[len(REFERENCE_PREFIX):] if ref.startswith(REFERENCE_PREFIX) else "",
+                  header.get("ABA", ""))
+
+
+def _observation(letters: list[str], cells: list[str], dec: str) -> Observation:
+    values = {OBS_FIELDS[k]: v for k, v in zip(letters, cells, strict=True) if k in OBS_FIELDS}
+    for name in ("distance_m", "quant1", "quant2"):
+        values[name] = values.get(name, "").replace(dec, ".")
+    try:
+        distance = float(values.get("distance_m") or "nan")
+    except ValueError:
+        raise ValueError(f"distance (I) = {values.get('distance_m')!r} is not a number") from None
+    return Observation(distance, values.get("code", "").strip(), values.get("char1", "").strip(),
+                       values.get("char2", "").strip(), parse_int(values["quant1"], "D"),
+                       parse_int(values["quant2"], "E"), values.get("remark", ""),
+                       parse_int(values.get("clock_from", ""), "G"),
+                       parse_int(values.get("clock_to", ""), "H"),
+                       values.get("continuous", "").strip(), values.get("ref", ""))
+
+
+def parse_en13508(text: str) -> list[tuple[Survey, list[Observation]]]:
+    """Parse an exchange file; ValueError names the line and the problem."""
+    meta = dict(FILE_HEADER)
+    out: list[tuple[Survey, list[Observation]]] = []
+    header: dict[str, str] = {}
+    letters: list[str] | None = None
+    pending: str | None = None          # "B" after a #B line, expecting its values
+    observations: list[Observation] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.rstrip("\r")
+        if not line.strip():
+            continue
+        try:
+            if line.startswith("#A") and "=" in line:
+                key, value = line[1:].split("=", 1)
+                meta[key] = value
+            elif line.startswith("#B"):
+                codes, pending = line.split("=", 1)[1], "B"
+                header_codes = _split(codes, meta["A3"], meta["A5"])
+            elif pending == "B":
+                cells = _split(line, meta["A3"], meta["A5"])
+                if len(cells) != len(header_codes):
+                    raise ValueError(f"{len(cells)} values for {len(header_codes)} header codes")
+                header.update(zip(header_codes, cells, strict=True))
+                pending = None
+            elif line.startswith("#C="):
+                letters = _split(line[3:], meta["A3"], meta["A5"])
+                if "I" not in letters or "A" not in letters:
+                    raise ValueError("observation block without distance (I) or main code (A)")
+            elif line.startswith("#Z"):
+                out.append((_survey(header, meta["A4"]), observations))
+                header, letters, observations = {}, None, []
+            elif letters is not None:
+                cells = _split(line, meta["A3"], meta["A5"])
+                if len(cells) != len(letters):
+                    raise ValueError(f"{len(cells)} fields for {len(letters)} field letters")
+                observations.append(_observation(letters, cells, meta["A4"]))
+            else:
+                raise ValueError(f"unexpected line {line[:40]!r}")
+        except ValueError as exc:
+            raise ValueError(f"line {lineno}: {exc}") from None
+    if letters is not None or header:
+        raise ValueError("last inspection block is not closed by #Z")
+    return out

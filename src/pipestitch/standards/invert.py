@@ -1,0 +1,109 @@
+"""Find the invert on the mosaic from a sediment band or the wetted strip below a water
+line: a band of rows (theta) that is darker or brighter than the rest of the wall in
+(almost) every column along the pipe.
+
+Hand-written because it is a few lines of robust statistics on the row profile; the
+band must be wide (>= 20 deg: narrower persistent strips are e.g. the laser-holder
+arm's shadow) and present along the run (>= 80 % of the columns), so holes, spots and
+texture do not make one. Returns None when there is no such band: the caller then
+falls back to another reference.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["InvertBand", "detect_invert"]
+
+MIN_CONTRAST = 0.15        # relative to the wall's median, like the defect detector
+MIN_WIDTH_DEG = 20.0
+MAX_WIDTH_DEG = 200.0
+MIN_PERSISTENCE = 0.8      # share of columns in which the band shows
+SMOOTH_DEG = 3.0
+
+
+@dataclass(frozen=True)
+class InvertBand:
+    """A detected band: centre (the invert), width, contrast and persistence."""
+
+    theta_deg: float
+    width_deg: float
+    contrast: float
+    persistence: float
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int]:
+    """(start, length) of the longest circular run of True; (0, 0) if none."""
+    if not mask.any():
+        return 0, 0
+    if mask.all():
+        return 0, mask.size
+    shift = int(np.argmin(mask))            # a False row: runs do not wrap from here
+    rolled = np.append(np.roll(mask, -shift), False)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], rolled.astype(np.int8)))))
+    starts, ends = edges[0::2], edges[1::2]
+    k = int(np.argmax(ends - starts))
+    return (int(starts[k]) + shift) % mask.size, int(ends[k] - starts[k])
+
+
+def detect_invert(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
+    """The invert (centre of a persistent wide band) in mosaic theta, or None.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Mosaic (rows: theta, columns: z), float, NaN where not seen.
+    deg_per_px : float
+        Degrees per row.
+    """
+    # Rows and columns without data give all-NaN medians (NaN is the right answer).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _detect(image, deg_per_px)
+
+
+def _detect(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
+    valid = np.isfinite(image)
+    usable_cols = valid.mean(axis=0) >= 0.5
+    if usable_cols.sum() < 5:
+        return None
+    img = image[:, usable_cols]
+    col_median = np.nanmedian(img, axis=0)
+    norm = img / np.where(col_median > 0, col_median, np.nan)
+    rows_ok = np.isfinite(norm).mean(axis=1) >= 0.5
+    profile = np.full(image.shape[0], np.nan)
+    profile[rows_ok] = np.nanmedian(norm[rows_ok], axis=1)
+    sigma = max(1.0, SMOOTH_DEG / deg_per_px)
+    weight = ndimage.gaussian_filter1d(rows_ok.astype(float), sigma, mode="wrap")
+    smooth = ndimage.gaussian_filter1d(np.nan_to_num(profile), sigma, mode="wrap")
+    profile = np.where(rows_ok, smooth / np.maximum(weight, 1e-6), np.nan)
+    dev = profile - np.nanmedian(profile)
+    best = None
+    for sign in (-1.0, 1.0):
+        start, length = _longest_run(np.nan_to_num(sign * dev) > MIN_CONTRAST)
+        width = length * deg_per_px
+        if not MIN_WIDTH_DEG <= width <= MAX_WIDTH_DEG:
+            continue
+        rows = (start + np.arange(length)) % image.shape[0]
+        persistence = _persistence(norm, rows, sign)
+        if persistence >= MIN_PERSISTENCE and (best is None or width > best.width_deg):
+            centre = (start + (length - 1) / 2) * deg_per_px % 360.0
+            best = InvertBand(centre, width, float(np.nanmedian(dev[rows])), persistence)
+    return best
+
+
+def _persistence(norm: np.ndarray, rows: np.ndarray, sign: float) -> float:
+    """Share of columns where the band's median differs from the rest's by half the
+    threshold in the band's direction."""
+    inside = np.zeros(norm.shape[0], bool)
+    inside[rows] = True
+    band = np.nanmedian(norm[inside], axis=0)
+    rest = np.nanmedian(norm[~inside], axis=0)
+    ok = np.isfinite(band) & np.isfinite(rest)
+    if not ok.any():
+        return 0.0
+    return float(np.mean(sign * (band[ok] - rest[ok]) > MIN_CONTRAST / 2))

@@ -1,0 +1,65 @@
+"""PACP-style CSV (NASSCO's Pipeline Assessment Certification Program): write and parse.
+
+Not the PACP exchange database itself: one CSV row per observation with PACP-like
+column names, metric units (distance in m, dimensions in mm) and the EN 13508-2 code
+columns alongside, so the file re-imports without loss. The PACP code is a best-effort
+translation of the EN code (``PACP_CODES``); neither the column names nor the codes
+were verified against the PACP manual (docs/standards.md).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Iterable
+
+from pipestitch.standards.observations import Observation, observation_from_fields
+
+__all__ = ["PACP_CODES", "PACP_COLUMNS", "parse_pacp_csv", "write_pacp_csv"]
+
+# (EN main code, characterisation 1) -> PACP-style code; unverified (see module doc).
+PACP_CODES = {("BAC", "B"): "H", ("BAF", "Z"): "SZ", ("BAA", ""): "D", ("BBC", "Z"): "DSZ"}
+PACP_COLUMNS = ("Distance_m", "Code", "Continuous", "Value_1st_Dimension_mm",
+                "Value_2nd_Dimension_mm", "Value_Percent", "Clock_At_From", "Clock_To",
+                "Remarks", "Image_Reference", "EN13508_Code", "EN13508_Char1", "EN13508_Char2")
+PERCENT_CODES = {"BAA"}          # codes whose quantification 1 is a percentage
+TO_FIELDS = {"Distance_m": "distance_m", "Continuous": "continuous",
+             "Clock_At_From": "clock_from", "Clock_To": "clock_to", "Remarks": "remark",
+             "Image_Reference": "ref", "EN13508_Code": "code", "EN13508_Char1": "char1",
+             "EN13508_Char2": "char2", "Value_2nd_Dimension_mm": "quant2"}
+
+
+def _text(value: object) -> str:
+    return "" if value is None else (f"{value:.2f}" if isinstance(value, float) else str(value))
+
+
+def write_pacp_csv(observations: Iterable[Observation]) -> str:
+    """The PACP-style CSV text."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(PACP_COLUMNS)
+    for o in observations:
+        percent = o.code in PERCENT_CODES
+        writer.writerow([_text(o.distance_m), PACP_CODES.get((o.code, o.char1), o.code),
+                         o.continuous, "" if percent else _text(o.quant1), _text(o.quant2),
+                         _text(o.quant1) if percent else "", _text(o.clock_from),
+                         _text(o.clock_to), o.remark, o.ref, o.code, o.char1, o.char2])
+    return buffer.getvalue()
+
+
+def parse_pacp_csv(text: str) -> list[Observation]:
+    """Read the PACP-style CSV back; ValueError names the line and the problem."""
+    reader = csv.DictReader(io.StringIO(text))
+    missing = [c for c in ("Distance_m", "EN13508_Code") if c not in (reader.fieldnames or [])]
+    if missing:
+        raise ValueError(f"missing column(s) {', '.join(missing)}")
+    out = []
+    for row in reader:
+        values = {name: row.get(col) or "" for col, name in TO_FIELDS.items()}
+        quant = "Value_Percent" if values["code"] in PERCENT_CODES else "Value_1st_Dimension_mm"
+        values["quant1"] = row.get(quant) or ""
+        try:
+            out.append(observation_from_fields(values))
+        except ValueError as exc:
+            raise ValueError(f"line {reader.line_num}: {exc}") from None
+    return out

@@ -25,7 +25,7 @@ from scipy.sparse import lil_matrix
 from pipestitch.unwrap import Strip, StripGrid, local_contrast
 
 __all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "phase_shift", "predict_motion",
-           "registration_image", "solve_positions", "strip_contrast"]
+           "registration_image", "solve_positions", "spectrum", "strip_contrast"]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
 PRIOR_FLOOR = 0.1       # weight of the motion prior far from the expected motion
@@ -133,16 +133,21 @@ def predict_motion(i: int, j: int, links: Sequence[Link],
     return MotionPrior(0.0, roll[0], np.inf, roll[1])
 
 
+def spectrum(image: np.ndarray) -> np.ndarray:
+    """The DFT (complex, two channels) :func:`measure_shift` correlates, for reuse."""
+    return cv2.dft(image, flags=cv2.DFT_COMPLEX_OUTPUT)
+
+
 def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float, float],
-                sigma_px: tuple[float, float]) -> tuple[float, float, float]:
+                sigma_px: tuple[float, float],
+                spectra: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, float, float]:
     """Phase-correlation peak weighted by a Gaussian prior on the shift (whole pixels).
 
     Returns (dx, dy, response) with ``second(x) = first(x - d)``; rows are circular.
     The response is the correlation surface summed over the 5 x 5 pixels around the
     peak, as ``cv2.phaseCorrelate`` reports it.
     """
-    fa = cv2.dft(first, flags=cv2.DFT_COMPLEX_OUTPUT)
-    fb = cv2.dft(second, flags=cv2.DFT_COMPLEX_OUTPUT)
+    fa, fb = spectra if spectra is not None else (spectrum(first), spectrum(second))
     cross = cv2.mulSpectrums(fb, fa, 0, conjB=True)
     cross /= np.maximum(np.hypot(cross[..., 0], cross[..., 1]), 1e-12)[..., None]
     surface = cv2.idft(cross, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
@@ -150,13 +155,13 @@ def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float,
     sy = (np.arange(n_rows) + n_rows // 2) % n_rows - n_rows // 2
     sx = (np.arange(n_cols) + n_cols // 2) % n_cols - n_cols // 2
     wy = (sy - expected_px[1] + n_rows / 2) % n_rows - n_rows / 2
-    log_w = (-0.5 * (wy[:, None] / sigma_px[1]) ** 2
-             - 0.5 * ((sx[None, :] - expected_px[0]) / sigma_px[0]) ** 2)
+    # The Gaussian is separable: an outer product of two 1-D profiles (float32).
+    g_rows = np.exp(-0.5 * (wy / sigma_px[1]) ** 2).astype(np.float32)
+    g_cols = np.exp(-0.5 * ((sx - expected_px[0]) / sigma_px[0]) ** 2).astype(np.float32)
     # The floor lets a clearly stronger peak far from the prior win (an odometer that
     # slipped by more than its slack) while a comparable one (one period off) does not.
-    weight = PRIOR_FLOOR + (1 - PRIOR_FLOOR) * np.exp(log_w)
-    row, col = np.unravel_index(np.argmax(np.where(surface > 0, surface, 0) * weight),
-                                surface.shape)
+    weight = np.float32(PRIOR_FLOOR) + np.float32(1 - PRIOR_FLOOR) * np.outer(g_rows, g_cols)
+    row, col = np.unravel_index(np.argmax(np.maximum(surface, 0) * weight), surface.shape)
     near = surface[np.ix_((row + np.arange(-2, 3)) % n_rows, (col + np.arange(-2, 3)) % n_cols)]
     return float(sx[col]), float(sy[row]), float(np.sum(near))
 
@@ -173,12 +178,14 @@ def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 
 def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int,
-                  j: int, prior: MotionPrior | None = None) -> Link | None:
+                  j: int, prior: MotionPrior | None = None,
+                  spectra: tuple[np.ndarray, np.ndarray] | None = None) -> Link | None:
     """Link from frame i to frame j by phase correlation of their registration images.
 
     With a ``prior`` the correlation peak is sought near the expected motion
-    (:func:`predict_motion`). Returns None when the peak is below ``MIN_RESPONSE``
-    (no common texture).
+    (:func:`predict_motion`). ``spectra``: the images' :func:`spectrum`, when already
+    computed (each frame is correlated with several). Returns None when the peak is
+    below ``MIN_RESPONSE`` (no common texture).
     """
     if not (np.any(first) and np.any(second)):
         return None
@@ -188,7 +195,7 @@ def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int
         # Motion m and correlation shift d are opposite: strip_j(x) = strip_i(x + m).
         expected = (-prior.dz_mm / grid.mm_per_px, -prior.droll_deg / grid.deg_per_px)
         sigma = (prior.dz_sigma_mm / grid.mm_per_px, prior.droll_sigma_deg / grid.deg_per_px)
-        dx, dy, response = _prior_peak(first, second, expected, sigma)
+        dx, dy, response = _prior_peak(first, second, expected, sigma, spectra)
     # One polishing step: ~0.03 px, and the refinement replaces most links anyway.
     dx, dy = _polish(first, second, np.ones_like(first), dx, dy, 1)
     if not np.isfinite(response) or response < MIN_RESPONSE:

@@ -38,6 +38,7 @@ from pipestitch.register import (
     predict_motion,
     registration_image,
     solve_positions,
+    spectrum,
     strip_contrast,
 )
 from pipestitch.section_fit import SectionFit, fit_section
@@ -215,6 +216,7 @@ class _Candidate:
     valid: np.ndarray
     image: np.ndarray
     level: np.ndarray
+    spectrum: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -243,15 +245,17 @@ def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
         strip = unwrapper.strip(grey, view, grid)
     with timer("register"):
         contrast = strip_contrast(strip)
-        return _Candidate(contrast, strip.weight > 0, registration_image(contrast, strip.weight),
-                          _column_levels(strip))
+        image = registration_image(contrast, strip.weight)
+        return _Candidate(contrast, strip.weight > 0, image, _column_levels(strip),
+                          spectrum(image))
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
               i: int, links: Sequence[Link],
               odometry_mm: Mapping[int, float] | None) -> list[tuple[Link, _Candidate]]:
     found = ((measure_shift(prev.image, cand.image, grid, j, i,
-                            predict_motion(j, i, links, odometry_mm)), prev)
+                            predict_motion(j, i, links, odometry_mm),
+                            (prev.spectrum, cand.spectrum)), prev)
              for j, prev in recent)
     return [(link, prev) for link, prev in found if link is not None]
 

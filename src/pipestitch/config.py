@@ -82,10 +82,39 @@ class CameraConfig(_Strict):
         raise TypeError(f"unsupported camera model {type(cam).__name__}")
 
 
+MAX_LASER_TILT_DEG = 20.0
+
+
+def _unit_normal(value: list[float] | None) -> list[float] | None:
+    """Check a laser-plane normal (3 finite numbers, within 20° of +z) and normalise it."""
+    if value is None:
+        return None
+    if len(value) != 3:
+        raise ValueError(f"expected 3 numbers [nx, ny, nz], got {len(value)}")
+    norm = math.sqrt(sum(v * v for v in value))
+    if norm == 0:
+        raise ValueError("must not be the zero vector")
+    unit = [v / norm for v in value]
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, unit[2]))))
+    if tilt > MAX_LASER_TILT_DEG:
+        raise ValueError(f"must be within {MAX_LASER_TILT_DEG:g}° of the optical axis +z, "
+                         f"got {tilt:.1f}°")
+    return unit
+
+
 class LaserConfig(_Strict):
-    """``[laser]``: the laser plane z = d in the probe frame."""
+    """``[laser]``: the laser plane {p : n·p = d} in the probe frame.
+
+    SPEC's plane is z = d (n = +z). ``normal`` is pipestitch's optional extension
+    (docs/calibration.md): a calibrated unit normal, normalised on load.
+    """
 
     plane_distance_mm: Positive
+    normal: Annotated[list[Finite] | None, AfterValidator(_unit_normal)] = None
+
+    def plane_normal(self) -> tuple[float, float, float]:
+        """The plane's unit normal (SPEC's +z when ``normal`` is absent)."""
+        return (0.0, 0.0, 1.0) if self.normal is None else tuple(self.normal)
 
 
 class ProbeBodyConfig(_Strict):

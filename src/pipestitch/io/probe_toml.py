@@ -81,6 +81,11 @@ _CAMERA_COMMENTS = {
 }
 
 
+_LASER_COMMENTS = {
+    "normal": "pipestitch extension: calibrated unit normal of the plane n·p = d, probe frame",
+}
+
+
 def format_probe_toml(cfg: ProbeConfig) -> str:
     """probe.toml text for ``cfg`` (SPEC layout, with comments)."""
     out = ["# probe.toml written by pipestitch (see SPEC: frames, units, OCamCalib conventions)"]
@@ -88,7 +93,8 @@ def format_probe_toml(cfg: ProbeConfig) -> str:
                            ("pipe", cfg.pipe)):
         out.append(f"\n[{section}]")
         for key, v in model.model_dump(exclude_none=True).items():
-            comment = _CAMERA_COMMENTS.get(key) if section == "camera" else None
+            comment = {"camera": _CAMERA_COMMENTS, "laser": _LASER_COMMENTS}.get(
+                section, {}).get(key)
             out.append(f"{key} = {_value(v)}" + (f"  # {comment}" if comment else ""))
     return "\n".join(out) + "\n"
 
@@ -99,9 +105,12 @@ def write_probe_toml(path: str | Path, cfg: ProbeConfig) -> Path:
 
 
 def probe_config_for(camera: CameraModel, *, plane_distance_mm: float, pipe_diameter_mm: float,
-                     length_mm: float = 145.0, diameter_mm: float = 45.0) -> ProbeConfig:
-    """Assemble a :class:`ProbeConfig` around a camera model."""
-    return ProbeConfig(camera=CameraConfig.from_model(camera),
-                       laser={"plane_distance_mm": plane_distance_mm},
+                     length_mm: float = 145.0, diameter_mm: float = 45.0,
+                     plane_normal: list[float] | None = None) -> ProbeConfig:
+    """Assemble a :class:`ProbeConfig` around a camera model (``plane_normal``: None = +z)."""
+    laser: dict[str, object] = {"plane_distance_mm": plane_distance_mm}
+    if plane_normal is not None:
+        laser["normal"] = [float(v) for v in plane_normal]
+    return ProbeConfig(camera=CameraConfig.from_model(camera), laser=laser,
                        probe={"length_mm": length_mm, "diameter_mm": diameter_mm},
                        pipe={"inner_diameter_mm": pipe_diameter_mm})

@@ -22,6 +22,7 @@ FORBIDDEN = {
     "unwrap": {"io", "pipeline", "cli", "simulate"},
     "photometric": {"io", "pipeline", "cli", "simulate"},
     "simulate": {"io", "pipeline", "cli"},
+    "calibrate": {"io", "pipeline", "cli", "simulate", "report"},
     "standards": {"io", "pipeline", "cli", "simulate", "report", "config"},
     "io": {"pipeline", "cli"},
     "pipeline": {"cli"},

@@ -19,6 +19,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
     ("holes.py", "spacing err"),
     ("ovality.py", "ours (refined tilt)"),
     ("scale.py", "speed ratio cluster vs sequential"),
+    ("calibration_real.py", "calibration vs published"),
 ])
 def test_benchmark_smoke(script: str, expect: str) -> None:
     proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,

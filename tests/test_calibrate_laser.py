@@ -7,14 +7,12 @@ images, the camera and the pipe diameter.
 
 from __future__ import annotations
 
-import inspect
-
 import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipestitch.calibrate import calibrate_laser_plane, fit_pose_on_plane, normal_tilt_deg
+from pipestitch.calibrate import calibrate_laser_plane, normal_tilt_deg
 from pipestitch.cli import app
 from pipestitch.config import LaserConfig
 from pipestitch.errors import ConfigError
@@ -93,13 +91,16 @@ def test_calibration_recovers_the_tilted_plane(plane) -> None:
     assert 0.0 < max(fit.normal_std_deg) < 0.05 and 0.0 < fit.distance_std_mm < 0.01
 
 
-def test_uncalibrated_plane_biases_the_pose_and_calibration_removes_it(rings, plane) -> None:
+def test_uncalibrated_plane_biases_the_pose_and_calibration_removes_it(frames, rings,
+                                                                       plane) -> None:
     fit = plane
     before, after, offset_after = [], [], []
-    for (_, rays, hyps), truth in zip(rings, POSES, strict=True):
+    for (detection, _, hyps), truth in zip(rings, POSES, strict=True):
         before.append(_tilt_error_deg(_nearest(hyps, truth), truth))
-        best = _nearest(list(fit_pose_on_plane(rays, hyps[0], fit.normal, fit.distance_mm,
-                                               RADIUS_MM)), truth)
+        res = fit_pose(detection, frames[0], fit.distance_mm, nominal_radius_mm=RADIUS_MM,
+                       fit_radius=False, plane_normal=fit.normal)
+        assert res.ok
+        best = _nearest([h.pose for h in res.hypotheses], truth)
         after.append(_tilt_error_deg(best, truth))
         offset_after.append(np.hypot(best.dx_mm - truth.dx_mm, best.dy_mm - truth.dy_mm))
     # A 1° plane tilt read as z = d: the ring's shape measures tilt to second order,
@@ -110,19 +111,6 @@ def test_uncalibrated_plane_biases_the_pose_and_calibration_removes_it(rings, pl
     assert np.mean(before) > 1.0
     assert np.mean(after) < 0.1 and np.max(after) < 0.2
     assert np.max(offset_after) < 0.05
-
-
-def test_pose_solver_with_calibrated_plane(frames, rings, plane) -> None:
-    if "plane_normal" not in inspect.signature(fit_pose).parameters:
-        pytest.skip("fit_pose has no plane_normal yet (the lead's pose_fit change)")
-    fit = plane
-    errors = []
-    for (detection, _, _), truth in zip(rings, POSES, strict=True):
-        res = fit_pose(detection, frames[0], fit.distance_mm,
-                       nominal_radius_mm=RADIUS_MM, fit_radius=False, plane_normal=fit.normal)
-        assert res.ok
-        errors.append(_tilt_error_deg(_nearest([h.pose for h in res.hypotheses], truth), truth))
-    assert np.mean(errors) < 0.1  # as with fit_pose_on_plane above
 
 
 def test_too_few_frames_is_an_error(rings) -> None:

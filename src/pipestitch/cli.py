@@ -17,6 +17,10 @@ import typer
 from rich.markup import escape
 
 from pipestitch import __version__
+from pipestitch.cli_batch import batch
+from pipestitch.cli_calibrate import register as register_calibrate
+from pipestitch.cli_export import CROWN_HELP
+from pipestitch.cli_export import register as register_export
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import run_check
 from pipestitch.pipeline.measure import measure_run
@@ -25,6 +29,7 @@ from pipestitch.pipeline.pose import run_pose
 from pipestitch.pipeline.progress import console
 from pipestitch.pipeline.run import RunSummary, run_dataset
 from pipestitch.pipeline.simulate import simulate_dataset
+from pipestitch.pipeline.standards import code_run
 from pipestitch.simulate.scenarios import SCENARIOS
 
 __all__ = ["app", "main"]
@@ -38,6 +43,8 @@ app = typer.Typer(
     rich_markup_mode="rich",
 )
 F = TypeVar("F", bound=Callable[..., object])
+VIDEO_HELP = ("Video of alternating laser/LED frames to read instead of DATASET/frames/ "
+              "(probe.toml and odometry.csv still from DATASET).")
 
 
 def _handle_errors(func: F) -> F:
@@ -149,6 +156,7 @@ def pose(
     dataset: Annotated[Path, typer.Argument(help="Dataset folder (SPEC layout).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder for poses.csv.")],
     workers: Annotated[int, typer.Option(help="Threads (frames stay in order).")] = 2,
+    video: Annotated[Path | None, typer.Option(help=VIDEO_HELP)] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Estimate the probe pose of every frame from its laser ring; write OUT/poses.csv.
@@ -161,7 +169,8 @@ def pose(
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """
-    summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers))
+    summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers),
+                       video=video)
     typer.echo(f"wrote {summary.path}: {summary.n_frames} frames, {summary.n_failed} failed, "
                f"{summary.n_ambiguous} ambiguous")
     if summary.n_failed == summary.n_frames:
@@ -184,6 +193,8 @@ def run(
     tolerance_pct: Annotated[float, typer.Option(
         "--diameter-tolerance-pct", help="profile.csv flags diameters further than this "
         "from the nominal (probe.toml), in %.")] = 1.0,
+    video: Annotated[Path | None, typer.Option(help=VIDEO_HELP)] = None,
+    crown_deg: Annotated[float | None, typer.Option("--crown-deg", help=CROWN_HELP)] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
@@ -203,7 +214,7 @@ def run(
         console.print(f"[bold red]error:[/] {escape(str(exc))}")
         raise typer.Exit(2) from None
     summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet,
-                          tolerance_pct=tolerance_pct)
+                          tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg)
     _print_run(summary)
     if summary.mosaic_failed:
         console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")
@@ -222,15 +233,21 @@ def _print_run(summary: RunSummary) -> None:
 def measure(
     out: Annotated[Path, typer.Argument(help="Output folder of `pipestitch run` (mosaic.png "
                                              "and mosaic.json).")],
+    crown_deg: Annotated[float | None, typer.Option("--crown-deg", help=CROWN_HELP)] = None,
 ) -> None:
     """Find and measure defects (holes, spots) on an existing run's mosaic: OUT/defects.csv.
 
     z and theta are in the mosaic's coordinates; clock positions have 12 o'clock at the
-    first frame's image up, clockwise looking along the survey (docs/conventions.md).
+    crown by the best reference (--crown-deg, the dataset's imu.csv, a detected invert),
+    else at the first frame's image up; clockwise looking along the survey
+    (docs/conventions.md). Also re-codes the observations (pipestitch export).
 
     Example: pipestitch measure out/test_piece
     """
-    path, defects = measure_run(out)
+    path, defects = measure_run(out, crown_deg=crown_deg)
+    coded = code_run(out, crown_deg=crown_deg)  # clocks by the best reference, observations
+    typer.echo(f"clock reference: {coded.reference.source}; "
+               f"{len(coded.observations)} observations in {out / 'observations.csv'}")
     holes = sum(1 for d in defects if d.kind == "hole")
     typer.echo(f"wrote {path}: {len(defects)} defects ({holes} holes, "
                f"{len(defects) - holes} spots)")
@@ -258,6 +275,11 @@ def demo(
         raise typer.Exit(1)
     typer.echo(f"demo dataset: {dataset} ({len(run.poses)} pairs, checked OK)")
     _print_run(run_dataset(dataset, root / "out", show_progress=not quiet))
+
+
+app.command(name="batch")(_handle_errors(batch))
+register_export(app, _handle_errors)
+register_calibrate(app, _handle_errors)
 
 
 def main() -> None:

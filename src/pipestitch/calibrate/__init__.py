@@ -22,7 +22,6 @@ from pipestitch.calibrate.fisheye_fit import fit_opencv_fisheye
 from pipestitch.calibrate.laser_plane import (
     LaserPlaneFit,
     calibrate_laser_plane,
-    fit_pose_on_plane,
     normal_tilt_deg,
     plane_intersections,
 )
@@ -41,7 +40,6 @@ __all__ = [
     "detect_board",
     "fit_ocam",
     "fit_opencv_fisheye",
-    "fit_pose_on_plane",
     "normal_tilt_deg",
     "parse_board",
     "plane_intersections",

@@ -41,7 +41,7 @@ from scipy.sparse import lil_matrix
 
 from pipestitch.geometry import Pose
 
-__all__ = ["LaserPlaneFit", "calibrate_laser_plane", "fit_pose_on_plane", "normal_tilt_deg",
+__all__ = ["LaserPlaneFit", "calibrate_laser_plane", "normal_tilt_deg",
            "plane_intersections"]
 
 
@@ -208,65 +208,3 @@ def _numeric_jacobian(problem: _Problem, x: np.ndarray) -> np.ndarray:
         e[i] = h
         cols.append((problem.residuals(x + e) - problem.residuals(x - e)) / (2 * h))
     return np.stack(cols, axis=1)
-
-
-def _axis(pose: Pose) -> np.ndarray:
-    """The pipe axis seen from the probe, R_world_probeᵀ·e_z."""
-    return pose.rotation_world_probe()[2]
-
-
-def _refine(rays: np.ndarray, x0: np.ndarray, normal: np.ndarray, distance_mm: float,
-            radius_mm: float, noise_mm: float) -> np.ndarray:
-    return least_squares(_frame_residuals, x0, args=(rays, normal, distance_mm, radius_mm),
-                         loss="soft_l1", f_scale=noise_mm, x_scale="jac", method="trf").x
-
-
-def fit_pose_on_plane(rays: np.ndarray, start: Pose, normal: np.ndarray, distance_mm: float,
-                      radius_mm: float, *, noise_mm: float = 0.05) -> tuple[Pose, Pose]:
-    """Both pose hypotheses of one frame with a (calibrated, possibly tilted) laser plane.
-
-    The plane-aware counterpart of the pose solver, for checking what a calibrated
-    plane changes: the residual of :func:`calibrate_laser_plane` with the plane held
-    fixed, refined from ``start``, then from the mirror of the result. In the plane
-    the ring fits the pipe axis a and its reflection about the plane normal,
-    2(a·n)n − a, equally (for n = +z this is the solver's (α, β) ↔ (−α, −β)).
-
-    Parameters
-    ----------
-    rays : numpy.ndarray, shape (N, 3)
-        Probe-frame rays of the ring pixels.
-    start : Pose
-        Starting pose (e.g. a hypothesis of the solver with the nominal plane z = d).
-    normal, distance_mm
-        The laser plane {p : normal·p = d}.
-    radius_mm : float
-        Pipe radius.
-    noise_mm : float
-        Robust loss scale.
-
-    Returns
-    -------
-    (Pose, Pose)
-        The refined pose and its mirror (alpha, beta, dx, dy; roll and z from ``start``).
-    """
-    rays = np.asarray(rays, float)
-    normal = np.asarray(normal, float) / np.linalg.norm(normal)
-    x0 = np.array([start.alpha, start.beta, start.dx_mm, start.dy_mm])
-    first = _refine(rays, x0, normal, distance_mm, radius_mm, noise_mm)
-    pose = Pose(*first)
-    axis = _axis(pose)
-    mirror = 2 * (axis @ normal) * normal - axis
-    alpha, beta = np.arcsin(np.clip(mirror[1], -1, 1)), np.arctan2(-mirror[0], mirror[2])
-    # Both hypotheses share the ring's centre, where the pipe axis pierces the plane:
-    # q = Rᵀ((0, 0, s) - (dx, dy, 0)) on the plane; the mirror's offset puts q on the
-    # mirror's axis.
-    rot = pose.rotation_world_probe()
-    origin = rot.T @ np.array([-first[2], -first[3], 0.0])
-    s = (distance_mm - normal @ origin) / (normal @ axis)
-    centre = origin + s * axis
-    rot_m = Pose(alpha, beta).rotation_world_probe()
-    offset = -(rot_m @ centre)[:2]
-    second = _refine(rays, np.array([alpha, beta, *offset]), normal, distance_mm, radius_mm,
-                     noise_mm)
-    return (Pose(*first, roll=start.roll, z_mm=start.z_mm),
-            Pose(*second, roll=start.roll, z_mm=start.z_mm))

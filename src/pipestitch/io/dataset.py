@@ -2,15 +2,17 @@
 
 ``open_dataset`` reads what every stage needs (probe.toml, the frame list,
 odometry) and fails with a :class:`DatasetError` naming the file when that is not
-possible. ``check_dataset`` goes further and lists *every* problem it finds
-(numbering, image sizes, unreadable images, CSV columns) without stopping at the
-first.
+possible. With ``video=FILE`` the frames come from a video of alternating laser/LED
+frames instead of frames/ (:class:`VideoDataset`, same interface).
+``check_dataset`` goes further and lists *every* problem it finds (numbering,
+image sizes, unreadable images, CSV columns) without stopping at the first.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import re
 from collections.abc import Callable, Iterator
@@ -23,11 +25,13 @@ from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.io.images import read_image
 from pipestitch.io.probe_toml import read_probe_toml
+from pipestitch.io.video import VideoReader, classify_laser_frames, pair_frames
 
 __all__ = [
     "TRUTH_POSE_COLUMNS",
     "Dataset",
     "Problem",
+    "VideoDataset",
     "check_dataset",
     "count_frame_files",
     "open_dataset",
@@ -178,18 +182,100 @@ def _read_odometry(path: Path, n_pairs: int) -> dict[int, float]:
     return {int(f): float(z) for f, z in zip(frames, cols["z_mm"], strict=True)}
 
 
-def open_dataset(root: str | Path) -> Dataset:
-    """Open a dataset folder: probe.toml, frame lists and odometry.
+class VideoDataset:
+    """A dataset whose frames come from a video (same interface as :class:`Dataset`).
+
+    Pairs are formed by content (io.video): ``n_pairs`` counts the laser frames,
+    a pair whose LED frame was dropped reports it in ``led_missing()``, and
+    ``notes`` lists the dropped frames and timestamp gaps. ``timestamps_s[i]`` is the
+    time of pair i's laser frame. ``laser_paths[i]`` is a pseudo path naming the video
+    and the frame (for messages). Odometry frame numbers are pair numbers as read.
+    """
+
+    def __init__(self, root: Path, config: ProbeConfig, reader: VideoReader,
+                 odometry_mm: dict[int, float] | None = None) -> None:
+        self.root = root
+        self.config = config
+        self.reader = reader
+        try:
+            is_laser = classify_laser_frames(reader.index.brightness)
+        except ValueError as exc:
+            raise DatasetError(reader.path, str(exc)) from exc
+        self.pairs = pair_frames(is_laser, reader.index.time_s)
+        if self.pairs.laser.size == 0:
+            raise DatasetError(reader.path, "no laser frame found in the video")
+        self.notes = list(self.pairs.messages)
+        self.timestamps_s = reader.index.time_s[self.pairs.laser]
+        self.odometry_mm = odometry_mm
+        self.laser_paths = [self._name(k) for k in self.pairs.laser]
+        self.led_paths = [self._name(k) if k >= 0 else None for k in self.pairs.led]
+
+    def _name(self, frame: int) -> Path:
+        return self.reader.path.with_name(f"{self.reader.path.name}#frame{frame}")
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of frame pairs (laser frames)."""
+        return int(self.pairs.laser.size)
+
+    @property
+    def has_led(self) -> bool:
+        """True when the video holds LED frames."""
+        return bool(np.any(self.pairs.led >= 0))
+
+    def led_missing(self) -> list[int]:
+        """Pairs whose LED frame was dropped."""
+        return [int(i) for i in np.flatnonzero(self.pairs.led < 0)] if self.has_led else []
+
+    def read_laser(self, index: int) -> np.ndarray:
+        """Laser frame of pair ``index`` (raises DatasetError naming the video)."""
+        return self._checked(int(self.pairs.laser[index]))
+
+    def read_led(self, index: int) -> np.ndarray:
+        """LED frame of pair ``index``."""
+        frame = int(self.pairs.led[index]) if index < self.n_pairs else -1
+        if frame < 0:
+            raise DatasetError(self.reader.path, f"pair {index}: LED frame missing (dropped)")
+        return self._checked(frame)
+
+    def _checked(self, frame: int) -> np.ndarray:
+        img = self.reader.frame(frame)
+        size = (self.config.camera.width, self.config.camera.height)
+        if (img.shape[1], img.shape[0]) != size:
+            raise DatasetError(self._name(frame), f"frame is {img.shape[1]}x{img.shape[0]}, "
+                                                  f"probe.toml says {size[0]}x{size[1]}")
+        return img
+
+    def close(self) -> None:
+        """Release the video decoder."""
+        self.reader.close()
+
+
+def open_dataset(root: str | Path, video: str | Path | None = None, *,
+                 progress: Callable[[], None] | None = None) -> Dataset | VideoDataset:
+    """Open a dataset folder: probe.toml, frame lists (or a video) and odometry.
+
+    Parameters
+    ----------
+    root : str or Path
+        Dataset folder (probe.toml, optional odometry.csv).
+    video : str or Path, optional
+        A video of alternating laser/LED frames used instead of frames/ (SPEC).
+    progress : callable, optional
+        Called once per video frame while the video is indexed.
 
     Raises
     ------
     DatasetError
-        If the folder, probe.toml or the laser frames are missing or malformed.
+        If the folder, probe.toml, the laser frames or the video are missing or
+        malformed.
     """
     root = Path(root)
     if not root.is_dir():
         raise DatasetError(root, "dataset folder not found")
     config = read_probe_toml(root / "probe.toml")
+    if video is not None:
+        return _open_video(root, config, Path(video), progress)
     frames_dir = root / "frames"
     if not frames_dir.is_dir():
         raise DatasetError(frames_dir, "frames/ folder not found")
@@ -205,6 +291,17 @@ def open_dataset(root: str | Path) -> Dataset:
     odometry = _read_odometry(odo_path, len(lasers)) if odo_path.is_file() else None
     return Dataset(root=root, config=config, laser_paths=lasers,
                    led_paths=leds, odometry_mm=odometry)
+
+
+def _open_video(root: Path, config: ProbeConfig, video: Path,
+                progress: Callable[[], None] | None) -> VideoDataset:
+    dataset = VideoDataset(root, config, VideoReader(video, progress=progress))
+    odo_path = root / "odometry.csv"
+    if odo_path.is_file():
+        dataset.odometry_mm = _read_odometry(odo_path, dataset.n_pairs)
+    for note in dataset.notes:
+        logging.getLogger(__name__).warning("%s: %s", video, note)
+    return dataset
 
 
 def _check_images(paths: list[Path], size: tuple[int, int],

@@ -24,6 +24,7 @@ import tifffile
 from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_path, atomic_write_text
 from pipestitch.io.images import read_image, write_image
+from pipestitch.jsonsafe import json_safe
 
 __all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_from_uint8",
            "mosaic_to_uint8",
@@ -79,16 +80,7 @@ def write_tiled_tiff(path: Path, image_u8: np.ndarray, *, tile: int = 256) -> Pa
 
 def write_json(path: Path, data: Mapping[str, object]) -> Path:
     """Pretty JSON, atomically; non-finite floats become null."""
-    def clean(value: object) -> object:
-        if isinstance(value, float) and not math.isfinite(value):
-            return None
-        if isinstance(value, Mapping):
-            return {k: clean(v) for k, v in value.items()}
-        if isinstance(value, list | tuple):
-            return [clean(v) for v in value]
-        return value
-
-    return atomic_write_text(path, json.dumps(clean(data), indent=2) + "\n")
+    return atomic_write_text(path, json.dumps(json_safe(data), indent=2) + "\n")
 
 
 def write_csv(path: Path, header: Iterable[str], rows: Iterable[Iterable[object]]) -> Path:

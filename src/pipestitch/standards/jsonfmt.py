@@ -8,6 +8,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, fields
 
+from pipestitch.jsonsafe import json_safe
 from pipestitch.standards.observations import Observation, Survey
 
 __all__ = ["parse_json", "write_json_text"]
@@ -19,18 +20,9 @@ def write_json_text(survey: Survey, observations: Sequence[Observation],
                     extra: Mapping[str, object] | None = None) -> str:
     """JSON text; NaN becomes null. ``extra`` (e.g. the ovality definitions and
     figures) is stored under its own keys and ignored by :func:`parse_json`."""
-    def clean(value: object) -> object:
-        if isinstance(value, float) and not math.isfinite(value):
-            return None
-        if isinstance(value, Mapping):
-            return {k: clean(v) for k, v in value.items()}
-        if isinstance(value, list | tuple):
-            return [clean(v) for v in value]
-        return value
-
     doc = {"format": FORMAT, "survey": asdict(survey),
            "observations": [asdict(o) for o in observations], **(extra or {})}
-    return json.dumps(clean(doc), indent=2, ensure_ascii=False) + "\n"
+    return json.dumps(json_safe(doc), indent=2, ensure_ascii=False) + "\n"
 
 
 def parse_json(text: str) -> tuple[Survey, list[Observation]]:

@@ -220,7 +220,8 @@ def _flagged_runs(sections: Sequence[ProfileSection],
     return runs + ([current] if current else [])
 
 
-def _cell(value: object) -> str:
+def format_cell(value: object) -> str:
+    """A CSV cell: empty for None, floats to 0.01."""
     return "" if value is None else (f"{value:.2f}" if isinstance(value, float) else str(value))
 
 
@@ -230,7 +231,7 @@ def write_observations_csv(observations: Iterable[Observation]) -> str:
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(OBSERVATION_COLUMNS)
     for o in observations:
-        writer.writerow([_cell(getattr(o, c)) for c in OBSERVATION_COLUMNS])
+        writer.writerow([format_cell(getattr(o, c)) for c in OBSERVATION_COLUMNS])
     return buffer.getvalue()
 
 

@@ -13,7 +13,7 @@ import csv
 import io
 from collections.abc import Iterable
 
-from pipestitch.standards.observations import Observation, observation_from_fields
+from pipestitch.standards.observations import Observation, format_cell, observation_from_fields
 
 __all__ = ["PACP_CODES", "PACP_COLUMNS", "parse_pacp_csv", "write_pacp_csv"]
 
@@ -29,10 +29,6 @@ TO_FIELDS = {"Distance_m": "distance_m", "Continuous": "continuous",
              "EN13508_Char2": "char2", "Value_2nd_Dimension_mm": "quant2"}
 
 
-def _text(value: object) -> str:
-    return "" if value is None else (f"{value:.2f}" if isinstance(value, float) else str(value))
-
-
 def write_pacp_csv(observations: Iterable[Observation]) -> str:
     """The PACP-style CSV text."""
     buffer = io.StringIO()
@@ -40,10 +36,11 @@ def write_pacp_csv(observations: Iterable[Observation]) -> str:
     writer.writerow(PACP_COLUMNS)
     for o in observations:
         percent = o.code in PERCENT_CODES
-        writer.writerow([_text(o.distance_m), PACP_CODES.get((o.code, o.char1), o.code),
-                         o.continuous, "" if percent else _text(o.quant1), _text(o.quant2),
-                         _text(o.quant1) if percent else "", _text(o.clock_from),
-                         _text(o.clock_to), o.remark, o.ref, o.code, o.char1, o.char2])
+        cell = format_cell
+        writer.writerow([cell(o.distance_m), PACP_CODES.get((o.code, o.char1), o.code),
+                         o.continuous, "" if percent else cell(o.quant1), cell(o.quant2),
+                         cell(o.quant1) if percent else "", cell(o.clock_from),
+                         cell(o.clock_to), o.remark, o.ref, o.code, o.char1, o.char2])
     return buffer.getvalue()
 
 

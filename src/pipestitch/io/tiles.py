@@ -1,0 +1,284 @@
+"""Tiled pyramidal mosaic output, written incrementally (never the whole image in memory).
+
+:func:`write_pyramid` takes the mosaic as blocks of columns (z ranges, left to right,
+as a streaming stitcher produces them) and writes
+
+* an OME-TIFF (BigTIFF, zlib tiles of ``tile`` x ``tile``) whose full-resolution image
+  holds its reduced levels as SubIFDs (the layout QuPath, napari, Bio-Formats and
+  ``tifffile.imread(path, level=k)`` read), and
+* optionally a Deep Zoom tile folder (``mosaic.dzi`` + ``mosaic_files/<level>/
+  <col>_<row>.png``) for the static viewer (report/viewer.py).
+
+Blocks are cut into tile columns as they arrive; each full tile column is written out
+(DZI tiles at once; TIFF tiles to a scratch file, because TIFF stores tiles row by row
+while the mosaic grows column by column) and averaged 2 x 2 into the next level, which
+does the same. Memory: one tile column per level (rows x 2 tiles), whatever the length
+of the mosaic. The scratch files (about 1.33 x the raw image) live in a temporary
+folder next to the output and are removed at the end.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+import cv2
+import numpy as np
+import tifffile
+
+from pipestitch.io.atomic import atomic_path, atomic_write_text
+
+__all__ = ["DZI_NAME", "PyramidInfo", "level_shapes", "read_overview", "write_pyramid"]
+
+DZI_NAME = "mosaic.dzi"
+
+
+@dataclass(frozen=True)
+class PyramidInfo:
+    """What :func:`write_pyramid` wrote."""
+
+    path: Path  # the OME-TIFF
+    shape: tuple[int, ...]  # full resolution (rows, cols[, channels])
+    tiff_levels: tuple[tuple[int, int], ...]  # (rows, cols) of each TIFF level
+    tile: int
+    dzi_path: Path | None  # tiles_dir / mosaic.dzi when a tile folder was written
+
+
+def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
+    """(rows, cols) of each 2x level, from full resolution down to 1 x 1 (Deep Zoom)."""
+    n_levels = math.ceil(math.log2(max(height, width, 1))) + 1
+    return [(math.ceil(height / 2**k), math.ceil(width / 2**k)) for k in range(n_levels)]
+
+
+def _halve(strip: np.ndarray) -> np.ndarray:
+    """2 x 2 mean, odd sizes padded by edge replication (so sizes are ceil(n / 2))."""
+    rows, cols = strip.shape[:2]
+    pad = ((0, rows % 2), (0, cols % 2)) + ((0, 0),) * (strip.ndim - 2)
+    padded = np.pad(strip, pad, mode="edge") if rows % 2 or cols % 2 else strip
+    return cv2.resize(padded, (padded.shape[1] // 2, padded.shape[0] // 2),
+                      interpolation=cv2.INTER_AREA).reshape(
+        (padded.shape[0] // 2, padded.shape[1] // 2) + strip.shape[2:])
+
+
+class _Level:
+    """One pyramid level: buffers a tile column, writes its tiles, feeds the next level."""
+
+    def __init__(self, index: int, shape: tuple[int, ...], tile: int, scratch: BinaryIO | None,
+                 dzi_dir: Path | None, below: _Level | None) -> None:
+        self.index, self.shape, self.tile = index, shape, tile
+        self.scratch, self.dzi_dir, self.below = scratch, dzi_dir, below
+        self.buffer = np.zeros((shape[0], tile) + shape[2:], dtype=np.uint8)
+        self.filled = 0
+        self.tile_col = 0
+        if dzi_dir is not None:
+            dzi_dir.mkdir(parents=True, exist_ok=True)
+
+    def push(self, block: np.ndarray) -> None:
+        start = 0
+        while start < block.shape[1]:
+            take = min(self.tile - self.filled, block.shape[1] - start)
+            self.buffer[:, self.filled:self.filled + take] = block[:, start:start + take]
+            self.filled += take
+            start += take
+            if self.filled == self.tile:
+                self._emit(self.buffer)
+
+    def finish(self) -> None:
+        if self.filled:
+            self._emit(self.buffer[:, :self.filled])
+        if self.below is not None:
+            self.below.finish()
+
+    def _emit(self, strip: np.ndarray) -> None:
+        n_tile_rows = math.ceil(self.shape[0] / self.tile)
+        for tr in range(n_tile_rows):
+            part = strip[tr * self.tile:(tr + 1) * self.tile]
+            if self.scratch is not None:
+                padded = np.zeros((self.tile, self.tile) + strip.shape[2:], dtype=np.uint8)
+                padded[:part.shape[0], :part.shape[1]] = part
+                self.scratch.write(padded.tobytes())
+            if self.dzi_dir is not None:
+                _write_png(self.dzi_dir / f"{self.tile_col}_{tr}.png", part)
+        self.tile_col += 1
+        if self.below is not None:
+            self.below.push(_halve(strip))
+        self.filled = 0
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    # Colour tiles are given as RGB; OpenCV writes BGR.
+    img = image[..., ::-1] if image.ndim == 3 else image
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise OSError(f"{path}: OpenCV could not encode the tile")
+    path.write_bytes(buf.tobytes())
+
+
+def _scratch_tiles(handle: BinaryIO, shape: tuple[int, ...], tile: int) -> Iterator[np.ndarray]:
+    """Tiles of a scratch file (tile columns in order) yielded row by row, one at a time."""
+    n_rows, n_cols = math.ceil(shape[0] / tile), math.ceil(shape[1] / tile)
+    tile_shape = (tile, tile) + tuple(shape[2:])
+    nbytes = int(np.prod(tile_shape))
+    for tr in range(n_rows):
+        for tc in range(n_cols):
+            handle.seek((tc * n_rows + tr) * nbytes)
+            yield np.frombuffer(handle.read(nbytes), dtype=np.uint8).reshape(tile_shape)
+
+
+def _check_block(col0: int, block: np.ndarray, expected_col: int,
+                 shape: tuple[int, ...]) -> None:
+    if col0 != expected_col:
+        raise ValueError(f"blocks must cover the columns left to right without gaps: "
+                         f"expected col0 = {expected_col}, got {col0}")
+    if block.shape[0] != shape[0] or block.shape[2:] != shape[2:] or block.dtype != np.uint8:
+        expected = (shape[0], "w", *shape[2:])
+        raise ValueError(f"expected uint8 blocks of shape {expected}, "
+                         f"got {block.dtype} {block.shape}")
+    if col0 + block.shape[1] > shape[1]:
+        raise ValueError(f"block at col0 = {col0} of width {block.shape[1]} runs past the "
+                         f"image width {shape[1]}")
+
+
+def write_pyramid(path: str | Path, blocks: Iterable[tuple[int, np.ndarray]],
+                  shape: tuple[int, ...], *, tile: int = 256,
+                  tiles_dir: str | Path | None = None, mm_per_px: float | None = None,
+                  ) -> PyramidInfo:
+    """Write a mosaic given as column blocks as a pyramidal OME-TIFF (+ Deep Zoom tiles).
+
+    Parameters
+    ----------
+    path : Path
+        The OME-TIFF to write (atomically), e.g. ``OUT/mosaic.ome.tif``.
+    blocks : iterable of (int, ndarray)
+        ``(col0, block)``: uint8 blocks of shape (rows, w) or (rows, w, 3) (RGB), covering
+        columns ``col0 .. col0 + w - 1``, left to right without gaps or overlaps.
+        Consumed lazily: only the current block is held.
+    shape : tuple
+        Full image shape (rows, cols) or (rows, cols, 3).
+    tile : int
+        Tile edge in pixels (a multiple of 16, as TIFF requires).
+    tiles_dir : Path, optional
+        Also write a Deep Zoom tile folder there (``mosaic.dzi``, ``mosaic_files/``;
+        replaced as a whole at the end).
+    mm_per_px : float, optional
+        Pixel size on the wall, written as the OME physical size.
+
+    Returns
+    -------
+    PyramidInfo
+
+    Raises
+    ------
+    ValueError
+        If the blocks do not match ``shape`` or leave columns uncovered.
+    """
+    shape = tuple(int(s) for s in shape)
+    if len(shape) not in (2, 3) or shape[0] < 1 or shape[1] < 1 or tile % 16:
+        raise ValueError(f"expected shape (rows, cols[, 3]) and a tile multiple of 16; "
+                         f"got {shape}, {tile}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    shapes = [s + shape[2:] for s in level_shapes(shape[0], shape[1])]
+    # TIFF levels until the image fits one tile; Deep Zoom needs every level to 1 x 1.
+    n_tiff = next(k for k, s in enumerate(shapes) if max(s[:2]) <= tile) + 1
+    with tempfile.TemporaryDirectory(prefix=".pyramid.", dir=path.parent) as scratch_dir:
+        scratch = Path(scratch_dir)
+        dzi_root = scratch / "dzi" if tiles_dir is not None else None
+        handles = [open(scratch / f"level{k}.raw", "w+b") for k in range(n_tiff)]
+        try:
+            top = _levels(shapes, tile, handles, dzi_root)
+            _feed(top, blocks, shape)
+            _write_tiff(path, shapes[:n_tiff], handles, tile, mm_per_px)
+        finally:
+            for handle in handles:
+                handle.close()
+        dzi_path = None
+        if tiles_dir is not None and dzi_root is not None:
+            atomic_write_text(dzi_root / DZI_NAME, _dzi_xml(shape, tile))
+            dzi_path = _replace_dir(dzi_root, Path(tiles_dir)) / DZI_NAME
+    return PyramidInfo(path, shape, tuple(s[:2] for s in shapes[:n_tiff]), tile, dzi_path)
+
+
+def _levels(shapes: list[tuple[int, ...]], tile: int, handles: list[BinaryIO],
+            dzi_root: Path | None) -> _Level:
+    below = None
+    top_dzi = len(shapes) - 1
+    for k in range(len(shapes) - 1, -1, -1):
+        dzi_dir = dzi_root / "mosaic_files" / str(top_dzi - k) if dzi_root is not None else None
+        scratch = handles[k] if k < len(handles) else None
+        if scratch is None and dzi_dir is None:
+            continue
+        below = _Level(k, shapes[k], tile, scratch, dzi_dir, below)
+    assert below is not None  # level 0 always has a scratch file
+    return below
+
+
+def _feed(top: _Level, blocks: Iterable[tuple[int, np.ndarray]], shape: tuple[int, ...]) -> None:
+    col = 0
+    for col0, block in blocks:
+        block = np.asarray(block)
+        _check_block(int(col0), block, col, shape)
+        top.push(block)
+        col += block.shape[1]
+    if col != shape[1]:
+        raise ValueError(f"blocks cover {col} columns, the image has {shape[1]}")
+    top.finish()
+
+
+def _write_tiff(path: Path, shapes: list[tuple[int, ...]], handles: list[BinaryIO], tile: int,
+                mm_per_px: float | None) -> None:
+    axes = "YX" if len(shapes[0]) == 2 else "YXS"
+    metadata: dict[str, object] = {"axes": axes, "Name": "pipestitch mosaic"}
+    if mm_per_px is not None:
+        um = float(mm_per_px) * 1000.0
+        metadata.update(PhysicalSizeX=um, PhysicalSizeXUnit="µm",
+                        PhysicalSizeY=um, PhysicalSizeYUnit="µm")
+    common = {"dtype": np.uint8, "tile": (tile, tile), "compression": "zlib",
+              "photometric": "minisblack" if axes == "YX" else "rgb"}
+    with atomic_path(path) as tmp, tifffile.TiffWriter(tmp, bigtiff=True, ome=True) as tif:
+        handles[0].flush()
+        tif.write(_scratch_tiles(handles[0], shapes[0], tile), shape=shapes[0],
+                  subifds=len(shapes) - 1, metadata=metadata, **common)
+        for handle, level_shape in zip(handles[1:], shapes[1:], strict=True):
+            handle.flush()
+            tif.write(_scratch_tiles(handle, level_shape, tile), shape=level_shape,
+                      subfiletype=1, metadata=None, **common)
+
+
+def read_overview(path: str | Path, max_pixels: int = 16_000_000) -> tuple[np.ndarray, int]:
+    """The largest level of a pyramid written by :func:`write_pyramid` within a budget.
+
+    Returns the image and its level k (a pixel of it is 2**k mosaic pixels on a side),
+    e.g. for a ``mosaic.png`` overview of a mosaic too large to hold whole.
+    """
+    with tifffile.TiffFile(path) as tif:
+        levels = tif.series[0].levels
+        k = next((k for k, lv in enumerate(levels)
+                  if lv.shape[0] * lv.shape[1] <= max_pixels), len(levels) - 1)
+        return levels[k].asarray(), k
+
+
+def _dzi_xml(shape: tuple[int, ...], tile: int) -> str:
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<Image xmlns="http://schemas.microsoft.com/deepzoom/2008" Format="png" '
+            f'Overlap="0" TileSize="{tile}">\n'
+            f'  <Size Width="{shape[1]}" Height="{shape[0]}"/>\n</Image>\n')
+
+
+def _replace_dir(src: Path, dest: Path) -> Path:
+    """Move a finished folder into place; an older one of that name is removed after."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    old = None
+    if dest.exists():
+        old = dest.with_name(f".{dest.name}.old.{os.getpid()}")
+        os.replace(dest, old)
+    shutil.move(str(src), str(dest))
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return dest

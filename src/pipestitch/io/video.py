@@ -1,0 +1,382 @@
+"""Video input (PyAV): alternating laser/LED frames, paired by their content.
+
+A probe that records video interleaves laser frames (laser on, LEDs off: dark with a
+bright thin ring) and LED frames (the lit wall). :class:`VideoReader` opens a video,
+indexes it once (timestamp and one brightness statistic per frame), tells laser frames
+from LED frames by that statistic, pairs them, re-synchronises where a frame was
+dropped, and then gives random access to any frame with a small bounded cache, so
+memory does not grow with the length of the video. :func:`write_video` turns frames
+into a lossless video (tests, benchmarks).
+
+It does not know about probe.toml or datasets: ``io.dataset.open_dataset(root,
+video=...)`` wraps a reader in the Dataset interface.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+
+from pipestitch.errors import DatasetError
+
+__all__ = [
+    "FrameIndex",
+    "VideoPairs",
+    "VideoReader",
+    "classify_laser_frames",
+    "frame_brightness",
+    "pair_frames",
+    "write_video",
+]
+
+# Decoded frames kept for random access: a pair (2) read by each of a few worker
+# threads, slightly out of order. Small and fixed, so memory is bounded.
+CACHE_FRAMES = 8
+# A frame this many frames ahead of the decoder is reached by decoding forward;
+# further (or behind), by seeking to the preceding keyframe.
+FORWARD_DECODE_LIMIT = 24
+
+
+@dataclass(frozen=True)
+class FrameIndex:
+    """Per-frame facts gathered in one pass over the video."""
+
+    pts: np.ndarray  # (F,) int64, presentation timestamps in the stream's time base
+    time_s: np.ndarray  # (F,) float, pts * time_base
+    brightness: np.ndarray  # (F,) float, see frame_brightness
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class VideoPairs:
+    """Frame pairs: ``laser[i]`` and ``led[i]`` are frame numbers (``led[i]`` may be -1)."""
+
+    laser: np.ndarray  # (P,) int
+    led: np.ndarray  # (P,) int, -1 where the pair's LED frame was dropped
+    messages: tuple[str, ...]  # dropped frames and timestamp gaps, for the user
+    laser_first: bool
+
+
+def frame_brightness(image: np.ndarray) -> float:
+    """Upper-quartile brightness of a frame as a fraction of its dtype's range.
+
+    A laser frame is dark but for a thin ring (a few % of the pixels), so its upper
+    quartile is near the noise floor; an LED frame's is the lit wall. A quantile
+    rather than the mean, so that the ring's brightness (and glints) barely move it;
+    the upper quartile rather than the median because the mirror and the outside of
+    the image circle are dark in both kinds of frame.
+    """
+    sample = image[::4, ::4]  # every 16th pixel: plenty for a quantile, 16x cheaper
+    grey = sample if sample.ndim == 2 else sample.mean(axis=2)
+    scale = float(np.iinfo(image.dtype).max) if image.dtype.kind in "ui" else 1.0
+    return float(np.percentile(grey, 75)) / scale
+
+
+def classify_laser_frames(brightness: np.ndarray) -> np.ndarray:
+    """True for laser frames: the darker of two brightness classes (Otsu, log scale).
+
+    Otsu's split of log-brightness (between-class variance maximised) needs no tuned
+    threshold: it separates the two
+    populations wherever they lie (8- or 16-bit, exposure), on the ratio scale where
+    "an order of magnitude darker" is what distinguishes them.
+
+    Raises
+    ------
+    ValueError
+        If fewer than two frames are given or all frames are equally bright.
+    """
+    # + 1/255: one 8-bit grey level, so that sensor noise near 0 does not spread dark
+    # frames over orders of magnitude.
+    values = np.log(np.asarray(brightness, dtype=float) + 1 / 255)
+    if values.size < 2 or np.ptp(values) == 0:
+        raise ValueError("cannot tell laser from LED frames: all frames equally bright")
+    return values <= _otsu_exact(values)
+
+
+def _otsu_exact(values: np.ndarray) -> float:
+    """Otsu's threshold over the sorted values themselves, midway between two of them.
+
+    Hand-written (a cumulative sum) because skimage's ``threshold_otsu`` works on a
+    256-bin histogram and returns a bin centre, which can cut a tight cluster of
+    frames in two (seen in testing); a few thousand values need no histogram.
+    """
+    v = np.sort(values)
+    n = v.size
+    k = np.arange(1, n)  # split after the k smallest values
+    csum = np.cumsum(v)[:-1]
+    mean_low, mean_high = csum / k, (v.sum() - csum) / (n - k)
+    between = k * (n - k) * (mean_high - mean_low) ** 2
+    between[v[1:] == v[:-1]] = -1.0  # never split equal values
+    best = int(np.argmax(between))
+    return float((v[best] + v[best + 1]) / 2)
+
+
+def _scan(is_laser: np.ndarray, laser_first: bool) -> tuple[list[tuple[int, int]], list[str]]:
+    """Greedy pairing in one order; lone frames are reported and re-synced past."""
+    pairs: list[tuple[int, int]] = []
+    lone: list[str] = []
+    k, n = 0, len(is_laser)
+    while k < n:
+        first_ok = is_laser[k] == laser_first
+        if first_ok and k + 1 < n and is_laser[k + 1] != laser_first:
+            a, b = k, k + 1
+            pairs.append((a, b) if laser_first else (b, a))
+            k += 2
+            continue
+        if is_laser[k]:
+            pairs.append((k, -1))
+            lone.append(f"frame {k}: laser frame without its LED frame (dropped frame); "
+                        f"pair {len(pairs) - 1} has no LED frame")
+        else:
+            lone.append(f"frame {k}: LED frame without its laser frame (dropped frame); "
+                        f"skipped")
+        k += 1
+    return pairs, lone
+
+
+def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None) -> VideoPairs:
+    """Pair alternating laser/LED frames, re-synchronising after dropped frames.
+
+    The order within a pair (laser first or LED first) is the one that pairs more
+    frames. A laser frame whose LED frame is missing still makes a pair (with
+    ``led = -1``: a pose but no strip); an LED frame without its laser frame is
+    skipped. Both are reported in ``messages``, as are gaps in the timestamps longer
+    than 1.5 median frame intervals (whole pairs dropped without breaking the
+    alternation).
+    """
+    is_laser = np.asarray(is_laser, dtype=bool)
+    scans = [_scan(is_laser, order) for order in (True, False)]
+    complete = [sum(1 for _, b in pairs if b >= 0) for pairs, _ in scans]
+    best = 0 if complete[0] >= complete[1] else 1
+    pairs, messages = scans[best]
+    if time_s is not None and len(time_s) > 2:
+        messages = messages + _gap_messages(np.asarray(time_s, dtype=float))
+    laser = np.array([a for a, _ in pairs], dtype=int)
+    led = np.array([b for _, b in pairs], dtype=int)
+    return VideoPairs(laser, led, tuple(messages), best == 0)
+
+
+def _gap_messages(time_s: np.ndarray) -> list[str]:
+    steps = np.diff(time_s)
+    typical = float(np.median(steps))
+    if typical <= 0:
+        return []
+    gaps = np.flatnonzero(steps > 1.5 * typical)
+    return [f"frames {k}-{k + 1}: timestamp gap of {steps[k]:.4g} s "
+            f"(about {round(steps[k] / typical) - 1} frame(s) dropped)" for k in gaps]
+
+
+def _ndarray_format(pix_fmt: str) -> str:
+    """The numpy layout a stream decodes to: grey stays grey, colour becomes BGR."""
+    if pix_fmt in ("gray", "gray8"):
+        return "gray"
+    if pix_fmt.startswith("gray"):
+        return "gray16le"
+    deep = any(tag in pix_fmt for tag in ("10", "12", "14", "16", "48", "64"))
+    return "bgr48le" if deep else "bgr24"
+
+
+class VideoReader:
+    """Random access to the frames of a video with a small, bounded cache.
+
+    Opening indexes the video (decodes every frame once for its timestamp and
+    brightness); :meth:`frame` then decodes forward from the current position or
+    seeks to the preceding keyframe. Thread-safe (one decoder behind a lock).
+
+    Parameters
+    ----------
+    path : Path
+        Any video PyAV reads; the first video stream is used.
+    progress : callable, optional
+        Called once per frame during indexing.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file when it is missing, not a video or has no video stream.
+    """
+
+    def __init__(self, path: str | Path, *, progress: Callable[[], None] | None = None,
+                 ) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DatasetError(self.path, "video file not found")
+        self._lock = threading.Lock()
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._container = self._open()
+        self._stream = self._container.streams.video[0]
+        self._format = _ndarray_format(self._stream.codec_context.format.name)
+        self.index = self._build_index(progress)
+        self._pts_to_frame = {int(p): k for k, p in enumerate(self.index.pts)}
+        self._decoder: Iterator[av.VideoFrame] | None = None
+        self._next = 0  # frame number the decoder yields next
+        self._seek_to(0)
+
+    def _open(self) -> av.container.InputContainer:
+        try:
+            container = av.open(str(self.path))
+        except (av.FFmpegError, OSError) as exc:
+            raise DatasetError(self.path, f"cannot open as a video: {exc}") from exc
+        if not container.streams.video:
+            container.close()
+            raise DatasetError(self.path, "no video stream in the file")
+        # Slice threads only: frame threading would decode several frames ahead after
+        # every seek (measured: no faster here, and random access is slower).
+        container.streams.video[0].thread_type = "SLICE"
+        return container
+
+    def _decode_all(self) -> Iterator[av.VideoFrame]:
+        try:
+            yield from self._container.decode(self._stream)
+        except av.FFmpegError as exc:
+            raise DatasetError(self.path, f"cannot decode the video: {exc}") from exc
+
+    def _build_index(self, progress: Callable[[], None] | None) -> FrameIndex:
+        pts, bright = [], []
+        size = None
+        for frame in self._decode_all():
+            image = frame.to_ndarray(format=self._format)
+            size = size or (frame.width, frame.height)
+            pts.append(frame.pts if frame.pts is not None else len(pts))
+            bright.append(frame_brightness(image))
+            if progress is not None:
+                progress()
+        if not pts:
+            raise DatasetError(self.path, "the video has no frames")
+        order = np.argsort(pts, kind="stable")
+        pts_arr = np.asarray(pts, dtype=np.int64)[order]
+        base = self._stream.time_base or Fraction(1, 1)
+        return FrameIndex(pts_arr, pts_arr * float(base), np.asarray(bright)[order],
+                          size[0], size[1])
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames in the video."""
+        return len(self.index.pts)
+
+    def _seek_to(self, k: int) -> None:
+        self._container.seek(int(self.index.pts[k]), stream=self._stream, backward=True,
+                             any_frame=False)
+        self._decoder = self._decode_all()
+        self._next = -1  # unknown until the first frame after the seek is decoded
+
+    def _decode_next(self) -> tuple[int, np.ndarray]:
+        try:
+            frame = next(self._decoder)
+        except StopIteration:
+            raise DatasetError(self.path, "video ended before the requested frame") from None
+        k = self._pts_to_frame.get(frame.pts, self._next) if frame.pts is not None else self._next
+        self._next = k + 1
+        return k, frame.to_ndarray(format=self._format)
+
+    def frame(self, k: int) -> np.ndarray:
+        """Frame ``k`` (0-based, in presentation order): grey, or colour as BGR.
+
+        Raises
+        ------
+        DatasetError
+            If ``k`` is out of range or the frame cannot be decoded.
+        """
+        if not 0 <= k < self.n_frames:
+            raise DatasetError(self.path, f"frame {k} out of range (0..{self.n_frames - 1})")
+        with self._lock:
+            if k in self._cache:
+                self._cache.move_to_end(k)
+                # A copy: callers may work in place, the cache must stay as decoded.
+                return self._cache[k].copy()
+            if not (0 <= self._next <= k < self._next + FORWARD_DECODE_LIMIT):
+                self._seek_to(k)
+            while True:
+                got, image = self._decode_next()
+                self._remember(got, image)
+                if got >= k:
+                    break
+            if k not in self._cache:
+                raise DatasetError(self.path, f"frame {k} could not be decoded")
+            return self._cache[k].copy()
+
+    def _remember(self, k: int, image: np.ndarray) -> None:
+        self._cache[k] = image
+        self._cache.move_to_end(k)
+        while len(self._cache) > CACHE_FRAMES:
+            self._cache.popitem(last=False)
+
+    def close(self) -> None:
+        """Release the decoder."""
+        with self._lock:
+            self._container.close()
+            self._cache.clear()
+
+
+# Lossless codecs of the PyAV wheel, with a container that holds them. FFVHuff
+# (HuffYUV) decodes ~4x faster than FFV1 (23 vs 110 ms for a 1224 x 1024 grey frame,
+# measured on this machine under load; PNG: 34 ms) for ~30 % larger files, so it is
+# the default; FFV1 in Matroska is the archival choice.
+CODEC_CONTAINERS = {"ffvhuff": "avi", "ffv1": "matroska"}
+
+
+def _encoder_format(image: np.ndarray, codec: str) -> tuple[str, str]:
+    """(input layout, stream pix_fmt) for a frame: both lossless for every layout."""
+    grey, deep = image.ndim == 2, image.dtype == np.uint16
+    if grey:
+        return ("gray16le", "gray16le") if deep else ("gray", "gray")
+    if deep:
+        return "bgr48le", "gbrp16le"
+    return "bgr24", ("bgr0" if codec == "ffv1" else "gbrp")
+
+
+def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float = 30.0,
+                codec: str = "ffvhuff", frame_numbers: Iterable[int] | None = None) -> Path:
+    """Write frames (grey or BGR, 8- or 16-bit) to a lossless video, atomically.
+
+    FFVHuff (AVI) and FFV1 (Matroska) are lossless for 8/16-bit grey and colour, so a
+    run read from the video sees exactly the frames of the dataset. (The wheel's
+    libx264 stores grey in limited range: not lossless without extra range handling.)
+
+    Parameters
+    ----------
+    path : Path
+        Output file (``.avi`` for ffvhuff, ``.mkv`` for ffv1).
+    frames : iterable of ndarray
+        All of one shape and dtype; consumed lazily (one frame in memory at a time).
+    fps : float
+        Nominal frame rate (the time base is 1/fps).
+    codec : {"ffvhuff", "ffv1"}
+        Both intra-only: every frame is a keyframe, so seeks are exact.
+    frame_numbers : iterable of int, optional
+        Timestamp of each frame in frame periods (default 0, 1, 2, ...): gaps
+        simulate dropped frames.
+    """
+    from pipestitch.io.atomic import atomic_path
+
+    if codec not in CODEC_CONTAINERS:
+        raise ValueError(f"codec: expected one of {sorted(CODEC_CONTAINERS)}, got {codec!r}")
+    path = Path(path)
+    numbers = iter(frame_numbers) if frame_numbers is not None else None
+    rate = Fraction(fps).limit_denominator(1001)
+    with atomic_path(path) as tmp, av.open(str(tmp), mode="w",
+                                           format=CODEC_CONTAINERS[codec]) as out:
+        stream = None
+        for k, image in enumerate(frames):
+            if stream is None:
+                layout, pix_fmt = _encoder_format(image, codec)
+                stream = out.add_stream(codec, rate=rate)
+                stream.width, stream.height = image.shape[1], image.shape[0]
+                stream.pix_fmt = pix_fmt
+                stream.codec_context.time_base = 1 / rate
+                stream.options = {"g": "1", "slices": "4"} if codec == "ffv1" else {}
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format=layout)
+            frame.pts = next(numbers) if numbers is not None else k
+            frame.time_base = 1 / rate
+            out.mux(stream.encode(frame))
+        if stream is not None:
+            out.mux(stream.encode(None))
+    return path

@@ -210,22 +210,6 @@ def test_missing_led_frame_is_per_pair(tmp_path: Path) -> None:
     assert ds.read_led(2).shape == (48, 64)
 
 
-def test_tiled_tiff_has_tiles_and_a_pyramid(tmp_path: Path) -> None:
-    import tifffile
-
-    from pipestitch.io.outputs import write_tiled_tiff
-
-    img = (np.arange(600 * 700) % 251).astype(np.uint8).reshape(600, 700)
-    path = write_tiled_tiff(tmp_path / "m.tif", img, tile=128)
-    with tifffile.TiffFile(path) as tif:
-        page = tif.pages[0]
-        assert page.is_tiled and page.tilewidth == 128
-        assert np.array_equal(page.asarray(), img)
-        levels = [level.shape for level in tif.series[0].levels]
-    assert levels[:2] == [(600, 700), (300, 350)] and max(levels[-1]) <= 128
-    assert not list(tmp_path.glob(".*tmp"))   # atomic: no temporary left behind
-
-
 def test_mosaic_to_uint8_keeps_zero_for_no_data() -> None:
     from pipestitch.io.outputs import mosaic_to_uint8
 

@@ -45,6 +45,14 @@ def test_run_writes_every_output(output: Path) -> None:
     html = (output / "report.html").read_text()
     assert 'id="mosaic"' in html and "data:image/png;base64," in html
     assert "http://" not in html and "https://" not in html   # self-contained
+    # The full-resolution pyramid is the mosaic itself; the viewer page uses its tiles.
+    import tifffile
+
+    with tifffile.TiffFile(output / "mosaic.ome.tif") as tif:
+        full = tif.series[0].levels[0].asarray()
+    assert np.array_equal(full, read_image(output / "mosaic.png"))
+    assert (output / "tiles" / "mosaic.dzi").is_file()
+    assert 'src="viewer.html"' in html and (output / "viewer.html").is_file()
 
 
 def test_mosaic_scale_matches_the_truth(dataset: Path, output: Path) -> None:

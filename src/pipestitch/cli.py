@@ -199,8 +199,9 @@ def run(
 ) -> None:
     """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
 
-    Writes OUT/poses.csv, mosaic.png (+ mosaic.tif when large), mosaic.json, defects.csv,
-    profile.csv and report.html. Frames that fail are reported and skipped, never dropped silently.
+    Writes OUT/poses.csv, mosaic.png, mosaic.json, mosaic.ome.tif + tiles/ + viewer.html
+    (zoomable full resolution), defects.csv, profile.csv, observations and report.html.
+    Frames that fail are reported and skipped, never dropped silently.
     A dataset without LED frames gets poses, profile and report only; exit 1 (outputs
     still written) when no frame has a pose or the LED frames give no mosaic.
 

@@ -97,8 +97,8 @@ class RingPoints:
 
     @property
     def points_mm(self) -> np.ndarray:
-        """(N, 3) probe-frame points on the laser plane."""
-        return self.plane.to_probe(self.uv)
+        """(N, 3) probe-frame points on the laser plane (float64)."""
+        return self.plane.to_probe(self.uv.astype(np.float64))
 
 
 @dataclass(frozen=True)
@@ -458,8 +458,9 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
                        coverage=coverage)
-    step = max(1, int(keep.sum()) // 720)
-    ring = RingPoints(pts[keep][::step], pixels[keep][::step], plane)
+    step = max(1, int(keep.sum()) // 720)   # float32, ~12 kB a frame for the whole run
+    ring = RingPoints(pts[keep][::step].astype(np.float32),
+                      pixels[keep][::step].astype(np.float32), plane)
     return PoseFit(True, "", _both_hypotheses(starts[0], pts[keep], pixels[keep], camera, plane,
                                               nominal_radius_mm, fit_radius, noise_mm),
                    int(keep.sum()), float(coverage), "circle", ring)

@@ -173,8 +173,10 @@ def oval_if_circle_infeasible(fit: PoseFit, body: BodyEnvelope, camera: CameraMo
     centre = rot[:2] @ (plane.distance_mm * plane.normal) + [h.pose.dx_mm, h.pose.dy_mm]
     sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *centre), h.radius_mm, noise_mm=noise_mm)
     keep = np.abs(sf.residuals_mm) < max(0.25, 5 * noise_mm)
-    rms_px = ring_rms_px(sf.pose, sf.section.mean_radius_mm, fit.ring.pixels[keep],
-                         fit.ring.uv[keep], sf.residuals_mm[keep], camera, plane)
+    rms_px = ring_rms_px(sf.pose, sf.section.mean_radius_mm,
+                         fit.ring.pixels[keep].astype(np.float64),
+                         fit.ring.uv[keep].astype(np.float64), sf.residuals_mm[keep], camera,
+                         plane)
     oval = Hypothesis(sf.pose, sf.section.mean_radius_mm, float("nan"), sf.rms_mm, rms_px,
                       {"dx_mm": float("nan"), "dy_mm": float("nan"),
                        "radius_mm": sf.radius_std_mm, "ovality": sf.ovality_std},

@@ -3,7 +3,7 @@
 * ``mosaic.png``: 8-bit grey, SPEC's wall-image convention (row i at theta =
   i·deg_per_px, column j at z0_mm + j·mm_per_px_axial); no-data pixels are 0 and data
   pixels are at least 1, so 0 always means "not seen".
-* ``mosaic.tif``: the same as a tiled, pyramidal TIFF when the mosaic is large.
+* ``mosaic.ome.tif`` + ``tiles/``: the same as a pyramid (:mod:`pipestitch.io.tiles`).
 * ``mosaic.json``: scale, origin and references of the mosaic.
 * ``profile.csv``: per frame, the pipe's diameter from the laser ring.
 """
@@ -17,25 +17,22 @@ import math
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-import cv2
 import numpy as np
-import tifffile
 
 from pipestitch.errors import DatasetError
-from pipestitch.io.atomic import atomic_path, atomic_write_text
+from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.images import read_image, write_image
 from pipestitch.jsonsafe import json_safe
 
-__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "TILED_TIFF_MIN_PIXELS", "mosaic_from_uint8",
+__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "mosaic_from_uint8",
            "mosaic_to_uint8",
-           "read_mosaic", "write_csv", "write_json", "write_mosaic_png", "write_tiled_tiff"]
+           "read_mosaic", "write_csv", "write_json", "write_mosaic_png"]
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
                    "diameter_std_mm", "model", "within_tolerance", "ovality_std")
 DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2", "z_min_mm",
                   "z_max_mm", "theta_min_deg", "theta_max_deg", "contrast", "confidence",
                   "partial")
-TILED_TIFF_MIN_PIXELS = 16_000_000   # mosaics larger than this also get a tiled TIFF
 
 
 def mosaic_to_uint8(image: np.ndarray) -> tuple[np.ndarray, float]:
@@ -62,20 +59,6 @@ def mosaic_from_uint8(image_u8: np.ndarray) -> np.ndarray:
 def write_mosaic_png(path: Path, image_u8: np.ndarray) -> Path:
     """Write the 8-bit mosaic atomically."""
     return write_image(path, image_u8)
-
-
-def write_tiled_tiff(path: Path, image_u8: np.ndarray, *, tile: int = 256) -> Path:
-    """Tiled TIFF with a 2x pyramid (sub-IFDs) down to one tile, written atomically."""
-    levels = [image_u8]
-    while max(levels[-1].shape) > tile:
-        levels.append(cv2.resize(levels[-1], None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
-    with atomic_path(path) as tmp, tifffile.TiffWriter(tmp) as tif:
-        tif.write(levels[0], tile=(tile, tile), subifds=len(levels) - 1,
-                  compression="zlib", photometric="minisblack")
-        for level in levels[1:]:
-            tif.write(level, tile=(tile, tile), subfiletype=1, compression="zlib",
-                      photometric="minisblack")
-    return Path(path)
 
 
 def write_json(path: Path, data: Mapping[str, object]) -> Path:

@@ -1,7 +1,7 @@
 """``pipestitch run``: pose -> unwrap -> register -> mosaic -> profile -> report.
 
 Writes into OUT (SPEC "Outputs"): poses.csv (z and roll now from registration),
-mosaic.png (+ mosaic.tif when large), mosaic.json, defects.csv, profile.csv and
+mosaic.png, mosaic.ome.tif + tiles/ + viewer.html, mosaic.json, defects.csv, profile.csv and
 report.html, each
 atomically. Frames that fail at any stage are reported on stderr, listed in the report
 and kept in poses.csv with their error; they never stop the run.
@@ -10,6 +10,7 @@ and kept in poses.csv with their error; they never stop the run.
 from __future__ import annotations
 
 import math
+import shutil
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
@@ -24,14 +25,13 @@ from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.outputs import (
     PROFILE_COLUMNS,
-    TILED_TIFF_MIN_PIXELS,
     mosaic_from_uint8,
     mosaic_to_uint8,
     write_csv,
     write_json,
     write_mosaic_png,
-    write_tiled_tiff,
 )
+from pipestitch.io.tiles import write_pyramid
 from pipestitch.measure.defects import Defect
 from pipestitch.pipeline.frame_cache import CachedLedFrames
 from pipestitch.pipeline.measure import measure_mosaic, write_defects_csv
@@ -46,6 +46,7 @@ from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.standards import code_run
 from pipestitch.pose_fit import Hypothesis
 from pipestitch.report.html import FrameRow, ReportData, render_report
+from pipestitch.report.viewer import write_viewer
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -280,23 +281,36 @@ def _finite(values: np.ndarray) -> dict[int, float]:
     return {i: float(v) for i, v in enumerate(values) if np.isfinite(v)}
 
 
+PYRAMID = "mosaic.ome.tif"
+TILES = "tiles"
+VIEWER = "viewer.html"
+
+
 def _write_mosaic(out: Path, result: MosaicResult | None, dataset: Dataset,
                   settings: MosaicSettings) -> np.ndarray | None:
-    """mosaic.png, mosaic.json (and mosaic.tif when large); the 8-bit image or None.
+    """mosaic.png, mosaic.json, the pyramidal OME-TIFF, the viewer's tiles and page.
 
-    Outputs of an earlier run into the same folder that this run does not produce are
-    removed, so `pipestitch measure` never reads a stale mosaic.
+    The full-resolution mosaic goes into ``mosaic.ome.tif`` and Deep Zoom ``tiles/``
+    (written from column blocks, :func:`pipestitch.io.tiles.write_pyramid`), shown by
+    ``viewer.html`` (pan and zoom, static files). Outputs of an earlier run into the
+    same folder that this run does not produce are removed, so `pipestitch measure`
+    never reads a stale mosaic. Returns the 8-bit image or None.
     """
-    stale = ["mosaic.png", "mosaic.json", "mosaic.tif", "defects.csv"] if result is None else (
-        ["mosaic.tif"] if result.image.size < TILED_TIFF_MIN_PIXELS else [])
-    for name in stale:
-        (out / name).unlink(missing_ok=True)
     if result is None:
+        for name in ("mosaic.png", "mosaic.json", PYRAMID, VIEWER, "defects.csv"):
+            (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / TILES, ignore_errors=True)
         return None
+    (out / "mosaic.tif").unlink(missing_ok=True)   # the tiled TIFF of earlier versions
     image, scale = mosaic_to_uint8(result.image)
     write_mosaic_png(out / "mosaic.png", image)
-    if image.size >= TILED_TIFF_MIN_PIXELS:
-        write_tiled_tiff(out / "mosaic.tif", image)
+    block = 1024
+    g = result.grid
+    write_pyramid(out / PYRAMID, ((c, image[:, c:c + block]) for c in range(0, image.shape[1],
+                                                                            block)),
+                  image.shape, tiles_dir=out / TILES, mm_per_px=g.mm_per_px)
+    write_viewer(out, out / TILES, title=f"pipestitch mosaic: {dataset.root.name}",
+                 z0_mm=g.z0_mm, mm_per_px=g.mm_per_px, deg_per_px=g.deg_per_px)
     write_json(out / "mosaic.json", _mosaic_json(result, scale, dataset, settings))
     return image
 
@@ -322,4 +336,4 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
                       grid.z0_mm if grid else 0.0, grid.mm_per_px if grid else 1.0,
                       grid.deg_per_px if grid else 1.0,
                       dataset.config.pipe.inner_diameter_mm, _frame_rows(frames, choices, z),
-                      summary.problems, figures)
+                      summary.problems, figures, viewer_href=VIEWER if result else None)

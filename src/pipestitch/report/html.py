@@ -70,6 +70,7 @@ class ReportData:
     defects: list[Defect] = field(default_factory=list)
     tolerance_pct: float = 1.0
     standards: StandardsView | None = None
+    viewer_href: str | None = None      # relative link to the pan-and-zoom viewer page
 
 
 def _png(fig: plt.Figure) -> str:
@@ -179,9 +180,15 @@ th{background:#f0f0f0}.note{color:#555;font-size:.9em}"""
 def _mosaic_section(data: ReportData) -> str:
     if data.mosaic is None:
         return "<p>No mosaic: the dataset has no LED frames.</p>"
+    viewer = ("" if data.viewer_href is None else
+              f'\n<p>Full resolution, pan and zoom (the tiles beside this file): '
+              f'<a href="{html.escape(data.viewer_href)}">open the viewer</a>.</p>\n'
+              f'<iframe id="viewer" title="zoomable mosaic" src="{html.escape(data.viewer_href)}" '
+              'style="width:100%;height:420px;border:1px solid #ccc"></iframe>')
     return (f'<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; θ is relative '
             "to the first frame's roll. Dark red: not seen.</p>\n"
-            f'<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">')
+            f'<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">'
+            + viewer)
 
 
 def _defect_table(data: ReportData) -> str:

@@ -152,3 +152,19 @@ def test_fast_laser_only_rendering_matches_the_pair() -> None:
         # Same seed, same noise: the only difference is the texture filter under the
         # ring (full resolution vs mip-mapped), a few DN on a handful of pixels.
         assert diff.mean() < 0.05 and np.mean(diff > 8) < 1e-4
+
+
+def test_texture_wider_than_opencv_remaps_is_sampled_exactly() -> None:
+    """A long run's wall texture passes OpenCV's 32767-column limit of cv2.remap."""
+    from pipestitch.simulate.render import _remap_points, _remap_wrap
+
+    rows, cols = 64, 40_000
+    r, c = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    texture = (0.001 * c + 0.1 * np.sin(r / 5)).astype(np.float32)   # smooth: bilinear ~ exact
+    rng = np.random.default_rng(0)
+    x = rng.uniform(35_000, 35_500, 3000).astype(np.float32)
+    y = rng.uniform(5, 55, 3000).astype(np.float32)
+    expected = 0.001 * x + 0.1 * np.sin(y / 5)
+    np.testing.assert_allclose(_remap_points(texture, x, y), expected, atol=2e-3)
+    got = _remap_wrap(texture, x.reshape(30, 100), y.reshape(30, 100))
+    np.testing.assert_allclose(got.ravel(), expected, atol=2e-3)

@@ -64,6 +64,28 @@ class WallTexture:
     z0_mm: float
 
 
+REMAP_MAX = 32766   # cv2.remap: source and maps below SHRT_MAX columns and rows
+
+
+def _remap_wrap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """``cv2.remap`` (bilinear, wrapping) that also takes textures wider than it allows.
+
+    A long run's wall texture passes 32767 columns: only the columns the maps reach
+    (plus a margin) are then handed to OpenCV, shifted accordingly.
+    """
+    if image.shape[1] <= REMAP_MAX:
+        return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    finite = map_x[np.isfinite(map_x)]
+    lo = int(np.clip(np.floor(finite.min()) - 2, 0, image.shape[1] - 1)) if finite.size else 0
+    hi = int(np.clip(np.ceil(finite.max()) + 3, lo + 1, image.shape[1])) if finite.size else 1
+    if hi - lo > REMAP_MAX:
+        raise ValueError(f"one frame spans {hi - lo} texture columns, more than OpenCV "
+                         f"can remap ({REMAP_MAX})")
+    crop = np.ascontiguousarray(image[:, lo:hi])
+    return cv2.remap(crop, (map_x - lo).astype(np.float32), map_y, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_WRAP)
+
+
 def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear samples of ``image`` at scattered points (rows wrap around).
 
@@ -73,11 +95,11 @@ def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray
     n = x.size
     width = 1024
     rows = max(1, -(-n // width))
-    mx = np.zeros(rows * width, np.float32)
-    my = np.zeros(rows * width, np.float32)
+    # padding repeats the first point, so it does not widen the columns reached
+    mx = np.full(rows * width, x.flat[0] if n else 0.0, np.float32)
+    my = np.full(rows * width, y.flat[0] if n else 0.0, np.float32)
     mx[:n], my[:n] = x, y
-    out = cv2.remap(image, mx.reshape(rows, width), my.reshape(rows, width), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_WRAP)
+    out = _remap_wrap(image, mx.reshape(rows, width), my.reshape(rows, width))
     return out.ravel()[:n]
 
 
@@ -211,7 +233,7 @@ class Renderer:
             sx = tex.shape[1] / self.wall.albedo.shape[1]
             map_x = (col + 0.5) * sx - 0.5
             map_y = (row + 0.5) * sy - 0.5
-            sample = cv2.remap(tex, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            sample = _remap_wrap(tex, map_x, map_y)
             out += weight * sample
         return out
 

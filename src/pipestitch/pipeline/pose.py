@@ -269,7 +269,8 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
     dataset = open_dataset(root, video=video)
     frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers)
-    report_frame_messages((f.index, m) for f in frames for m in (f.error, f.warning) if m)
+    report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
+                          + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
                        sum(1 for c in choices if c.ambiguous), path)

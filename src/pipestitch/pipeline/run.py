@@ -258,6 +258,8 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
                   _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm,
                                 dataset.config.pipe.inner_diameter_mm, tolerance_pct))
     problems = _problems(frames, result, choices, no_mosaic)
+    # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
+    problems = [(-1, f"video: {note}") for note in getattr(dataset, "notes", [])] + problems
     report_frame_messages(problems)
     seconds = time.perf_counter() - start
     summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),

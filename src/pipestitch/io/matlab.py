@@ -31,7 +31,7 @@ import scipy.io
 from pipestitch.camera import OcamModel, fit_invpol
 from pipestitch.errors import ConfigError
 from pipestitch.io.atomic import atomic_write_bytes, atomic_write_text
-from pipestitch.io.text import read_config_text
+from pipestitch.io.text import parse_json_object, read_config_text
 
 __all__ = ["matlab_fields", "ocam_from_matlab", "read_matlab_fisheye", "write_matlab_fisheye"]
 
@@ -117,13 +117,7 @@ def read_matlab_fisheye(path: str | Path) -> OcamModel:
         if not path.is_file():
             raise ConfigError(path, "file not found")
         return ocam_from_matlab(_fields_from_mat(path), path)
-    text = read_config_text(path)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(path, f"malformed JSON: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(path, "expected a JSON object (MATLAB jsonencode(intrinsics))")
+    data = parse_json_object(read_config_text(path), path, "MATLAB jsonencode(intrinsics)")
     return ocam_from_matlab(data, path)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from pipestitch.camera import OpenCVFisheyeModel
 from pipestitch.errors import ConfigError
 from pipestitch.io.atomic import atomic_write_text
-from pipestitch.io.text import read_config_text
+from pipestitch.io.text import parse_json_object, read_config_text
 
 __all__ = ["read_opencv_fisheye", "write_opencv_fisheye"]
 
@@ -92,12 +92,7 @@ def _read_yaml(text: str, path: Path) -> OpenCVFisheyeModel:
 
 
 def _read_json(text: str, path: Path) -> OpenCVFisheyeModel:
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(path, f"malformed JSON: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(path, "expected a JSON object with K, D, width, height")
+    data = parse_json_object(text, path, "with K, D, width, height")
     missing = [key for key in ("K", "D", "width", "height") if key not in data]
     if missing:
         raise ConfigError(path, f"missing key(s): {', '.join(missing)}")

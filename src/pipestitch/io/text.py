@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from pipestitch.errors import ConfigError
 
-__all__ = ["read_config_text"]
+__all__ = ["parse_json_object", "read_config_text"]
 
 
 def read_config_text(path: str | Path) -> str:
@@ -18,3 +19,17 @@ def read_config_text(path: str | Path) -> str:
         raise ConfigError(path, "file not found") from exc
     except (UnicodeDecodeError, OSError) as exc:
         raise ConfigError(path, f"cannot read as text: {exc}") from exc
+
+
+def parse_json_object(text: str, path: Path, expected: str) -> dict:
+    """A JSON object from ``text``; ConfigError naming ``path`` otherwise.
+
+    ``expected`` says what the object should be, for the message.
+    """
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(path, f"malformed JSON: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(path, f"expected a JSON object ({expected})")
+    return data

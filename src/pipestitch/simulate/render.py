@@ -70,20 +70,26 @@ REMAP_MAX = 32766   # cv2.remap: source and maps below SHRT_MAX columns and rows
 def _remap_wrap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     """``cv2.remap`` (bilinear, wrapping) that also takes textures wider than it allows.
 
-    A long run's wall texture passes 32767 columns: only the columns the maps reach
-    (plus a margin) are then handed to OpenCV, shifted accordingly.
+    A long run's wall texture passes 32767 columns: the columns the maps reach are then
+    handed to OpenCV in crops of fewer columns (with a margin for the interpolation),
+    each sampling the map entries that fall in it. A frame sees the wall from behind
+    the camera to far down the pipe, so one frame may need several crops.
     """
     if image.shape[1] <= REMAP_MAX:
         return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-    finite = map_x[np.isfinite(map_x)]
-    lo = int(np.clip(np.floor(finite.min()) - 2, 0, image.shape[1] - 1)) if finite.size else 0
-    hi = int(np.clip(np.ceil(finite.max()) + 3, lo + 1, image.shape[1])) if finite.size else 1
-    if hi - lo > REMAP_MAX:
-        raise ValueError(f"one frame spans {hi - lo} texture columns, more than OpenCV "
-                         f"can remap ({REMAP_MAX})")
-    crop = np.ascontiguousarray(image[:, lo:hi])
-    return cv2.remap(crop, (map_x - lo).astype(np.float32), map_y, cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_WRAP)
+    finite = np.isfinite(map_x)
+    lo = int(np.clip(np.floor(map_x[finite].min()), 0, image.shape[1] - 1)) if finite.any() else 0
+    chunk = REMAP_MAX - 8
+    part = np.where(finite, np.floor((map_x - lo) / chunk), -1).astype(np.int64)
+    out = np.zeros(map_x.shape, image.dtype)
+    for k in np.unique(part[part >= 0]):
+        c0 = max(lo + int(k) * chunk - 2, 0)
+        crop = np.ascontiguousarray(image[:, c0:min(c0 + chunk + 6, image.shape[1])])
+        sample = cv2.remap(crop, (map_x - c0).astype(np.float32), map_y, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_WRAP)
+        mask = part == k
+        out[mask] = sample[mask]
+    return out
 
 
 def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -458,12 +458,16 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
                        coverage=coverage)
-    step = max(1, int(keep.sum()) // 720)   # float32, ~12 kB a frame for the whole run
+    step = max(1, -(-int(keep.sum()) // 720))   # <= 720 points, float32: <= 12 kB a frame
     ring = RingPoints(pts[keep][::step].astype(np.float32),
                       pixels[keep][::step].astype(np.float32), plane)
-    return PoseFit(True, "", _both_hypotheses(starts[0], pts[keep], pixels[keep], camera, plane,
-                                              nominal_radius_mm, fit_radius, noise_mm),
-                   int(keep.sum()), float(coverage), "circle", ring)
+    try:
+        hyps = _both_hypotheses(starts[0], pts[keep], pixels[keep], camera, plane,
+                                nominal_radius_mm, fit_radius, noise_mm)
+    except np.linalg.LinAlgError:   # singular normal equations: the points span too little
+        return PoseFit(False, "degenerate ring (the points do not determine a pose)",
+                       coverage=coverage)
+    return PoseFit(True, "", hyps, int(keep.sum()), float(coverage), "circle", ring)
 
 
 def _both_hypotheses(start: tuple[Pose, float], uv: np.ndarray, pixels: np.ndarray,

@@ -126,8 +126,11 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
     def fun(v: np.ndarray) -> np.ndarray:
         return oval_residuals(np.concatenate([tilt, v]), points_mm)
 
+    # Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
+    bounds = ([-np.inf, -np.inf, 1e-3, -0.5, -0.5], [np.inf, np.inf, np.inf, 0.5, 0.5])
+    x0[3:] = np.clip(x0[3:], -0.49, 0.49)
     res = least_squares(fun, x0, loss="soft_l1", f_scale=noise_mm, method="trf",
-                        x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]))
+                        x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]), bounds=bounds)
     x = np.concatenate([tilt, res.x])
     resid = oval_residuals(x, points_mm)
     jac = _numeric_jacobian(x, points_mm)
@@ -171,7 +174,9 @@ def oval_if_circle_infeasible(fit: PoseFit, body: BodyEnvelope, camera: CameraMo
     rot = rot_x(h.pose.alpha) @ rot_y(h.pose.beta)
     plane = fit.ring.plane
     centre = rot[:2] @ (plane.distance_mm * plane.normal) + [h.pose.dx_mm, h.pose.dy_mm]
-    sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *centre), h.radius_mm, noise_mm=noise_mm)
+    # untilted, the plane centre d·n lands at d·n[:2] + offset: start the offset there
+    offset = centre - plane.distance_mm * plane.normal[:2]
+    sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *offset), h.radius_mm, noise_mm=noise_mm)
     keep = np.abs(sf.residuals_mm) < max(0.25, 5 * noise_mm)
     rms_px = ring_rms_px(sf.pose, sf.section.mean_radius_mm,
                          fit.ring.pixels[keep].astype(np.float64),

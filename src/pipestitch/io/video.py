@@ -212,13 +212,20 @@ class VideoReader:
         self._lock = threading.Lock()
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._container = self._open()
-        self._stream = self._container.streams.video[0]
-        self._format = _ndarray_format(self._stream.codec_context.format.name)
-        self.index = self._build_index(progress)
-        self._pts_to_frame = {int(p): k for k, p in enumerate(self.index.pts)}
-        self._decoder: Iterator[av.VideoFrame] | None = None
-        self._next = 0  # frame number the decoder yields next
-        self._seek_to(0)
+        try:
+            self._stream = self._container.streams.video[0]
+            pixel_format = self._stream.codec_context.format
+            if pixel_format is None:
+                raise DatasetError(self.path, "the video stream has no pixel format")
+            self._format = _ndarray_format(pixel_format.name)
+            self.index = self._build_index(progress)
+            self._pts_to_frame = {int(p): k for k, p in enumerate(self.index.pts)}
+            self._decoder: Iterator[av.VideoFrame] | None = None
+            self._next = 0  # frame number the decoder yields next
+            self._seek_to(0)
+        except BaseException:
+            self._container.close()   # a failed open leaves no decoder behind
+            raise
 
     def _open(self) -> av.container.InputContainer:
         try:
@@ -263,8 +270,11 @@ class VideoReader:
         return len(self.index.pts)
 
     def _seek_to(self, k: int) -> None:
-        self._container.seek(int(self.index.pts[k]), stream=self._stream, backward=True,
-                             any_frame=False)
+        try:
+            self._container.seek(int(self.index.pts[k]), stream=self._stream, backward=True,
+                                 any_frame=False)
+        except (av.FFmpegError, ValueError) as exc:
+            raise DatasetError(self.path, f"cannot seek to frame {k}: {exc}") from exc
         self._decoder = self._decode_all()
         self._next = -1  # unknown until the first frame after the seek is decoded
 
@@ -275,7 +285,10 @@ class VideoReader:
             raise DatasetError(self.path, "video ended before the requested frame") from None
         k = self._pts_to_frame.get(frame.pts, self._next) if frame.pts is not None else self._next
         self._next = k + 1
-        return k, frame.to_ndarray(format=self._format)
+        try:
+            return k, frame.to_ndarray(format=self._format)
+        except (av.FFmpegError, ValueError) as exc:
+            raise DatasetError(self.path, f"cannot convert frame {k}: {exc}") from exc
 
     def frame(self, k: int) -> np.ndarray:
         """Frame ``k`` (0-based, in presentation order): grey, or colour as BGR.

@@ -207,7 +207,9 @@ def _ring(path: Path, cfg: ProbeConfig, camera: CameraModel
                    fit_radius=False)
     if not fit.ok:
         return None, None, fit.reason
-    return camera.unproject(detection.best()), fit.hypotheses[0].pose, ""
+    # the fit's inliers (glints and second candidates removed), not every candidate
+    inliers = fit.ring.pixels if fit.ring is not None else detection.best()
+    return camera.unproject(np.asarray(inliers, np.float64)), fit.hypotheses[0].pose, ""
 
 
 def run_laser_calibration(frames: Sequence[str | Path], *, probe: str | Path,

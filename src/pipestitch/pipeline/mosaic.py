@@ -370,15 +370,23 @@ OVAL_MIN = 0.005
 
 
 def _refit_section(view: FrameView) -> FrameView:
-    """The view with its section fitted to the ring at the refined tilt (see FrameView)."""
+    """The view with its section fitted to the ring at the refined tilt (see FrameView).
+
+    An adopted oval brings its offset, and its information (section marginalised) as
+    the next round's prior: the circle fit's would claim a tilt the ovality biased.
+    """
     if view.ring is None or not view.refined:
         return view
     start = view.measured.section if view.measured is not None else view.section
-    measured = fit_section(view.ring.points_mm, view.pose, view.section.mean_radius_mm,
-                           start=start)
+    try:
+        measured = fit_section(view.ring.points_mm, view.pose, view.section.mean_radius_mm,
+                               start=start)
+    except ValueError:   # no valid section (degenerate ring points): keep the view
+        return view
     oval = measured.section.ovality
     if view.oval or oval > max(OVAL_SIGNIFICANCE * measured.ovality_std, OVAL_MIN):
-        return replace(view, pose=measured.pose, section=measured.section, measured=measured)
+        return replace(view, pose=measured.pose, section=measured.section, measured=measured,
+                       information=measured.information, oval=True)
     return replace(view, measured=measured)
 
 

@@ -23,6 +23,7 @@ from pipestitch.ambiguity import Choice
 from pipestitch.errors import PipestitchError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.io.imu import read_imu
 from pipestitch.io.outputs import (
     PROFILE_COLUMNS,
     mosaic_from_uint8,
@@ -43,7 +44,7 @@ from pipestitch.pipeline.pose import (
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
-from pipestitch.pipeline.standards import code_run
+from pipestitch.pipeline.standards import CodedRun, code_run
 from pipestitch.pose_fit import Hypothesis
 from pipestitch.report.html import FrameRow, ReportData, render_report
 from pipestitch.report.viewer import write_viewer
@@ -120,7 +121,9 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                 h = replace(h, radius_mm=m.section.mean_radius_mm, section=m.section,
                             std={**h.std, "radius_mm": m.radius_std_mm,
                                  "ovality": m.ovality_std})
-                model = "oval/refined-tilt"
+                # oval: the frame was unwrapped as an oval (pose offset from that fit);
+                # circle: its ovality is measured but not significant (pose as refined)
+                model = "oval/refined-tilt" if view.oval else "circle/refined-tilt"
             hyps[choice.chosen] = h
             frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model))
         out.append(frame)
@@ -210,28 +213,41 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     stage; default: imu.csv, else a detected invert, else relative).
     """
     settings = settings or MosaicSettings()
+    dataset = CachedLedFrames(open_dataset(root, video=video))
+    try:
+        read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
+        return _run(dataset, Path(out), settings, show_progress, tolerance_pct, crown_deg)
+    finally:
+        close = getattr(dataset, "close", None)   # a video's decoder
+        if close is not None:
+            close()
+
+
+def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,
+                      timer: StageTimer, show_progress: bool) -> tuple[MosaicResult | None, str]:
+    """The mosaic, or None and why not (the poses are worth writing all the same)."""
+    if not views:
+        return None, "no mosaic: no frame has a pose"
+    if not dataset.has_led:
+        return None, "the dataset has no LED frames: no mosaic"
+    try:
+        return build_mosaic(dataset, views, settings, timer=timer,
+                            show_progress=show_progress), ""
+    except PipestitchError as exc:
+        return None, f"no mosaic: {exc}"
+    except (ValueError, MemoryError) as exc:
+        # e.g. a --mm-per-px at which no wall is resolved, or a canvas too large
+        return None, f"no mosaic: {exc!r}"
+
+
+def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: bool,
+         tolerance_pct: float, crown_deg: float | None) -> RunSummary:
     start = time.perf_counter()
     timer = StageTimer()
-    dataset = CachedLedFrames(open_dataset(root, video=video))
-    out = Path(out)
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer)
     views = _views(frames, choices)
-    result, no_mosaic = None, ""
-    if not views:
-        no_mosaic = "no mosaic: no frame has a pose"
-    elif dataset.has_led:
-        try:
-            result = build_mosaic(dataset, views, settings, timer=timer,
-                                  show_progress=show_progress)
-        except PipestitchError as exc:
-            no_mosaic = f"no mosaic: {exc}"
-        except (ValueError, MemoryError) as exc:
-            # e.g. a --mm-per-px at which no wall is resolved, or a canvas too large:
-            # the poses are still worth writing.
-            no_mosaic = f"no mosaic: {exc!r}"
-    else:
-        no_mosaic = "the dataset has no LED frames: no mosaic"
+    result, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer, show_progress)
     if result is not None:
         choices = _apply_switches(choices, result.switched)
         frames = _with_refined(frames, choices, result.views)
@@ -260,23 +276,32 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     problems = _problems(frames, result, choices, no_mosaic)
     # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
     problems = [(-1, f"video: {note}") for note in getattr(dataset, "notes", [])] + problems
+    with timer("standards"):
+        coded = _coded(out, dataset, crown_deg, problems)
     report_frame_messages(problems)
-    seconds = time.perf_counter() - start
     summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
                          sum(1 for c in choices if c.ambiguous),
-                         len(result.placed) if result else 0, seconds, dict(timer.seconds),
-                         problems, result, no_mosaic,
+                         len(result.placed) if result else 0, time.perf_counter() - start,
+                         dict(timer.seconds), problems, result, no_mosaic,
                          not views or (dataset.has_led and result is None))
-    with timer("standards"):
-        coded = code_run(out, dataset=dataset.root, crown_deg=crown_deg,
-                         nominal_diameter_mm=dataset.config.pipe.inner_diameter_mm)
     with timer("report"):
         data = _report_data(dataset, frames, choices, z, image, result, summary)
-        data.defects = coded.defects if result is not None else defects
+        data.defects = coded.defects if coded is not None and result is not None else defects
         data.tolerance_pct = tolerance_pct
-        data.standards = coded.report_view()
+        data.standards = coded.report_view() if coded is not None else None
         atomic_write_text(out / "report.html", render_report(data))
     return summary
+
+
+def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
+           problems: list[tuple[int, str]]) -> CodedRun | None:
+    """The standards stage; a failure there is reported, and the report still written."""
+    try:
+        return code_run(out, dataset=dataset.root, crown_deg=crown_deg,
+                        nominal_diameter_mm=dataset.config.pipe.inner_diameter_mm)
+    except Exception as exc:  # e.g. a malformed row a user kept in observations.csv
+        problems.append((-1, f"observations not coded: {exc}"))
+        return None
 
 
 def _finite(values: np.ndarray) -> dict[int, float]:

@@ -131,7 +131,8 @@ new OpenSeadragon.MouseTracker({{ element: viewer.container, moveHandler: (event
   const item = viewer.world.getItemAt(0);
   if (!item) return;
   const point = item.viewerElementToImageCoordinates(event.position);
-  const col = Math.round(point.x), row = Math.round(point.y);
+  // OpenSeadragon's pixel i spans [i, i + 1); SPEC's pixel i is centred on i.
+  const col = Math.floor(point.x), row = Math.floor(point.y);
   let text = "col " + col + ", row " + row;
   if (axes) {{
     const z = axes.z0_mm + col * axes.mm_per_px;

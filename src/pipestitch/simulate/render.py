@@ -77,8 +77,9 @@ def _remap_wrap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.n
     """
     if image.shape[1] <= REMAP_MAX:
         return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    map_x = np.mod(map_x, image.shape[1])   # BORDER_WRAP's columns, before cropping
     finite = np.isfinite(map_x)
-    lo = int(np.clip(np.floor(map_x[finite].min()), 0, image.shape[1] - 1)) if finite.any() else 0
+    lo = int(np.floor(map_x[finite].min())) if finite.any() else 0
     chunk = REMAP_MAX - 8
     part = np.where(finite, np.floor((map_x - lo) / chunk), -1).astype(np.int64)
     out = np.zeros(map_x.shape, image.dtype)

@@ -184,3 +184,25 @@ def test_cli_run_and_pose_with_video_match_the_frames(tmp_path: Path, simulated_
                                  "--video", str(tmp_path / "nope.mkv")])
     assert result.exit_code == 2
     assert "nope.mkv" in result.output and "video file not found" in result.output
+
+
+def test_check_with_a_video(tmp_path: Path) -> None:
+    """`pipestitch check DATASET --video FILE`: dropped frames are warnings, a frame
+    size other than probe.toml's and a missing video are errors naming the file."""
+    from typer.testing import CliRunner
+
+    from pipestitch.cli import app
+
+    frames = _interleaved(4)
+    keep = [k for k in range(8) if k != 3]                 # pair 1's LED frame dropped
+    video = write_video(tmp_path / "v.avi", [frames[k] for k in keep], frame_numbers=keep)
+    root = _dataset_root(tmp_path, W, H)
+    runner = CliRunner()
+    result = runner.invoke(app, ["check", str(root), "--video", str(video), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "without its LED frame" in result.output and "warning" in result.output
+    wrong = _dataset_root(tmp_path / "w", W * 2, H)
+    result = runner.invoke(app, ["check", str(wrong), "--video", str(video), "--quiet"])
+    assert result.exit_code == 2 and "probe.toml says" in result.output
+    result = runner.invoke(app, ["check", str(root), "--video", str(tmp_path / "no.avi")])
+    assert result.exit_code == 2 and "video file not found" in result.output

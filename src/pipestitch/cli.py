@@ -133,14 +133,18 @@ def _print_problems(problems: list) -> None:
 def check(
     dataset: Annotated[Path, typer.Argument(help="Dataset folder (SPEC layout).")],
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    video: Annotated[Path | None, typer.Option(
+        "--video", help="Frames from this video (alternating laser/LED) instead of "
+                        "DATASET/frames/.")] = None,
 ) -> None:
     """Validate a dataset: layout, numbering, image sizes, readable frames, probe.toml, CSVs.
 
-    Lists every problem with its file; exits with 2 if any is an error.
+    Lists every problem with its file; exits with 2 if any is an error. With --video,
+    the video is read through (dropped frames and timestamp gaps are warnings).
 
     Example: pipestitch check data/test_piece
     """
-    problems = run_check(dataset, show_progress=not quiet)
+    problems = run_check(dataset, show_progress=not quiet, video=video)
     errors = [p for p in problems if p.severity == "error"]
     if problems:
         _print_problems(problems)

@@ -185,8 +185,13 @@ def _mosaic_section(data: ReportData) -> str:
               f'<a href="{html.escape(data.viewer_href)}">open the viewer</a>.</p>\n'
               f'<iframe id="viewer" title="zoomable mosaic" src="{html.escape(data.viewer_href)}" '
               'style="width:100%;height:420px;border:1px solid #ccc"></iframe>')
-    return (f'<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; θ is relative '
-            "to the first frame's roll. Dark red: not seen.</p>\n"
+    st = data.standards
+    theta = ("θ is relative to the first frame's roll" if st is None or
+             st.reference_source == "relative" else
+             f"θ in the mosaic's frame; 12 o'clock (crown) at θ = {st.crown_theta_deg:.1f}° by "
+             f"the {html.escape(st.reference_source)} reference")
+    return (f'<p class="note">Centralised mosaic at {data.mm_per_px:g} mm/px; {theta}. '
+            "Dark red: not seen.</p>\n"
             f'<img id="mosaic" alt="mosaic of the pipe wall" src="{_mosaic_figure(data)}">'
             + viewer)
 

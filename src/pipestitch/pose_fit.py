@@ -41,7 +41,9 @@ __all__ = [
     "fit_pose",
     "model_conic",
     "plane_points",
+    "plane_to_world",
     "pose_from_conic",
+    "ring_rms_px",
 ]
 
 PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
@@ -163,7 +165,7 @@ def plane_points(pixels: np.ndarray, camera: CameraModel, plane_distance_mm: flo
     """
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
     rays = camera.unproject(pixels)
-    if plane_normal is None:  # SPEC's plane z = d: the basis is probe x, y
+    if plane.normal[2] == 1.0:  # SPEC's plane z = d: the basis is probe x, y
         with np.errstate(invalid="ignore", divide="ignore"):
             scale = plane_distance_mm / rays[:, 2]
         valid = np.isfinite(scale) & (rays[:, 2] > 1e-6)
@@ -279,10 +281,15 @@ def model_conic(pose: Pose, radius_mm: float, plane: LaserPlane) -> tuple[np.nda
 
     Inverse of :func:`pose_from_conic`: both mirror poses give the same conic.
     """
-    rot = rot_x(pose.alpha) @ rot_y(pose.beta)
-    a_mat = rot[:2] @ plane.basis.T
-    c = rot[:2] @ (plane.distance_mm * plane.normal) + np.array([pose.dx_mm, pose.dy_mm])
+    a_mat, c = plane_to_world(pose, plane)
     return a_mat.T @ a_mat, a_mat.T @ c, float(c @ c - radius_mm**2)
+
+
+def plane_to_world(pose: Pose, plane: LaserPlane) -> tuple[np.ndarray, np.ndarray]:
+    """(A, c): a plane point u (in-plane coordinates) lies at world (x, y) = A u + c."""
+    rot = rot_x(pose.alpha) @ rot_y(pose.beta)
+    return (rot[:2] @ plane.basis.T,
+            rot[:2] @ (plane.distance_mm * plane.normal) + np.array([pose.dx_mm, pose.dy_mm]))
 
 
 def _rotation_rows(x: np.ndarray) -> np.ndarray:
@@ -292,12 +299,6 @@ def _rotation_rows(x: np.ndarray) -> np.ndarray:
     drx = np.array([[0, 0, 0], [0, -np.sin(a), -np.cos(a)], [0, np.cos(a), -np.sin(a)]])
     dry = np.array([[-np.sin(b), 0, np.cos(b)], [0, 0, 0], [-np.cos(b), 0, -np.sin(b)]])
     return np.vstack([(rx @ ry)[:2], (drx @ ry)[:2], (rx @ dry)[:2]])
-
-
-def _residuals(x: np.ndarray, p3: np.ndarray) -> np.ndarray:
-    """Radial distance (mm) of probe-frame plane points (N, 3) from the wall of radius x[4]."""
-    q = p3 @ _rotation_rows(x)[:2].T + x[2:4]
-    return np.hypot(q[:, 0], q[:, 1]) - x[4]
 
 
 def _residuals_jacobian(x: np.ndarray, p3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -542,9 +543,8 @@ def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
     px, u, r = pixels[sub], uv[sub], resid_mm[sub]
     d_col = _plane_coords(px + [1.0, 0.0], camera, plane) - u
     d_row = _plane_coords(px + [0.0, 1.0], camera, plane) - u
-    rot = rot_x(pose.alpha) @ rot_y(pose.beta)
-    a_mat = rot[:2] @ plane.basis.T
-    q = u @ a_mat.T + rot[:2] @ (plane.distance_mm * plane.normal) + [pose.dx_mm, pose.dy_mm]
+    a_mat, c = plane_to_world(pose, plane)
+    q = u @ a_mat.T + c
     n_w = q / np.linalg.norm(q, axis=1, keepdims=True)
     u_hat = u / np.linalg.norm(u, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -27,7 +27,7 @@ from scipy.optimize import least_squares
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, rot_x, rot_y
-from pipestitch.pose_fit import Hypothesis, PoseFit, ring_rms_px
+from pipestitch.pose_fit import Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
 __all__ = ["SectionFit", "fit_section", "oval_if_circle_infeasible", "oval_residuals"]
 
@@ -171,9 +171,8 @@ def oval_if_circle_infeasible(fit: PoseFit, body: BodyEnvelope, camera: CameraMo
     if max(clearances) >= INFEASIBLE_CLEARANCE_MM:
         return fit
     h = fit.hypotheses[0]
-    rot = rot_x(h.pose.alpha) @ rot_y(h.pose.beta)
     plane = fit.ring.plane
-    centre = rot[:2] @ (plane.distance_mm * plane.normal) + [h.pose.dx_mm, h.pose.dy_mm]
+    centre = plane_to_world(h.pose, plane)[1]   # world (x, y) of the plane centre
     # untilted, the plane centre d·n lands at d·n[:2] + offset: start the offset there
     offset = centre - plane.distance_mm * plane.normal[:2]
     sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *offset), h.radius_mm, noise_mm=noise_mm)

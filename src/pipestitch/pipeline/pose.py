@@ -93,15 +93,15 @@ class PoseSettings:
     plane_distance_mm: float
     nominal_radius_mm: float
     body: BodyEnvelope
-    plane_normal: np.ndarray | None = None   # calibrated laser-plane normal; None: SPEC's +z
+    plane_normal: np.ndarray | None = None   # laser-plane normal (probe.toml; SPEC: +z)
 
     @classmethod
     def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
         """Settings of a dataset's probe.toml."""
-        normal = None if cfg.laser.normal is None else np.asarray(cfg.laser.normal, float)
         return cls(cfg.camera_model(), cfg.laser.plane_distance_mm,
                    cfg.pipe.inner_diameter_mm / 2,
-                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm), normal)
+                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm),
+                   np.asarray(cfg.laser.plane_normal(), float))
 
 
 def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipestitch.measure.blocks import BlockDefects
 from pipestitch.measure.defects import MosaicGeometry, clock_position, find_defects
 from pipestitch.simulate.textures import Defect, WallGrid, draw_defects, make_wall
 
@@ -67,3 +68,36 @@ def test_plain_wall_and_empty_mosaic_give_nothing() -> None:
                                          (180.0, "9:00"), (285.0, "12:30"), (269.0, "12:00")])
 def test_clock_positions(theta: float, clock: str) -> None:
     assert clock_position(theta) == clock
+
+
+def test_block_measurement_finds_each_defect_once_as_the_whole_image_does() -> None:
+    """A long mosaic measured in overlapping windows (as `run` streams it): every defect,
+    including one centred on a window boundary, once, at the size find_defects gives."""
+    grid = WallGrid.square(R, 0.135, 0.0, 900.0)
+    rng = np.random.default_rng(3)
+    core = 1500
+    boundary_mm = core * 0.135           # first window boundary
+    truth = [Defect("hole", z, th, dia) for z, th, dia in
+             [(40.0, 100.0, 5.0), (boundary_mm, 200.0, 6.0), (boundary_mm + 3.0, 30.0, 3.0),
+              (500.0, 300.0, 4.0), (2 * boundary_mm - 1.0, 120.0, 8.0), (860.0, 10.0, 5.0)]]
+    image = (draw_defects(make_wall("aluminium", grid, rng=rng), grid, truth)
+             + rng.normal(0, 0.01, grid.shape)).astype(np.float32)
+    geometry = MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm, R)
+    whole = find_defects(image, geometry)
+    finder = BlockDefects(geometry, core_cols=core)
+    for c in range(0, image.shape[1], 700):
+        finder.push(c, image[:, c:c + 700])
+    blocks = finder.finish()
+    assert len(whole) == len(truth) and len(blocks) == len(truth)
+    for b, w, t in zip(blocks, whole, sorted(truth, key=lambda d: d.z_mm), strict=True):
+        assert b.z_mm == pytest.approx(t.z_mm, abs=0.1)
+        assert b.theta_deg == pytest.approx(w.theta_deg, abs=0.05)
+        assert b.diameter_mm == pytest.approx(w.diameter_mm, abs=0.05)
+        assert b.diameter_mm == pytest.approx(t.diameter_mm, abs=0.15)
+
+
+def test_block_measurement_refuses_a_gap() -> None:
+    finder = BlockDefects(MosaicGeometry(1.0, 0.1, 0.0, R))
+    finder.push(0, np.ones((360, 50), np.float32))
+    with pytest.raises(ValueError, match="column 50"):
+        finder.push(60, np.ones((360, 50), np.float32))

@@ -14,7 +14,7 @@ import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose
-from pipestitch.mosaic import Canvas, _feather, frame_grid
+from pipestitch.mosaic import Canvas, Overview, _feather, frame_grid
 from pipestitch.occluder import occluder_mask
 from pipestitch.refine import node_jacobian, patch_shifts
 from pipestitch.register import (
@@ -282,3 +282,52 @@ def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> No
     feather = _feather(np.ones((360, 80), bool))
     assert feather[0, 40] == 1.0 and feather[-1, 40] == 1.0   # rows wrap: no seam at 0/360
     assert feather[100, 0] < 0.1
+
+
+def test_canvas_released_in_blocks_equals_the_whole_canvas() -> None:
+    """Streaming: columns released as soon as no later strip reaches them give exactly
+    the mosaic of a canvas held whole, and the window stays the width of the strips."""
+    grid = StripGrid(1.0, 0.1, 0.0, 2000)
+    wall = _texture((360, 2000), seed=7)
+    ones = np.ones((360, 300), np.float32)
+    starts = list(range(0, 1701, 100))
+    whole, streamed = Canvas(grid), Canvas(grid)
+    blocks, widest = [], 0
+    for k, c in enumerate(starts):
+        strip = Strip((1 + 0.1 * (k % 3)) * wall[:, c:c + 300], ones, ones)
+        whole.add(strip, c, np.ones(300))
+        streamed.add(strip, c, np.ones(300))
+        widest = max(widest, streamed.total.shape[1])
+        nxt = starts[k + 1] if k + 1 < len(starts) else None
+        got = streamed.release(nxt)
+        if got is not None:
+            blocks.append(got)
+    image, weights = whole.image()
+    assert [b[0] for b in blocks] == starts      # released up to the next strip each time
+    assert np.array_equal(np.concatenate([b[1] for b in blocks], axis=1), image, equal_nan=True)
+    assert np.array_equal(np.concatenate([b[2] for b in blocks], axis=1), weights)
+    assert widest <= 300 + 512
+    with pytest.raises(ValueError, match="released"):
+        streamed.add(Strip(wall[:, :300], ones, ones), 0, np.ones(300))
+
+
+def test_overview_keeps_the_wall_image_convention() -> None:
+    """A reduced mosaic.png: row i at theta = i x its deg_per_px, column j at its z0 +
+    j x its mm_per_px, values the local mean; half-seen groups are data, others 0."""
+    grid = StripGrid(360 / 1500, 0.135, -12.0, 5003)
+    theta = np.arange(1500)[:, None] * grid.deg_per_px
+    z = grid.z0_mm + np.arange(5003)[None, :] * grid.mm_per_px
+    image = np.rint(128 + 60 * np.sin(np.deg2rad(theta)) + 0.1 * z).astype(np.uint8)
+    image[:, 4000:4003] = 0                       # three unseen columns
+    ov = Overview(grid, max_pixels=1_000_000)
+    for c in range(0, 5003, 700):
+        ov.push(image[:, c:c + 700])
+    out = ov.finish()
+    f, g = ov.factor, ov.grid
+    assert f == 3 and out.shape == (g.n_rows, g.n_cols) == (500, 1668)
+    th = np.arange(g.n_rows)[:, None] * g.deg_per_px
+    zz = g.z0_mm + np.arange(g.n_cols)[None, :] * g.mm_per_px
+    expect = 128 + 60 * np.sin(np.deg2rad(th)) + 0.1 * zz
+    data = out > 0
+    assert np.abs(out[data] - np.broadcast_to(expect, out.shape)[data]).max() <= 1.01
+    assert not data[:, 4000 // 3].any() and data[:, 4003 // 3 + 1].all()

@@ -403,3 +403,16 @@ def test_reference_test_piece_drawn() -> None:
     side = cents[~on_axis]
     assert np.allclose(np.sort(side[:, 0]) - s0, [-24.0, 24.0], atol=0.05)
     assert np.allclose(side[:, 1], 100.0, atol=0.05)
+
+
+def test_wrapped_rescale_in_chunks_matches_one_warp(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Very long walls are rescaled in column chunks (OpenCV crashes on a 20 m wall):
+    the chunks must join exactly as one wrapped warp would."""
+    from pipestitch.simulate import textures
+
+    src = np.random.default_rng(0).standard_normal((50, 300)).astype(np.float32)
+    m = np.array([[300 / 1000, 0, 0], [0, 50 / 200, 0]])
+    one = cv2.warpAffine(src, m, (1000, 200), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_WRAP)
+    monkeypatch.setattr(textures, "WARP_CHUNK", 64)
+    assert np.abs(textures._scale_wrapped(src, 200, 1000) - one).max() < 1e-3

@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 import tifffile
 
-from pipestitch.io.tiles import level_shapes, read_overview, write_pyramid
+from pipestitch.io.tiles import (
+    PyramidWriter,
+    level_shapes,
+    read_column_blocks,
+    read_overview,
+    write_pyramid,
+)
 
 
 def _blocks(image: np.ndarray, widths: list[int]):
@@ -95,3 +101,23 @@ def test_bad_blocks_are_rejected(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="runs past"):
         write_pyramid(tmp_path / "d.tif", [(0, np.zeros((64, 120), np.uint8))], image.shape)
     assert not any(tmp_path.iterdir())  # nothing half-written left behind
+
+
+def test_pyramid_writer_streams_blocks_and_reads_back_by_tile_columns(tmp_path: Path) -> None:
+    image = (np.arange(300 * 700).reshape(300, 700) % 251 + 1).astype(np.uint8)
+    with PyramidWriter(tmp_path / "m.ome.tif", image.shape, tile=64) as writer:
+        for c in range(0, 700, 90):
+            writer.push(c, image[:, c:c + 90])
+        info = writer.close()
+    blocks = list(read_column_blocks(info.path))
+    assert [c for c, _ in blocks] == list(range(0, 700, 64))
+    assert np.array_equal(np.concatenate([b for _, b in blocks], axis=1), image)
+
+
+def test_pyramid_writer_left_unclosed_leaves_nothing(tmp_path: Path) -> None:
+    image = np.ones((64, 100), np.uint8)
+    with pytest.raises(RuntimeError), PyramidWriter(tmp_path / "m.ome.tif", image.shape,
+                                                    tile=32, tiles_dir=tmp_path / "t") as w:
+        w.push(0, image[:, :50])
+        raise RuntimeError("the run failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

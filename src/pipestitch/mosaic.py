@@ -13,15 +13,16 @@ pipe, so theta = 0/360 is not a seam.
 
 from __future__ import annotations
 
+import math
 import warnings
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from pipestitch.unwrap import Strip, StripGrid
 
-__all__ = ["Canvas", "canvas_grid", "frame_grid", "vignetting_profile"]
+__all__ = ["Canvas", "Overview", "canvas_grid", "frame_grid", "overview_factor",
+           "vignetting_profile"]
 
 FEATHER_PX = 24       # width of the feather at a strip's edges (output pixels)
 GAIN_LIMITS = (0.5, 2.0)
@@ -85,31 +86,53 @@ def _feather(valid: np.ndarray) -> np.ndarray:
     return np.clip(dist / FEATHER_PX, 0, 1).astype(np.float32)
 
 
-@dataclass
 class Canvas:
-    """Accumulates weighted strips; :meth:`image` gives the blended mosaic."""
+    """Accumulates weighted strips over a window of columns that slides along the run.
 
-    grid: StripGrid
+    Only the columns between the first not yet released (:meth:`release`) and the last
+    reached by a strip are held, so memory is set by how far the strips of the frames
+    in flight spread along z, not by the length of the run. :meth:`image` gives the
+    whole blended mosaic of a canvas nothing was released from.
+    """
 
-    def __post_init__(self) -> None:
-        shape = (self.grid.n_rows, self.grid.n_cols)
-        self.total = np.zeros(shape, np.float32)
-        self.weights = np.zeros(shape, np.float32)
+    def __init__(self, grid: StripGrid) -> None:
+        self.grid = grid
+        self.first = 0                      # canvas column of the window's column 0
+        self.total = np.zeros((grid.n_rows, 0), np.float32)
+        self.weights = np.zeros((grid.n_rows, 0), np.float32)
 
     def add(self, strip: Strip, column: int, level: np.ndarray) -> float:
         """Blend ``strip`` (its grid's columns start at canvas ``column``).
 
         ``level`` (per strip column) times the strip's shading is the brightness of a
         unit albedo; returns the exposure gain applied.
+
+        Raises
+        ------
+        ValueError
+            If the strip reaches columns already released.
         """
+        if column < self.first:
+            raise ValueError(f"canvas columns before {self.first} were released; a strip "
+                             f"starts at {column}")
         values = strip.values / np.maximum(strip.shading * level[None, :], 1e-6)
         valid = np.isfinite(values) & (strip.weight > 0)
         weight = np.where(valid, strip.weight * _feather(valid), 0).astype(np.float32)
-        cols = slice(column, column + values.shape[1])
+        self._reach(column + values.shape[1])
+        cols = slice(column - self.first, column - self.first + values.shape[1])
         gain = self._gain(values, weight, cols)
         self.total[:, cols] += np.where(valid, values * gain, 0) * weight
         self.weights[:, cols] += weight
         return gain
+
+    def _reach(self, end: int) -> None:
+        """Grow the window to canvas column ``end`` (exclusive), in steps of 512 columns."""
+        need = min(end, self.grid.n_cols) - self.first
+        if need <= self.total.shape[1]:
+            return
+        width = min(max(need, self.total.shape[1] + 512), self.grid.n_cols - self.first)
+        grow = ((0, 0), (0, width - self.total.shape[1]))
+        self.total, self.weights = np.pad(self.total, grow), np.pad(self.weights, grow)
 
     def _gain(self, values: np.ndarray, weight: np.ndarray, cols: slice) -> float:
         have = self.weights[:, cols]
@@ -120,8 +143,109 @@ class Canvas:
         ratio = np.median(current) / max(float(np.median(values[both])), 1e-9)
         return float(np.clip(ratio, *GAIN_LIMITS))
 
-    def image(self) -> tuple[np.ndarray, np.ndarray]:
-        """Blended mosaic (float, NaN where no data) and the total weight per node."""
+    def release(self, end: int | None = None) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """Blend and give up the columns before canvas column ``end`` (default: all).
+
+        Returns ``(first column, mosaic, weights)`` of those columns (float, NaN where no
+        data), or None when there are none; later strips must start at ``end`` or after.
+        """
+        end = self.grid.n_cols if end is None else min(end, self.grid.n_cols)
+        if end <= self.first:
+            return None
+        n = end - self.first
+        self._reach(end)
+        total, weights = self.total[:, :n], self.weights[:, :n].copy()
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.where(self.weights > 1e-6, self.total / self.weights, np.nan)
-        return out.astype(np.float32), self.weights
+            out = np.where(weights > 1e-6, total / weights, np.nan).astype(np.float32)
+        first = self.first
+        self.total, self.weights = self.total[:, n:].copy(), self.weights[:, n:].copy()
+        self.first = end
+        return first, out, weights
+
+    def image(self) -> tuple[np.ndarray, np.ndarray]:
+        """The whole blended mosaic (float, NaN where no data) and the weight per node.
+
+        Raises
+        ------
+        ValueError
+            If columns were released already.
+        """
+        if self.first:
+            raise ValueError("image(): columns were released already")
+        released = self.release()
+        assert released is not None
+        return released[1], released[2]
+
+
+def overview_factor(n_rows: int, n_cols: int, max_pixels: int) -> int:
+    """Smallest integer reduction that brings an n_rows x n_cols mosaic within max_pixels."""
+    f = 1
+    while math.ceil(n_rows / f) * math.ceil(n_cols / f) > max_pixels:
+        f += 1
+    return f
+
+
+def _row_weights(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) box weights resampling rows that wrap around the pipe.
+
+    Output row i is centred on input row i·n_in/n_out (so it stays at theta = i·deg_per_px
+    of its own grid) and averages the input rows its box of n_in/n_out rows covers.
+    """
+    s = n_in / n_out
+    d = np.arange(n_in)[None, :] - (np.arange(n_out) * s)[:, None]
+    d = (d + n_in / 2) % n_in - n_in / 2          # signed distance around the circle
+    return np.clip(np.minimum(d + 0.5, s / 2) - np.maximum(d - 0.5, -s / 2), 0, None)
+
+
+class Overview:
+    """A reduced copy of an 8-bit mosaic (0 = no data) built from its column blocks.
+
+    The reduction ``factor`` f is the smallest integer that keeps the copy within
+    ``max_pixels``. Columns are averaged in groups of f; rows are box-resampled around
+    the circumference to round(n_rows / f) rows, row i staying at theta = i x its own
+    deg_per_px (SPEC's wall-image convention). A pixel is data when at least half of
+    what it averages is. Only the copy and fewer than f columns are held.
+    """
+
+    def __init__(self, grid: StripGrid, max_pixels: int = 16_000_000) -> None:
+        self.factor = overview_factor(grid.n_rows, grid.n_cols, max_pixels)
+        f, mm = self.factor, grid.mm_per_px
+        n_rows = grid.n_rows if f == 1 else max(8, round(grid.n_rows / f))
+        n_cols = math.ceil(grid.n_cols / f)
+        # Column j' averages canvas columns f j' .. f j' + f - 1: its centre is (f - 1)/2 on.
+        self.grid = StripGrid(360.0 / n_rows, f * mm, grid.z0_mm + (f - 1) / 2 * mm, n_cols)
+        self.image = np.zeros((n_rows, n_cols), np.uint8)
+        self._rows = _row_weights(grid.n_rows, n_rows).astype(np.float32) if f > 1 else None
+        self._carry = np.zeros((grid.n_rows, 0), np.uint8)
+        self._col = 0
+
+    def push(self, block: np.ndarray) -> None:
+        """The mosaic's next columns (uint8, left to right)."""
+        data = np.concatenate([self._carry, block], axis=1) if self._carry.size else block
+        whole = data.shape[1] // self.factor * self.factor
+        self._emit(data[:, :whole])
+        self._carry = data[:, whole:].copy()
+
+    def finish(self) -> np.ndarray:
+        """Reduce the last (partial) group of columns; returns the overview image."""
+        self._emit(self._carry)
+        self._carry = self._carry[:, :0]
+        return self.image
+
+    def _emit(self, data: np.ndarray) -> None:
+        if data.shape[1] == 0:
+            return
+        f = self.factor
+        if self._rows is None:
+            self.image[:, self._col:self._col + data.shape[1]] = data
+            self._col += data.shape[1]
+            return
+        starts = np.arange(0, data.shape[1], f)
+        valid = (data > 0).astype(np.float32)
+        sums = self._rows @ np.add.reduceat(data.astype(np.float32), starts, axis=1)
+        counts = self._rows @ np.add.reduceat(valid, starts, axis=1)
+        widths = np.diff(np.append(starts, data.shape[1])).astype(np.float32)
+        enough = counts >= 0.5 * self._rows.sum(axis=1, keepdims=True) * widths[None, :]
+        out = np.where(enough, np.rint(sums / np.maximum(counts, 1e-6)), 0)
+        self.image[:, self._col:self._col + starts.size] = np.clip(out, 0, 255).astype(np.uint8)
+        self._col += starts.size

@@ -35,14 +35,15 @@ DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2
                   "partial")
 
 
-def mosaic_to_uint8(image: np.ndarray) -> tuple[np.ndarray, float]:
+def mosaic_to_uint8(image: np.ndarray, scale: float | None = None) -> tuple[np.ndarray, float]:
     """Float mosaic (NaN = no data) -> uint8 with data in [1, 255] and no data 0.
 
-    Returns the image and the value mapped to 250 (the 99.5th percentile of the data),
-    which mosaic.json records as ``intensity_scale``.
+    Returns the image and the value mapped to 250 (``scale``; by default the 99.5th
+    percentile of the data), which mosaic.json records as ``intensity_scale``.
     """
     finite = np.isfinite(image)
-    scale = float(np.percentile(image[finite], 99.5)) if finite.any() else 1.0
+    if scale is None:
+        scale = float(np.percentile(image[finite], 99.5)) if finite.any() else 1.0
     scale = scale if scale > 0 else 1.0
     out = np.zeros(image.shape, np.uint8)
     out[finite] = np.clip(np.rint(image[finite] / scale * 250), 1, 255).astype(np.uint8)

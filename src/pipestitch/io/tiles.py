@@ -34,7 +34,8 @@ import tifffile
 
 from pipestitch.io.atomic import atomic_path, atomic_write_text
 
-__all__ = ["DZI_NAME", "PyramidInfo", "level_shapes", "read_overview", "write_pyramid"]
+__all__ = ["DZI_NAME", "PyramidInfo", "PyramidWriter", "level_shapes", "read_column_blocks",
+           "read_overview", "write_pyramid"]
 
 DZI_NAME = "mosaic.dzi"
 
@@ -178,31 +179,73 @@ def write_pyramid(path: str | Path, blocks: Iterable[tuple[int, np.ndarray]],
     ValueError
         If the blocks do not match ``shape`` or leave columns uncovered.
     """
-    shape = tuple(int(s) for s in shape)
-    if len(shape) not in (2, 3) or shape[0] < 1 or shape[1] < 1 or tile % 16:
-        raise ValueError(f"expected shape (rows, cols[, 3]) and a tile multiple of 16; "
-                         f"got {shape}, {tile}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    shapes = [s + shape[2:] for s in level_shapes(shape[0], shape[1])]
-    # TIFF levels until the image fits one tile; Deep Zoom needs every level to 1 x 1.
-    n_tiff = next(k for k, s in enumerate(shapes) if max(s[:2]) <= tile) + 1
-    with tempfile.TemporaryDirectory(prefix=".pyramid.", dir=path.parent) as scratch_dir:
-        scratch = Path(scratch_dir)
-        dzi_root = scratch / "dzi" if tiles_dir is not None else None
-        handles = [open(scratch / f"level{k}.raw", "w+b") for k in range(n_tiff)]
+    with PyramidWriter(path, shape, tile=tile, tiles_dir=tiles_dir,
+                       mm_per_px=mm_per_px) as writer:
+        for col0, block in blocks:
+            writer.push(col0, block)
+        return writer.close()
+
+
+class PyramidWriter:
+    """:func:`write_pyramid` as a sink: ``push(col0, block)`` as columns are ready, then
+    ``close()``; leaving the ``with`` block without closing removes the scratch files and
+    writes nothing (a failed run leaves no half-written pyramid).
+    """
+
+    def __init__(self, path: str | Path, shape: tuple[int, ...], *, tile: int = 256,
+                 tiles_dir: str | Path | None = None, mm_per_px: float | None = None) -> None:
+        shape = tuple(int(s) for s in shape)
+        if len(shape) not in (2, 3) or shape[0] < 1 or shape[1] < 1 or tile % 16:
+            raise ValueError(f"expected shape (rows, cols[, 3]) and a tile multiple of 16; "
+                             f"got {shape}, {tile}")
+        self.path, self.shape, self.tile, self.mm_per_px = Path(path), shape, tile, mm_per_px
+        self.tiles_dir = Path(tiles_dir) if tiles_dir is not None else None
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.shapes = [s + shape[2:] for s in level_shapes(shape[0], shape[1])]
+        # TIFF levels until the image fits one tile; Deep Zoom needs every level to 1 x 1.
+        self.n_tiff = next(k for k, s in enumerate(self.shapes) if max(s[:2]) <= tile) + 1
+        self._scratch = tempfile.TemporaryDirectory(prefix=".pyramid.", dir=self.path.parent)
+        scratch = Path(self._scratch.name)
+        self._dzi_root = scratch / "dzi" if self.tiles_dir is not None else None
+        self._handles = [open(scratch / f"level{k}.raw", "w+b") for k in range(self.n_tiff)]
+        self._top = _levels(self.shapes, tile, self._handles, self._dzi_root)
+        self._col = 0
+
+    def push(self, col0: int, block: np.ndarray) -> None:
+        """Add the next column block (see :func:`write_pyramid`)."""
+        block = np.asarray(block)
+        _check_block(int(col0), block, self._col, self.shape)
+        self._top.push(block)
+        self._col += block.shape[1]
+
+    def close(self) -> PyramidInfo:
+        """Write the OME-TIFF (and move the tile folder into place); returns what was written."""
+        if self._col != self.shape[1]:
+            raise ValueError(f"blocks cover {self._col} columns, the image has {self.shape[1]}")
+        self._top.finish()
         try:
-            top = _levels(shapes, tile, handles, dzi_root)
-            _feed(top, blocks, shape)
-            _write_tiff(path, shapes[:n_tiff], handles, tile, mm_per_px)
+            _write_tiff(self.path, self.shapes[:self.n_tiff], self._handles, self.tile,
+                        self.mm_per_px)
+            dzi_path = None
+            if self.tiles_dir is not None and self._dzi_root is not None:
+                atomic_write_text(self._dzi_root / DZI_NAME, _dzi_xml(self.shape, self.tile))
+                dzi_path = _replace_dir(self._dzi_root, self.tiles_dir) / DZI_NAME
         finally:
-            for handle in handles:
-                handle.close()
-        dzi_path = None
-        if tiles_dir is not None and dzi_root is not None:
-            atomic_write_text(dzi_root / DZI_NAME, _dzi_xml(shape, tile))
-            dzi_path = _replace_dir(dzi_root, Path(tiles_dir)) / DZI_NAME
-    return PyramidInfo(path, shape, tuple(s[:2] for s in shapes[:n_tiff]), tile, dzi_path)
+            self.abort()
+        return PyramidInfo(self.path, self.shape, tuple(s[:2] for s in self.shapes[:self.n_tiff]),
+                           self.tile, dzi_path)
+
+    def abort(self) -> None:
+        """Remove the scratch files (idempotent)."""
+        for handle in self._handles:
+            handle.close()
+        self._scratch.cleanup()
+
+    def __enter__(self) -> PyramidWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.abort()
 
 
 def _levels(shapes: list[tuple[int, ...]], tile: int, handles: list[BinaryIO],
@@ -217,18 +260,6 @@ def _levels(shapes: list[tuple[int, ...]], tile: int, handles: list[BinaryIO],
         below = _Level(k, shapes[k], tile, scratch, dzi_dir, below)
     assert below is not None  # level 0 always has a scratch file
     return below
-
-
-def _feed(top: _Level, blocks: Iterable[tuple[int, np.ndarray]], shape: tuple[int, ...]) -> None:
-    col = 0
-    for col0, block in blocks:
-        block = np.asarray(block)
-        _check_block(int(col0), block, col, shape)
-        top.push(block)
-        col += block.shape[1]
-    if col != shape[1]:
-        raise ValueError(f"blocks cover {col} columns, the image has {shape[1]}")
-    top.finish()
 
 
 def _write_tiff(path: Path, shapes: list[tuple[int, ...]], handles: list[BinaryIO], tile: int,
@@ -262,6 +293,38 @@ def read_overview(path: str | Path, max_pixels: int = 16_000_000) -> tuple[np.nd
         k = next((k for k, lv in enumerate(levels)
                   if lv.shape[0] * lv.shape[1] <= max_pixels), len(levels) - 1)
         return levels[k].asarray(), k
+
+
+def read_column_blocks(path: str | Path) -> Iterator[tuple[int, np.ndarray]]:
+    """The full-resolution image of a tiled TIFF as ``(col0, block)`` tile columns.
+
+    Decodes one column of tiles at a time, so memory is rows x tile width whatever the
+    length of the mosaic (the way ``pipestitch measure`` reads a long run's mosaic).
+
+    Raises
+    ------
+    ValueError
+        If the file's first page is not tiled.
+    """
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages.first
+        if not page.is_tiled:
+            raise ValueError(f"{path}: not a tiled TIFF")
+        rows, cols = page.shape[:2]
+        th, tw = page.tilelength, page.tilewidth
+        n_down, n_across = math.ceil(rows / th), math.ceil(cols / tw)
+        decode = page.decode
+        for tc in range(n_across):
+            width = min(tw, cols - tc * tw)
+            block = np.empty((rows, width) + page.shape[2:], page.dtype)
+            for tr in range(n_down):
+                index = tr * n_across + tc
+                tif.filehandle.seek(page.dataoffsets[index])
+                data = tif.filehandle.read(page.databytecounts[index])
+                tile = decode(data, index)[0].reshape((th, tw) + page.shape[2:])
+                height = min(th, rows - tr * th)
+                block[tr * th:tr * th + height] = tile[:height, :width]
+            yield tc * tw, block
 
 
 def _dzi_xml(shape: tuple[int, ...], tile: int) -> str:

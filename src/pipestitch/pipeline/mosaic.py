@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 
@@ -54,7 +55,8 @@ from pipestitch.unwrap import (
     unwrap_with_quality,
 )
 
-__all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "build_mosaic"]
+__all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "MosaicSink",
+           "build_mosaic"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
 LINK_SPAN = 2          # each frame is registered to this many following frames
@@ -135,14 +137,15 @@ class FrameView:
 class MosaicResult:
     """Output of :func:`build_mosaic`.
 
-    ``image`` is float (NaN where no data) on ``grid``; ``skipped`` maps frame -> why;
+    ``image`` is float (NaN where no data) on ``grid`` (None when the mosaic was
+    streamed to a sink); ``skipped`` maps frame -> why;
     ``switched`` says, for each frame the pose step left ambiguous, whether registration
     chose its mirror hypothesis instead.
     """
 
     grid: StripGrid
-    image: np.ndarray
-    weights: np.ndarray
+    image: np.ndarray | None          # None when streamed to a sink
+    weights: np.ndarray | None
     positions: Positions
     links: list[Link]
     radius_mm: float
@@ -390,11 +393,39 @@ def _refit_section(view: FrameView) -> FrameView:
     return replace(view, measured=measured)
 
 
+RELEASE_COLS = 512     # the canvas releases finished columns in blocks of at least this
+
+
+class MosaicSink(Protocol):
+    """Where a streamed mosaic goes (see :func:`build_mosaic`)."""
+
+    def start(self, grid: StripGrid, radius_mm: float) -> None:
+        """Called once, before any column, with the canvas grid and the pipe radius."""
+
+    def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:
+        """Finished columns ``col0 ..``, left to right (float, NaN where no data)."""
+
+
+def _release_points(canvas: StripGrid, positions: Positions, placed: list[int],
+                    window: tuple[float, float]) -> list[int]:
+    """For each placed frame, the canvas columns no later frame reaches (all before it)."""
+    firsts = [frame_grid(canvas, positions.z_mm[i], positions.roll_deg[i], window)[1]
+              for i in placed]
+    later = np.minimum.accumulate(np.array(firsts[::-1] or [0]))[::-1]
+    return [int(c) for c in later[1:]] + [canvas.n_cols]
+
+
 def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
             positions: Positions, placed: list[int], canvas: Canvas, window: tuple[float, float],
             profile: Callable[[np.ndarray], np.ndarray], timer: StageTimer,
-            show_progress: bool, skipped: dict[int, str]) -> dict[int, float]:
-    """Pass 2: every placed frame onto the canvas nodes it covers."""
+            show_progress: bool, skipped: dict[int, str],
+            sink: MosaicSink | None) -> dict[int, float]:
+    """Pass 2: every placed frame onto the canvas nodes it covers.
+
+    With a ``sink``, the columns no later frame reaches are released to it after each
+    frame (in blocks of at least ``RELEASE_COLS``), so the canvas holds only the frames
+    in flight.
+    """
     def work(i: int) -> tuple[int, Strip | None, int, StripGrid | None, str]:
         grid, col = frame_grid(canvas.grid, positions.z_mm[i], positions.roll_deg[i], window)
         try:
@@ -405,14 +436,22 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
             return i, unwrapper.strip(grey, views[i], grid), col, grid, ""
 
     gains = {}
-    for i, strip, col, grid, error in track(ordered_map(work, placed, unwrapper.settings.workers),
-                                            "stitch", total=len(placed), enabled=show_progress):
-        if strip is None or grid is None:
+    release = _release_points(canvas.grid, positions, placed, window)
+    frames = ordered_map(work, placed, unwrapper.settings.workers)
+    for k, (i, strip, col, grid, error) in enumerate(track(frames, "stitch", total=len(placed),
+                                                           enabled=show_progress)):
+        if strip is not None and grid is not None:
+            z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+            with timer("blend"):
+                gains[i] = canvas.add(strip, col, profile(z_local))
+        else:
             skipped[i] = error
-            continue
-        z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
-        with timer("blend"):
-            gains[i] = canvas.add(strip, col, profile(z_local))
+        if sink is not None and (release[k] - canvas.first >= RELEASE_COLS
+                                 or k == len(placed) - 1):
+            with timer("blend"):
+                block = canvas.release(release[k])
+            if block is not None:
+                sink.push(*block)
     return gains
 
 
@@ -425,7 +464,7 @@ def _views(poses: Mapping[int, FrameView], mode: str,
 
 def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                  settings: MosaicSettings, *, timer: StageTimer | None = None,
-                 show_progress: bool = True) -> MosaicResult:
+                 show_progress: bool = True, sink: MosaicSink | None = None) -> MosaicResult:
     """Unwrap, register and stitch the frames that have a pose.
 
     Parameters
@@ -437,6 +476,10 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         frames) for the frames to use.
     settings : MosaicSettings
         Scale, unwrap mode, threads.
+    sink : MosaicSink, optional
+        Streams the mosaic: finished columns go to the sink as the stitching proceeds
+        and the result holds no image (``image`` and ``weights`` are None). Without a
+        sink the whole mosaic is returned.
     """
     timer = timer or StageTimer()
     if not dataset.has_led:
@@ -488,8 +531,10 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
 
     canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
+    if sink is not None:
+        sink.start(canvas.grid, radius)
     gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
-                    timer, show_progress, skipped)
-    image, weights = canvas.image()
+                    timer, show_progress, skipped, sink)
+    image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
                         [i for i in placed if i in gains], skipped, gains, switched, views)

@@ -24,19 +24,12 @@ from pipestitch.errors import PipestitchError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
-from pipestitch.io.outputs import (
-    PROFILE_COLUMNS,
-    mosaic_from_uint8,
-    mosaic_to_uint8,
-    write_csv,
-    write_json,
-    write_mosaic_png,
-)
-from pipestitch.io.tiles import write_pyramid
+from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
 from pipestitch.pipeline.frame_cache import CachedLedFrames
-from pipestitch.pipeline.measure import measure_mosaic, write_defects_csv
+from pipestitch.pipeline.measure import write_defects_csv
 from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
+from pipestitch.pipeline.mosaic_output import PYRAMID, TILES, StreamedMosaic, WrittenMosaic
 from pipestitch.pipeline.pose import (
     FramePose,
     estimate_poses,
@@ -48,6 +41,7 @@ from pipestitch.pipeline.standards import CodedRun, code_run
 from pipestitch.pose_fit import Hypothesis
 from pipestitch.report.html import FrameRow, ReportData, render_report
 from pipestitch.report.viewer import write_viewer
+from pipestitch.unwrap import StripGrid
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -166,20 +160,26 @@ def _frame_rows(frames: list[FramePose], choices: list[Choice],
     return rows
 
 
-def _mosaic_json(result: MosaicResult, scale: float, dataset: Dataset,
+def _grid_json(g: StripGrid, radius_mm: float) -> dict[str, float | int]:
+    return {"mm_per_px_axial": g.mm_per_px, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
+            "n_rows": g.n_rows, "n_cols": g.n_cols,
+            "mm_per_px_circumferential": 2 * math.pi * radius_mm / g.n_rows}
+
+
+def _mosaic_json(result: MosaicResult, written: WrittenMosaic, dataset: Dataset,
                  settings: MosaicSettings) -> dict[str, object]:
-    g = result.grid
+    """mosaic.json: the scale of mosaic.png (SPEC) and of the full-resolution mosaic."""
     return {
-        "mm_per_px_axial": g.mm_per_px, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
-        "radius_mm": result.radius_mm, "n_rows": g.n_rows, "n_cols": g.n_cols,
-        "mm_per_px_circumferential": 2 * math.pi * result.radius_mm / g.n_rows,
+        **_grid_json(written.overview_grid, result.radius_mm), "radius_mm": result.radius_mm,
+        "overview_factor": written.factor,
+        "full_resolution": {"file": PYRAMID, **_grid_json(written.grid, result.radius_mm)},
         "theta_reference": ("relative: theta 0 is the roll of the first frame of the largest "
                             "group linked by registration"),
         "roll_interpolated_frames": result.positions.roll_guessed,
         "z_reference": ("odometer (median offset), scale fitted"
                         if dataset.odometry_mm else "camera of the first placed frame at 0"),
         "odometer_scale": result.positions.odometer_scale,
-        "intensity_scale": scale, "no_data_value": 0, "unwrap": settings.mode,
+        "intensity_scale": written.intensity_scale, "no_data_value": 0, "unwrap": settings.mode,
         "frames_placed": result.placed, "frames_skipped": sorted(result.skipped),
         "window_mm": list(result.window_mm), "pipestitch_version": __version__,
     }
@@ -224,20 +224,24 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
 
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,
-                      timer: StageTimer, show_progress: bool) -> tuple[MosaicResult | None, str]:
-    """The mosaic, or None and why not (the poses are worth writing all the same)."""
+                      timer: StageTimer, show_progress: bool, out: Path,
+                      ) -> tuple[MosaicResult | None, WrittenMosaic | None, str]:
+    """The mosaic, streamed into OUT's pyramid, overview and defects as it is stitched;
+    or None and why not (the poses are worth writing all the same)."""
     if not views:
-        return None, "no mosaic: no frame has a pose"
+        return None, None, "no mosaic: no frame has a pose"
     if not dataset.has_led:
-        return None, "the dataset has no LED frames: no mosaic"
+        return None, None, "the dataset has no LED frames: no mosaic"
     try:
-        return build_mosaic(dataset, views, settings, timer=timer,
-                            show_progress=show_progress), ""
+        with StreamedMosaic(out, timer) as sink:
+            result = build_mosaic(dataset, views, settings, timer=timer,
+                                  show_progress=show_progress, sink=sink)
+            return result, sink.finish(), ""
     except PipestitchError as exc:
-        return None, f"no mosaic: {exc}"
+        return None, None, f"no mosaic: {exc}"
     except (ValueError, MemoryError) as exc:
         # e.g. a --mm-per-px at which no wall is resolved, or a canvas too large
-        return None, f"no mosaic: {exc!r}"
+        return None, None, f"no mosaic: {exc!r}"
 
 
 def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: bool,
@@ -247,7 +251,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer)
     views = _views(frames, choices)
-    result, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer, show_progress)
+    out.mkdir(parents=True, exist_ok=True)
+    result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
+                                                   show_progress, out)
     if result is not None:
         choices = _apply_switches(choices, result.switched)
         frames = _with_refined(frames, choices, result.views)
@@ -256,16 +262,11 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     else:
         # Poses and the profile still; z from the odometer.
         z, roll = dict(dataset.odometry_mm or {}), {}
-    defects: list[Defect] = []
+    # Defects were measured while the mosaic was written, on the 8-bit values that
+    # mosaic.ome.tif holds, so `pipestitch measure OUT` finds exactly the same ones.
+    defects: list[Defect] = written.defects if written is not None else []
     with timer("write"):
-        image = _write_mosaic(out, result, dataset, settings)
-    if result is not None and image is not None:
-        with timer("measure"):
-            # On the 8-bit image that mosaic.png holds, so `pipestitch measure OUT`
-            # finds exactly the same defects.
-            g = result.grid
-            defects = measure_mosaic(mosaic_from_uint8(image), g.deg_per_px, g.mm_per_px, g.z0_mm,
-                                     result.radius_mm)
+        _write_mosaic(out, result, written, dataset, settings)
     with timer("write"):
         if result is not None:
             write_defects_csv(out / "defects.csv", defects)
@@ -285,7 +286,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                          dict(timer.seconds), problems, result, no_mosaic,
                          not views or (dataset.has_led and result is None))
     with timer("report"):
-        data = _report_data(dataset, frames, choices, z, image, result, summary)
+        data = _report_data(dataset, frames, choices, z, written, result, summary)
         data.defects = coded.defects if coded is not None and result is not None else defects
         data.tolerance_pct = tolerance_pct
         data.standards = coded.report_view() if coded is not None else None
@@ -308,43 +309,34 @@ def _finite(values: np.ndarray) -> dict[int, float]:
     return {i: float(v) for i, v in enumerate(values) if np.isfinite(v)}
 
 
-PYRAMID = "mosaic.ome.tif"
-TILES = "tiles"
 VIEWER = "viewer.html"
 
 
-def _write_mosaic(out: Path, result: MosaicResult | None, dataset: Dataset,
-                  settings: MosaicSettings) -> np.ndarray | None:
-    """mosaic.png, mosaic.json, the pyramidal OME-TIFF, the viewer's tiles and page.
+def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic | None,
+                  dataset: Dataset, settings: MosaicSettings) -> None:
+    """mosaic.png (the overview), mosaic.json and viewer.html.
 
-    The full-resolution mosaic goes into ``mosaic.ome.tif`` and Deep Zoom ``tiles/``
-    (written from column blocks, :func:`pipestitch.io.tiles.write_pyramid`), shown by
-    ``viewer.html`` (pan and zoom, static files). Outputs of an earlier run into the
-    same folder that this run does not produce are removed, so `pipestitch measure`
-    never reads a stale mosaic. Returns the 8-bit image or None.
+    The full-resolution ``mosaic.ome.tif`` and the viewer's Deep Zoom ``tiles/`` were
+    written while the mosaic was stitched (pipeline/mosaic_output.py). Outputs of an
+    earlier run into the same folder that this run does not produce are removed, so
+    `pipestitch measure` never reads a stale mosaic.
     """
-    if result is None:
+    if result is None or written is None:
         for name in ("mosaic.png", "mosaic.json", PYRAMID, VIEWER, "defects.csv"):
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / TILES, ignore_errors=True)
-        return None
+        return
     (out / "mosaic.tif").unlink(missing_ok=True)   # the tiled TIFF of earlier versions
-    image, scale = mosaic_to_uint8(result.image)
-    write_mosaic_png(out / "mosaic.png", image)
-    block = 1024
-    g = result.grid
-    write_pyramid(out / PYRAMID, ((c, image[:, c:c + block]) for c in range(0, image.shape[1],
-                                                                            block)),
-                  image.shape, tiles_dir=out / TILES, mm_per_px=g.mm_per_px)
+    write_mosaic_png(out / "mosaic.png", written.overview)
+    g = written.grid
     write_viewer(out, out / TILES, title=f"pipestitch mosaic: {dataset.root.name}",
                  z0_mm=g.z0_mm, mm_per_px=g.mm_per_px, deg_per_px=g.deg_per_px)
-    write_json(out / "mosaic.json", _mosaic_json(result, scale, dataset, settings))
-    return image
+    write_json(out / "mosaic.json", _mosaic_json(result, written, dataset, settings))
 
 
 def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice],
-                 z: dict[int, float], image: np.ndarray | None, result: MosaicResult | None,
-                 summary: RunSummary) -> ReportData:
+                 z: dict[int, float], written: WrittenMosaic | None,
+                 result: MosaicResult | None, summary: RunSummary) -> ReportData:
     total = sum(summary.stage_seconds.values()) or 1.0
     figures = {
         "frame pairs": str(summary.n_frames),
@@ -358,7 +350,8 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
         **{f"time in {k}": f"{100 * v / total:.0f} %"
            for k, v in sorted(summary.stage_seconds.items())},
     }
-    grid = result.grid if result else None
+    grid = written.overview_grid if written else None
+    image = written.overview if written else None
     return ReportData(f"pipestitch report: {dataset.root.name}", image,
                       grid.z0_mm if grid else 0.0, grid.mm_per_px if grid else 1.0,
                       grid.deg_per_px if grid else 1.0,

@@ -325,10 +325,36 @@ def _lattice_to_grid(lat: np.ndarray, grid: WallGrid) -> np.ndarray:
     n_rows, n_cols = grid.shape
     if lat.shape == (n_rows, n_cols):
         return np.ascontiguousarray(lat, dtype=np.float32)
-    m = np.array([[lat.shape[1] / n_cols, 0.0, 0.0],
-                  [0.0, lat.shape[0] / n_rows, 0.0]])
-    return cv2.warpAffine(lat, m, (n_cols, n_rows), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-                          borderMode=cv2.BORDER_WRAP)
+    return _scale_wrapped(lat, n_rows, n_cols)
+
+
+WARP_CHUNK = 8192     # output columns per cv2.warpAffine call (it fails on very wide images)
+
+
+def _scale_wrapped(src: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
+    """Bicubic rescale of a periodic image (both axes wrap) to n_rows x n_cols.
+
+    Output node (i, j) samples the source at (i·rows/n_rows, j·cols/n_cols). Done in
+    chunks of output columns, each from a wrapped crop of the source with a margin, so
+    that OpenCV's remap-based warp never sees a source or output wider than it handles
+    (a 20 m wall at full resolution crashed it).
+    """
+    sy, sx = src.shape[0] / n_rows, src.shape[1] / n_cols
+    pad = 4
+    rows = np.arange(-pad, src.shape[0] + pad) % src.shape[0]
+    chunk = max(1, min(WARP_CHUNK, int(WARP_CHUNK / max(sx, 1.0))))
+    out = np.empty((n_rows, n_cols) + src.shape[2:], np.float32)
+    for c0 in range(0, n_cols, chunk):
+        c1 = min(n_cols, c0 + chunk)
+        s0 = int(np.floor(c0 * sx)) - pad
+        s1 = int(np.ceil((c1 - 1) * sx)) + pad + 1
+        piece = src[rows][:, np.arange(s0, s1) % src.shape[1]]
+        m = np.array([[sx, 0.0, c0 * sx - s0], [0.0, sy, float(pad)]])
+        out[:, c0:c1] = cv2.warpAffine(piece, m, (c1 - c0, n_rows),
+                                       flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                                       borderMode=cv2.BORDER_REPLICATE).reshape(
+            (n_rows, c1 - c0) + src.shape[2:])
+    return out
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -643,10 +669,7 @@ def corrosion_texture(grid: WallGrid, rng: np.random.Generator | int) -> np.ndar
     # lattice, brought to the fine one as a 2-channel (multiplier, offset) image.
     mult_add = np.dstack([1.0 - 0.5 * _sigmoid((stain_c - 0.4) / 0.3),
                           0.2 * _sigmoid((-stain_c - 1.8) / 0.12)]).astype(np.float32)
-    m = np.array([[cshape[1] / shape[1], 0, 0], [0, cshape[0] / shape[0], 0]])
-    mult_add = cv2.warpAffine(mult_add, m, (shape[1], shape[0]),
-                              flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_WRAP)
+    mult_add = _scale_wrapped(mult_add, shape[0], shape[1])
     alb = field                      # lognormal: positive, darker regions compressed
     alb *= np.float32(0.26)
     np.exp(alb, out=alb)

@@ -1,0 +1,128 @@
+"""The mosaic's outputs, written while it is stitched (memory bounded whatever the run).
+
+:class:`StreamedMosaic` is the sink :func:`pipestitch.pipeline.mosaic.build_mosaic`
+releases finished canvas columns to. Each block is converted to 8 bits and goes at
+once to
+
+* the pyramidal OME-TIFF ``mosaic.ome.tif`` and the viewer's Deep Zoom ``tiles/``
+  (:class:`pipestitch.io.tiles.PyramidWriter`): the full-resolution mosaic;
+* the overview that becomes ``mosaic.png`` (:class:`pipestitch.mosaic.Overview`): the
+  whole mosaic while it fits ``OVERVIEW_PIXELS``, else reduced by an integer factor,
+  its scale in ``mosaic.json`` (the full resolution's under ``full_resolution``);
+* the defect measurement (:class:`pipestitch.measure.blocks.BlockDefects`) on the
+  same 8-bit values that the OME-TIFF holds, so ``pipestitch measure`` finds exactly
+  the same defects.
+
+The 8-bit scale (the 99.5th percentile mapped to 250) is set from the first
+``SCALE_COLS`` columns (all of a shorter mosaic), which are held until then.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.io.outputs import mosaic_from_uint8, mosaic_to_uint8
+from pipestitch.io.tiles import PyramidWriter
+from pipestitch.measure.blocks import BlockDefects
+from pipestitch.measure.defects import Defect, MosaicGeometry
+from pipestitch.mosaic import Overview
+from pipestitch.pipeline.progress import StageTimer
+from pipestitch.unwrap import StripGrid
+
+__all__ = ["OVERVIEW_PIXELS", "PYRAMID", "SCALE_COLS", "TILES", "StreamedMosaic",
+           "WrittenMosaic"]
+
+PYRAMID = "mosaic.ome.tif"
+TILES = "tiles"
+SCALE_COLS = 4096
+OVERVIEW_PIXELS = 16_000_000
+
+
+@dataclass(frozen=True)
+class WrittenMosaic:
+    """What :meth:`StreamedMosaic.finish` returns."""
+
+    grid: StripGrid            # full resolution (mosaic.ome.tif)
+    overview: np.ndarray       # mosaic.png (8-bit, 0 = no data)
+    overview_grid: StripGrid
+    factor: int                # overview pixel = factor x factor mosaic pixels
+    intensity_scale: float
+    defects: list[Defect]
+    radius_mm: float
+
+
+class StreamedMosaic:
+    """Sink for :func:`build_mosaic`: pyramid, overview and defects from column blocks.
+
+    Use as a context manager: leaving it without :meth:`finish` (a failed run) removes
+    the pyramid's scratch files and writes nothing.
+    """
+
+    def __init__(self, out: Path, timer: StageTimer | None = None, *,
+                 overview_pixels: int | None = None) -> None:
+        self.out, self.timer = Path(out), timer or StageTimer()
+        self.overview_pixels = overview_pixels or OVERVIEW_PIXELS
+        self.scale: float | None = None
+        self._held: list[tuple[int, np.ndarray]] = []
+        self._pyramid: PyramidWriter | None = None
+
+    def start(self, grid: StripGrid, radius_mm: float) -> None:
+        """Open the outputs for a canvas ``grid`` (see MosaicSink)."""
+        self.grid, self.radius_mm = grid, radius_mm
+        self._pyramid = PyramidWriter(self.out / PYRAMID, (grid.n_rows, grid.n_cols),
+                                      tiles_dir=self.out / TILES, mm_per_px=grid.mm_per_px)
+        self._overview = Overview(grid, self.overview_pixels)
+        self._defects = BlockDefects(MosaicGeometry(grid.deg_per_px, grid.mm_per_px,
+                                                    grid.z0_mm, radius_mm))
+
+    def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:
+        """Finished columns (float, NaN where no data); see MosaicSink."""
+        if self.scale is not None:
+            self._emit(col0, image)
+            return
+        self._held.append((col0, image))
+        if sum(b.shape[1] for _, b in self._held) >= SCALE_COLS:
+            self._release_held()
+
+    def _release_held(self) -> None:
+        data = np.concatenate([b for _, b in self._held], axis=1) if self._held else None
+        self.scale = mosaic_to_uint8(data)[1] if data is not None else 1.0
+        held, self._held = self._held, []
+        for col0, block in held:
+            self._emit(col0, block)
+
+    def _emit(self, col0: int, image: np.ndarray) -> None:
+        with self.timer("write"):
+            block, _ = mosaic_to_uint8(image, self.scale)
+            assert self._pyramid is not None
+            self._pyramid.push(col0, block)
+            self._overview.push(block)
+        with self.timer("measure"):
+            self._defects.push(col0, mosaic_from_uint8(block))
+
+    def finish(self) -> WrittenMosaic:
+        """Write the last columns and close the pyramid; the overview and the defects."""
+        if self.scale is None:
+            self._release_held()
+        assert self._pyramid is not None and self.scale is not None
+        with self.timer("write"):
+            self._pyramid.close()
+            overview = self._overview.finish()
+        with self.timer("measure"):
+            defects = self._defects.finish()
+        return WrittenMosaic(self.grid, overview, self._overview.grid, self._overview.factor,
+                             self.scale, defects, self.radius_mm)
+
+    def abort(self) -> None:
+        """Drop everything written so far (idempotent)."""
+        if self._pyramid is not None:
+            self._pyramid.abort()
+
+    def __enter__(self) -> StreamedMosaic:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.abort()

@@ -5,9 +5,11 @@ the tiled pyramid writer, and batch on a local dask cluster vs sequential.
    takes hours on a 2-core machine) of the ``default`` scenario at 1224 x 1024
    (``--size half``), written as frames and as a lossless FFVHuff video: each
    ``pipestitch run`` is a fresh child process that reports its peak resident memory
-   (getrusage ru_maxrss) and pairs per second. Targets (issue 8): memory at the
-   longest run within 10 % of the shortest; throughput within 10 % of the single-run
-   figure.
+   (getrusage ru_maxrss) and pairs per second. ``nocache`` runs the frames with the
+   LED frame cache off (``run`` keeps a short run's decoded LED frames, which makes
+   the short run the larger one: without it the growth with the run's length shows).
+   Targets (issue 8): memory at the longest run within 10 % of the shortest;
+   throughput within 10 % of the single-run figure.
 2. Pyramid writer: a synthetic mosaic of ``--mosaic-mpx`` megapixels written as a
    pyramidal OME-TIFF by ``io.tiles.write_pyramid`` from column blocks vs the baseline
    of tifffile writing the whole image (all levels computed in memory); peak memory
@@ -52,13 +54,15 @@ def child(*args: str) -> dict:
 
 # --- child modes -------------------------------------------------------------------------
 
-def child_run(root: str, out: str, video: str | None, threads: int) -> dict:
+def child_run(root: str, out: str, video: str | None, threads: int,
+              led_cache_mb: float | None) -> dict:
     from pipestitch.pipeline.mosaic import MosaicSettings
     from pipestitch.pipeline.run import run_dataset
 
     start = time.perf_counter()
+    cache = {} if led_cache_mb is None else {"led_cache_mb": led_cache_mb}
     summary = run_dataset(root, out, settings=MosaicSettings(workers=threads),
-                          show_progress=False, video=Path(video) if video else None)
+                          show_progress=False, video=Path(video) if video else None, **cache)
     seconds = time.perf_counter() - start
     return {"pairs": summary.n_frames, "placed": summary.n_placed, "seconds": seconds,
             "rss_mb": peak_rss_mb()}
@@ -130,17 +134,21 @@ def to_video(root: Path, path: Path) -> Path:
 def bench_runs(work: Path, pairs: list[int], size: str, threads: int,
                inputs: list[str]) -> None:
     print(f"\n## runs of N pairs ({size} size frames, scenario default, {threads} threads)")
-    print(f"{'pairs':>6} {'input':>6} {'seconds':>8} {'pairs/s':>8} {'peak RSS MB':>12}")
+    print(f"{'pairs':>6} {'input':>7} {'seconds':>8} {'pairs/s':>8} {'peak RSS MB':>12}")
     rows = []
     for n in pairs:
         root = simulate(work / f"run{n}", n, size, seed=n)
         video = to_video(root, work / f"run{n}.avi") if "video" in inputs else None
+        # "nocache": frames with the LED frame cache off (a short run is otherwise cached
+        # whole, which makes it the larger one)
         for kind in inputs:
             args = ["--child-run", str(root), str(work / f"out{n}_{kind}"), str(threads)]
-            got = child(*args, *(["--video", str(video)] if kind == "video" else []))
+            args += ["--video", str(video)] if kind == "video" else []
+            args += ["--led-cache-mb", "0"] if kind == "nocache" else []
+            got = child(*args)
             rate = got["pairs"] / got["seconds"]
             rows.append((n, kind, rate, got["rss_mb"]))
-            print(f"{n:>6} {kind:>6} {got['seconds']:>8.1f} {rate:>8.2f} {got['rss_mb']:>12.0f}",
+            print(f"{n:>6} {kind:>7} {got['seconds']:>8.1f} {rate:>8.2f} {got['rss_mb']:>12.0f}",
                   flush=True)
     for kind in inputs:
         mine = [r for r in rows if r[1] == kind]
@@ -185,8 +193,8 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, nargs="+", default=[250, 1000])
     parser.add_argument("--size", default="half")
     parser.add_argument("--threads", type=int, default=2, help="threads of each run")
-    parser.add_argument("--inputs", nargs="+", default=["frames", "video"],
-                        choices=["frames", "video"])
+    parser.add_argument("--inputs", nargs="+", default=["frames", "nocache", "video"],
+                        choices=["frames", "nocache", "video"])
     parser.add_argument("--mosaic-mpx", type=float, default=60.0)
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--batch-pairs", type=int, default=6)
@@ -195,12 +203,14 @@ def main() -> None:
     parser.add_argument("--work", type=Path, help="keep the datasets and outputs here")
     parser.add_argument("--child-run", nargs=3)
     parser.add_argument("--video")
+    parser.add_argument("--led-cache-mb", type=float,
+                        help="LED frame cache budget of the runs (default: run's own)")
     parser.add_argument("--child-pyramid", nargs=4)
     parser.add_argument("--child-batch", nargs="+")
     args = parser.parse_args()
     if args.child_run:
         root, out, threads = args.child_run
-        print(json.dumps(child_run(root, out, args.video, int(threads))))
+        print(json.dumps(child_run(root, out, args.video, int(threads), args.led_cache_mb)))
         return
     if args.child_pyramid:
         path, rows, cols, mode = args.child_pyramid

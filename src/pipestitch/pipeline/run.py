@@ -26,7 +26,7 @@ from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
-from pipestitch.pipeline.frame_cache import CachedLedFrames
+from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measure import write_defects_csv
 from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
 from pipestitch.pipeline.mosaic_output import PYRAMID, TILES, StreamedMosaic, WrittenMosaic
@@ -205,15 +205,19 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
 
 def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings | None = None,
                 show_progress: bool = True, tolerance_pct: float = 1.0,
-                video: Path | None = None, crown_deg: float | None = None) -> RunSummary:
+                video: Path | None = None, crown_deg: float | None = None,
+                led_cache_mb: float = DEFAULT_BUDGET_BYTES / 2**20) -> RunSummary:
     """Process a dataset end to end and write every output into ``out``.
 
     ``tolerance_pct``: profile.csv flags diameters further than this from nominal.
     ``crown_deg``: mosaic theta of 12 o'clock for the clock positions (the standards
     stage; default: imu.csv, else a detected invert, else relative).
+    ``led_cache_mb``: the decoded LED frames are kept when the whole run fits this
+    (pipeline/frame_cache.py; 0: never).
     """
     settings = settings or MosaicSettings()
-    dataset = CachedLedFrames(open_dataset(root, video=video))
+    dataset = CachedLedFrames(open_dataset(root, video=video),
+                              budget_bytes=int(led_cache_mb * 2**20))
     try:
         read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
         return _run(dataset, Path(out), settings, show_progress, tolerance_pct, crown_deg)

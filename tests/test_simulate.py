@@ -169,3 +169,13 @@ def test_texture_wider_than_opencv_remaps_is_sampled_exactly() -> None:
     np.testing.assert_allclose(_remap_points(texture, x, y), expected, atol=2e-3)
     got = _remap_wrap(texture, x.reshape(30, 100), y.reshape(30, 100))
     np.testing.assert_allclose(got.ravel(), expected, atol=2e-3)
+
+
+def test_rendering_in_worker_processes_gives_the_same_frames(tmp_path, simulate_small) -> None:
+    """Each pair has its own noise generator: forked workers write the same files."""
+    one = simulate_small(tmp_path / "one", "--pairs", "3", "--seed", "5")
+    two = simulate_small(tmp_path / "two", "--pairs", "3", "--seed", "5", "--workers", "2")
+    names = sorted(p.name for p in (one / "frames").iterdir())
+    assert names == sorted(p.name for p in (two / "frames").iterdir()) and len(names) == 6
+    for name in names:
+        assert (one / "frames" / name).read_bytes() == (two / "frames" / name).read_bytes()

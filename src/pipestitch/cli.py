@@ -100,6 +100,7 @@ def simulate(
                     ] = "full",
     pairs: Annotated[int | None, typer.Option(help="Override the number of frame pairs.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    workers: Annotated[int, typer.Option(help="Processes rendering frames (same output).")] = 1,
 ) -> None:
     """Simulate a probe run and write it as a dataset (SPEC layout, with truth/).
 
@@ -115,8 +116,11 @@ def simulate(
     if pairs is not None and pairs < 1:
         console.print(f"[bold red]error:[/] --pairs: expected at least 1, got {pairs}")
         raise typer.Exit(2)
+    if workers < 1:
+        console.print(f"[bold red]error:[/] --workers: expected at least 1, got {workers}")
+        raise typer.Exit(2)
     run = simulate_dataset(SCENARIOS[scenario], out, seed=seed, size=size, n_pairs=pairs,
-                           show_progress=not quiet)
+                           show_progress=not quiet, workers=workers)
     typer.echo(f"wrote {len(run.poses)} pairs of scenario {scenario!r} to {out}")
 
 

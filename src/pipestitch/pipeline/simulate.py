@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import multiprocessing
 from pathlib import Path
 
 import numpy as np
@@ -55,9 +56,51 @@ def write_truth(run: SyntheticRun, out: Path) -> None:
     atomic_write_text(truth / "simulation.json", json.dumps(sim, indent=2))
 
 
+_RUN: tuple[SyntheticRun, Path] | None = None    # a rendering worker's run (inherited by fork)
+
+
+def _write_pair(i: int) -> int:
+    """Render pair ``i`` of the worker's run and write its frames."""
+    assert _RUN is not None
+    run, frames_dir = _RUN
+    if run.scenario.laser_only:
+        write_image(frames_dir / f"laser_{i:05d}.png", run.render_laser(i))
+    else:
+        laser, led = run.render(i)
+        write_image(frames_dir / f"laser_{i:05d}.png", laser)
+        write_image(frames_dir / f"led_{i:05d}.png", led)
+    return i
+
+
+def _render_all(run: SyntheticRun, frames_dir: Path, workers: int, show_progress: bool) -> None:
+    """Every pair, in ``workers`` forked processes that share the run's wall texture.
+
+    Pair i's noise comes from its own generator (seed, i): the frames do not depend
+    on the order or the number of workers.
+    """
+    global _RUN
+    _RUN = (run, frames_dir)
+    n = len(run.poses)
+    label = f"simulating {run.scenario.name}"
+    try:
+        if workers <= 1 or n < 2 or "fork" not in multiprocessing.get_all_start_methods():
+            for _ in track(map(_write_pair, range(n)), label, total=n, enabled=show_progress):
+                pass
+            return
+        with multiprocessing.get_context("fork").Pool(min(workers, n)) as pool:
+            done = pool.imap_unordered(_write_pair, range(n), chunksize=4)
+            for _ in track(done, label, total=n, enabled=show_progress):
+                pass
+    finally:
+        _RUN = None
+
+
 def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size: str = "full",
-                     n_pairs: int | None = None, show_progress: bool = True) -> SyntheticRun:
+                     n_pairs: int | None = None, show_progress: bool = True,
+                     workers: int = 1) -> SyntheticRun:
     """Simulate ``scenario`` and write it as a dataset folder ``out``.
+
+    ``workers`` > 1 renders the pairs in that many forked processes (same frames).
 
     Returns
     -------
@@ -74,14 +117,7 @@ def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size
                            pipe_diameter_mm=scenario.pipe_diameter_mm,
                            length_mm=run.body.length_mm, diameter_mm=run.body.diameter_mm)
     write_probe_toml(out / "probe.toml", cfg)
-    for i in track(range(len(run.poses)), f"simulating {scenario.name}", total=len(run.poses),
-                   enabled=show_progress):
-        if scenario.laser_only:
-            write_image(frames_dir / f"laser_{i:05d}.png", run.render_laser(i))
-        else:
-            laser, led = run.render(i)
-            write_image(frames_dir / f"laser_{i:05d}.png", laser)
-            write_image(frames_dir / f"led_{i:05d}.png", led)
+    _render_all(run, frames_dir, workers, show_progress)
     if run.odometry_mm is not None:
         atomic_write_text(out / "odometry.csv", _csv(
             ["frame", "z_mm"], [[i, float(z)] for i, z in enumerate(run.odometry_mm)]))

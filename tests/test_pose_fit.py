@@ -7,9 +7,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pipestitch import _pose_kernels as _k
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose_fit import ConicModel, LaserPlane, fit_pose, model_conic, pose_from_conic
+from pipestitch.pose_fit import (
+    ConicModel,
+    LaserPlane,
+    fit_pose,
+    model_conic,
+    plane_points,
+    pose_from_conic,
+    ring_rms_px,
+)
 from pipestitch.ring import RingDetection, detect_ring
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 
@@ -171,8 +180,6 @@ def test_first_order_px_rms_matches_projecting_the_model() -> None:
     """rms_px to first order (residual moved along its ray in the plane, turned into
     pixels with the local pixel -> plane Jacobian) against projecting the model ring
     at each point's plane angle, the exact definition."""
-    from pipestitch.pose_fit import LaserPlane, plane_points, ring_rms_px
-
     pose = Pose.from_degrees(4.0, -3.0, 5.0, -2.0)
     cam, laser, led = _render(pose)
     fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
@@ -190,3 +197,210 @@ def test_first_order_px_rms_matches_projecting_the_model() -> None:
     exact = float(np.sqrt(np.mean(np.sum((model - pixels) ** 2, axis=1))))
     assert 0.02 < exact < 0.5
     assert approx == pytest.approx(exact, rel=0.005)   # measured: 0.02 % apart
+
+
+# --- the compiled kernels against plain references --------------------------------------
+
+def _synthetic_detection(pose: Pose, diameter: float = 65.0, noise_px: float = 0.1,
+                         plane_normal: np.ndarray | None = None, outliers: float = 0.0,
+                         seed: int = 0) -> tuple[RingDetection, object]:
+    """Ring pixels straight from the geometry (no rendering): one candidate per ray plus,
+    on a share ``outliers`` of the rays, a stronger false one a few pixels off."""
+    rng = np.random.default_rng(seed)
+    cam = default_camera("full")
+    ring = laser_ring(pose, PipeSection.circle(diameter), D, n_points=1440,
+                      plane_normal=plane_normal)
+    pixels = cam.project(ring) + rng.normal(0.0, noise_px, (1440, 2))
+    azimuth, rank = np.arange(1440), np.zeros(1440, int)
+    bad = np.flatnonzero(rng.random(1440) < outliers)
+    false = pixels[bad] + rng.choice([-1.0, 1.0], (len(bad), 2)) * rng.uniform(3, 12, (len(bad), 2))
+    rank[bad] = 1
+    det = RingDetection(np.vstack([pixels, false]), np.r_[azimuth, bad], np.r_[rank, 0 * bad],
+                        np.ones(1440 + len(bad)), 1440, 0.01)
+    return det, cam
+
+
+def _svd_conic(pts: np.ndarray) -> np.ndarray:
+    """Reference algebraic conic: smallest right singular vector of the scaled design."""
+    s = np.sqrt(np.mean(np.sum(pts**2, axis=1)))
+    x, y = pts[:, 0] / s, pts[:, 1] / s
+    coef = np.linalg.svd(np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)]))[2][-1]
+    return coef * np.sign(coef[0])
+
+
+def test_conic_fit_matches_the_svd_reference() -> None:
+    rng = np.random.default_rng(1)
+    t = rng.uniform(0, 2 * np.pi, 400)
+    pts = np.column_stack([3 + 31 * np.cos(t), -2 + 29 * np.sin(t)]) @ [[0.8, 0.6], [-0.6, 0.8]]
+    pts += rng.normal(0, 0.05, pts.shape)
+    model = ConicModel.from_estimate(pts)
+    np.testing.assert_allclose(model.coef * np.sign(model.coef[0]), _svd_conic(pts), atol=1e-9)
+    # the conic through five points is the same whether solved exactly or by the scatter
+    five = pts[:5]
+    through = _k.conic_through(five)
+    assert through[2]
+    np.testing.assert_allclose(through[0] * np.sign(through[0][0]), _svd_conic(five), atol=1e-8)
+    assert np.abs(ConicModel.from_estimate(five).residuals(five)).max() < 1e-9
+
+
+def test_ransac_kernel_finds_the_same_inliers_as_skimage() -> None:
+    from skimage.measure import ransac
+
+    rng = np.random.default_rng(2)
+    t = rng.uniform(0, 2 * np.pi, 600)
+    ring = np.column_stack([2 + 30 * np.cos(t), -1 + 28 * np.sin(t)]) + rng.normal(0, 0.02,
+                                                                                 (600, 2))
+    clutter = rng.uniform(-40, 40, (400, 2))
+    clutter = clutter[ConicModel.from_estimate(ring).residuals(clutter) > 1.5][:300]
+    pts = np.vstack([ring, clutter])
+    truth = np.arange(len(pts)) < 600
+    _, _, inliers, ok = _k.ransac_conic(pts, np.random.default_rng(0).random((200, 5)), 0.3)
+    reference = ransac(pts, ConicModel, min_samples=5, residual_threshold=0.3, max_trials=200,
+                       rng=np.random.default_rng(0))[1]
+    assert ok
+    np.testing.assert_array_equal(inliers, truth)
+    np.testing.assert_array_equal(reference, truth)
+
+
+def _radial_residuals(x: np.ndarray, uv: np.ndarray, plane: LaserPlane) -> np.ndarray:
+    """Reference residuals: world distance from the axis minus the radius (numpy)."""
+    pose = Pose(*x[:4])
+    world = pose.rotation_world_probe()[:2] @ plane.to_probe(uv).T
+    return np.hypot(world[0] + x[2], world[1] + x[3]) - x[4]
+
+
+@pytest.mark.parametrize("normal", [None, TILTED])
+def test_wall_pass_matches_finite_differences(normal) -> None:
+    plane = LaserPlane.of(D, normal)
+    det, cam = _synthetic_detection(Pose.from_degrees(5.0, -4.0, 3.0, 2.0), plane_normal=normal)
+    uv = plane_points(det.pixels, cam, D, normal)[0]
+    x = np.array([np.deg2rad(5.1), np.deg2rad(-3.9), 3.05, 1.98, 32.4])
+    resid, cost, _, jtwj, jtwr, jtj = _k.wall_pass(x, uv[:, 0].copy(), uv[:, 1].copy(), D,
+                                                   plane.normal, plane.basis, 0.05)
+    np.testing.assert_allclose(resid, _radial_residuals(x, uv, plane), atol=1e-12)
+    jac = np.column_stack([(_radial_residuals(x + h, uv, plane)
+                            - _radial_residuals(x - h, uv, plane)) / 2e-7
+                           for h in np.eye(5) * 1e-7])
+    weight = 1 / np.sqrt(1 + (resid / 0.05) ** 2)
+    assert cost == pytest.approx(0.05**2 * np.sum(np.sqrt(1 + (resid / 0.05) ** 2) - 1),
+                                 rel=1e-12)
+    np.testing.assert_allclose(jtj, jac.T @ jac, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(jtwj, (jac * weight[:, None]).T @ jac, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(jtwr, (jac * weight[:, None]).T @ resid, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize(("fit_radius", "normal"), [(True, None), (False, None), (True, TILTED)])
+def test_fit_matches_scipy_least_squares(fit_radius: bool, normal) -> None:
+    """The compiled IRLS Gauss-Newton against scipy's soft-L1 least squares, with the
+    covariance against numpy's from the same Jacobian."""
+    from scipy.optimize import least_squares
+
+    pose = Pose.from_degrees(-6.0, 4.0, -5.0, 3.0)
+    det, cam = _synthetic_detection(pose, noise_px=0.15, plane_normal=normal, outliers=0.05)
+    fit = fit_pose(det, cam, D, nominal_radius_mm=32.4, fit_radius=fit_radius,
+                   plane_normal=normal)
+    assert fit.ok and fit.n_points >= 1400
+    plane = LaserPlane.of(D, normal)
+    uv = plane_points(det.pixels[:1440], cam, D, normal)[0]   # the true candidates
+    h = fit.hypotheses[0]
+    x = np.array([h.pose.alpha, h.pose.beta, h.pose.dx_mm, h.pose.dy_mm, h.radius_mm])
+    n = 5 if fit_radius else 4
+
+    def fun(p: np.ndarray) -> np.ndarray:
+        return _radial_residuals(np.r_[p, x[4:]][:5], uv, plane)
+
+    ref = least_squares(fun, x[:n] + [1e-3, -1e-3, 0.01, -0.01, 0.01][:n], loss="soft_l1",
+                        f_scale=0.05, x_scale=[1e-3, 1e-3, 1e-2, 1e-2, 1e-2][:n], xtol=1e-12,
+                        ftol=1e-12, gtol=1e-12)
+    resid = fun(ref.x)   # ref.jac is scaled by the loss: the plain Jacobian by differences
+    jac = np.column_stack([(fun(ref.x + h) - fun(ref.x - h)) / 2e-7 for h in np.eye(n) * 1e-7])
+    cov = np.linalg.inv(jac.T @ jac / (resid @ resid / (len(resid) - n)))
+    sigma = np.sqrt(np.diag(cov))
+    # the optimum: within 5 % of a sigma (the iteration stops at steps below 2 %)
+    assert np.all(np.abs(x[:n] - ref.x) < 0.05 * sigma)
+    # ... which leaves the cost above scipy's optimum by (2 % sigma)² per parameter in
+    # units of the residual variance: ~1e-6 of it
+    assert ref.cost - 1e-9 < h.cost < ref.cost * (1 + 1e-5)
+    std = np.array([h.std[k] for k in ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")[:n]])
+    np.testing.assert_allclose(std, sigma, rtol=1e-3)
+    assert h.rms_mm == pytest.approx(np.sqrt(np.mean(fun(x[:n]) ** 2)), rel=1e-9)
+    # the mirror: the other pose of the same conic, its own uncertainty
+    m = fit.hypotheses[1]
+    assert np.abs(as_vec(m.pose) - as_vec(h.pose)).max() > 0.5
+    for a, b in zip(model_conic(m.pose, m.radius_mm, plane), model_conic(h.pose, h.radius_mm,
+                                                                          plane), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+    assert m.cost == h.cost and m.rms_px == h.rms_px and m.std and m.information.shape == (4, 4)
+
+
+@pytest.mark.parametrize("diameter", [50.0, 65.0, 80.0])
+def test_synthetic_round_trip_both_hypotheses(diameter: float) -> None:
+    rng = np.random.default_rng(int(diameter))
+    for _ in range(6):
+        r = diameter / 2
+        lim = np.rad2deg(np.arcsin(2 * r / 145)) * 0.9
+        pose = Pose.from_degrees(*rng.uniform(-lim, lim, 2), *rng.uniform(-0.5 * r, 0.5 * r, 2))
+        det, cam = _synthetic_detection(pose, diameter, noise_px=0.0)
+        fit = fit_pose(det, cam, D)
+        assert fit.ok and len(fit.hypotheses) == 2
+        errs = sorted(np.abs(as_vec(h.pose) - as_vec(pose)).max() for h in fit.hypotheses)
+        assert errs[0] < 1e-6            # noise-free: exact
+        mirror = max(fit.hypotheses, key=lambda h: np.abs(as_vec(h.pose) - as_vec(pose)).max())
+        assert mirror.pose.alpha == pytest.approx(-pose.alpha, abs=1e-6)
+        assert mirror.pose.beta == pytest.approx(-pose.beta, abs=1e-6)
+        assert fit.hypotheses[0].radius_mm == pytest.approx(r, abs=1e-6)
+
+
+def test_outliers_deterministic_and_rms_px_shared_with_ring_rms_px() -> None:
+    pose = Pose.from_degrees(3.0, 7.0, 4.0, -6.0)
+    det, cam = _synthetic_detection(pose, outliers=0.3, seed=5)
+    fits = [fit_pose(det, cam, D, seed=s) for s in (0, 0, 1)]
+    a, b, c = (f.hypotheses[0] for f in fits)
+    assert a == b and np.array_equal(a.information, b.information)   # reproducible
+    assert fits[0].n_points == 1440   # every true point back, every false one out
+    assert np.abs(as_vec(a.pose) - as_vec(c.pose)).max() < 1e-9   # any seed finds the ring
+    # the fit's px RMS (steps unprojected with the candidates) is ring_rms_px of its points
+    clean, _ = _synthetic_detection(pose, seed=5)
+    fit = fit_pose(clean, cam, D)
+    h = fit.hypotheses[0]
+    uv = plane_points(clean.pixels, cam, D)[0]
+    plane = LaserPlane.of(D)
+    resid = _radial_residuals(np.array([h.pose.alpha, h.pose.beta, h.pose.dx_mm, h.pose.dy_mm,
+                                        h.radius_mm]), uv, plane)
+    assert h.rms_px == pytest.approx(ring_rms_px(h.pose, h.radius_mm, clean.pixels, uv, resid,
+                                                 cam, plane), rel=1e-9)
+
+
+def test_small_linear_algebra_matches_numpy() -> None:
+    rng = np.random.default_rng(3)
+    for n in (2, 4, 5, 6):
+        for cond in (10.0, 1e8, 1e14):
+            q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+            lam = np.geomspace(1.0 / cond, 1.0, n) * rng.uniform(0.5, 2.0)
+            a = (q * lam) @ q.T
+            a = (a + a.T) / 2
+            w, v = _k.sym_eig(a)
+            w_ref, v_ref = np.linalg.eigh(a)
+            np.testing.assert_allclose(w, w_ref, atol=1e-14 * lam.max())
+            # each eigenvector up to sign, to the accuracy the gap allows
+            for j in range(n):
+                gap = np.min(np.abs(np.delete(w_ref, j) - w_ref[j]))
+                assert min(np.abs(v[:, j] - v_ref[:, j]).max(),
+                           np.abs(v[:, j] + v_ref[:, j]).max()) < 1e-13 * lam.max() / gap
+            b = rng.normal(size=n)
+            np.testing.assert_allclose(a @ _k.solve_vector(a, b), b, atol=1e-15 * cond * 10)
+            assert _k.lu(a)[2] == pytest.approx(np.linalg.det(a), rel=1e-8)
+    with pytest.raises(np.linalg.LinAlgError):
+        _k.solve_vector(np.zeros((3, 3)), np.ones(3))
+
+
+def test_plane_points_lie_on_the_tilted_plane() -> None:
+    cam = default_camera("full")
+    pixels = np.random.default_rng(4).uniform([200, 200], [2200, 1800], (500, 2))
+    plane = LaserPlane.of(D, TILTED)
+    uv, valid = plane_points(pixels, cam, D, TILTED)
+    p = plane.to_probe(uv)
+    np.testing.assert_allclose(p @ plane.normal, D, atol=1e-12)
+    rays = cam.unproject(pixels[valid])        # and on each pixel's ray
+    np.testing.assert_allclose(np.cross(p / np.linalg.norm(p, axis=1, keepdims=True), rays), 0,
+                               atol=1e-12)

@@ -10,14 +10,17 @@ ellipse fitted to the plane points therefore gives |w| (from its axis ratio), th
 direction of w up to sign (its minor axis), the radius and the offset: a closed
 form for both hypotheses, w and -w, which are exactly the mirror ambiguity
 (alpha, beta) <-> (-alpha, -beta) with another offset. Both are then refined by
-robust least squares (``scipy.optimize.least_squares``, soft-L1 loss, analytic
-Jacobian) of the radial distance of every plane point from the wall, in mm.
+robust least squares (soft-L1 loss as ``scipy.optimize.least_squares`` defines it,
+analytic Jacobian) of the radial distance of every plane point from the wall, in mm.
 
 Outliers (glints, reflections, second candidates on a ray) are removed by RANSAC
-on the ellipse (``skimage.measure.ransac``) when the strongest candidates do not
-already agree, then by re-selecting one candidate per ray by its distance from the
-conic until the set is stable. This module fits one frame; choosing between the
-hypotheses over a run is :mod:`pipestitch.ambiguity`.
+on the ellipse (seeded, as ``skimage.measure.ransac`` does it) when the strongest
+candidates do not already agree, then by re-selecting one candidate per ray by its
+distance from the conic until the set is stable. This module fits one frame;
+choosing between the hypotheses over a run is :mod:`pipestitch.ambiguity`.
+
+The loops over the points are compiled (:mod:`pipestitch._pose_kernels`): a frame
+takes a fraction of a millisecond, most of it in the camera's unprojection.
 """
 
 from __future__ import annotations
@@ -26,10 +29,10 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
-from skimage.measure import ransac
 
+from pipestitch import _pose_kernels as _k
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection, Pose, plane_basis, rot_x, rot_y
+from pipestitch.geometry import PipeSection, Pose, plane_basis
 from pipestitch.ring import RingDetection
 
 __all__ = [
@@ -47,6 +50,7 @@ __all__ = [
 ]
 
 PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
+RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 
 
 @dataclass(frozen=True)
@@ -163,29 +167,20 @@ def plane_points(pixels: np.ndarray, camera: CameraModel, plane_distance_mm: flo
     valid : numpy.ndarray of bool, shape (N,)
         Which pixels gave a point (ray in front of the plane, inside the lens).
     """
-    plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    rays = camera.unproject(pixels)
-    if plane.normal[2] == 1.0:  # SPEC's plane z = d: the basis is probe x, y
-        with np.errstate(invalid="ignore", divide="ignore"):
-            scale = plane_distance_mm / rays[:, 2]
-        valid = np.isfinite(scale) & (rays[:, 2] > 1e-6)
-        return rays[valid, :2] * scale[valid, None], valid
-    along = rays @ plane.normal
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = plane.distance_mm / along
-    valid = np.isfinite(scale) & (along > 1e-6)
-    return (rays[valid] * scale[valid, None]) @ plane.basis.T, valid
+    uv, valid = _plane_coords(pixels, camera, LaserPlane.of(plane_distance_mm, plane_normal))
+    return uv[valid], valid
 
 
 class ConicModel:
-    """General conic a x² + b xy + c y² + d x + e y + f = 0 for ``skimage.measure.ransac``.
+    """General conic a x² + b xy + c y² + d x + e y + f = 0 (``skimage.measure.ransac`` API).
 
     Written here rather than using ``skimage.measure.EllipseModel`` because that
     model's residuals are iterative per-point geometric distances: over hundreds of
     RANSAC trials and thousands of candidates that costs seconds per frame. This is
-    the algebraic fit (SVD, on coordinates normalised to unit scale) with the
-    first-order (Sampson) distance as residual, which is accurate to well under the
-    inlier threshold near the curve.
+    the algebraic fit (smallest eigenvector of the scatter, on coordinates normalised
+    to unit scale) with the first-order (Sampson) distance as residual, which is
+    accurate to well under the inlier threshold near the curve. :func:`fit_pose`
+    runs the same fit and RANSAC compiled (:mod:`pipestitch._pose_kernels`).
     """
 
     def __init__(self) -> None:
@@ -200,34 +195,25 @@ class ConicModel:
 
     def estimate(self, data: np.ndarray) -> bool:
         """Fit the conic to (N >= 5, 2) points; False if it is not an ellipse."""
-        scale = float(np.sqrt(np.mean(np.sum(data**2, axis=1)))) or 1.0
-        x, y = data[:, 0] / scale, data[:, 1] / scale
-        design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
-        # Smallest eigenvector of the 6 x 6 scatter: the SVD of the N x 6 design gives
-        # the same vector on coordinates of unit scale, at several times the cost.
-        coef = np.linalg.eigh(design.T @ design)[1][:, 0]
-        if not 4 * coef[0] * coef[2] - coef[1] ** 2 > 0:
-            return False  # not an ellipse: the model keeps its previous conic
-        self.coef, self.scale = coef, scale
-        return True
+        data = _as_points(data)
+        coef, scale, ok = _k.conic_fit(data, np.ones(len(data), bool))
+        if ok:  # not an ellipse: the model keeps its previous conic
+            self.coef, self.scale = coef, scale
+        return ok
 
     def residuals(self, data: np.ndarray) -> np.ndarray:
         """Sampson distance of each point from the conic (data units)."""
-        a, b, c, d, e, f = self.coef
-        x, y = data[:, 0] / self.scale, data[:, 1] / self.scale
-        val = a * x * x + b * x * y + c * y * y + d * x + e * y + f
-        gx, gy = 2 * a * x + b * y + d, b * x + 2 * c * y + e
-        return np.abs(val) / np.maximum(np.hypot(gx, gy), 1e-12) * self.scale
+        return _k.sampson(_as_points(data), self.coef, self.scale)
 
     def normalised(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(Q, lin, c0) in data units with u^T Q u + 2 lin^T u + c0 = 0, max eig(Q) = 1."""
-        a, b, c, d, e, f = self.coef
-        s = self.scale
-        q = np.array([[a, b / 2], [b / 2, c]]) / s**2
-        lin = np.array([d, e]) / (2 * s)
-        lam = np.linalg.eigvalsh(q)
-        norm = lam[-1] if lam[0] > 0 else lam[0]  # an ellipse has both eigenvalues of one sign
-        return q / norm, lin / norm, float(f / norm)
+        q, lin, c0 = _k.conic_normalised(self.coef, self.scale)
+        return q, lin, float(c0)
+
+
+def _as_points(data: np.ndarray) -> np.ndarray:
+    """(N, k) float64, C-contiguous: one compiled signature for every caller."""
+    return np.ascontiguousarray(data, dtype=np.float64)
 
 
 def pose_from_conic(q: np.ndarray, lin: np.ndarray, c0: float, plane_distance_mm: float,
@@ -256,23 +242,9 @@ def pose_from_conic(q: np.ndarray, lin: np.ndarray, c0: float, plane_distance_mm
     a = P w + sqrt(1 - |w|²) n (the axis points forward, like the normal).
     """
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    basis = plane.basis
-    evals, evecs = np.linalg.eigh(q)
-    w_norm = np.sqrt(max(0.0, 1 - evals[0]))
-    r2 = float(lin @ np.linalg.solve(q, lin) - c0)
-    if r2 <= 0:
-        return []
-    out = []
-    for sign in (1.0, -1.0):
-        w = sign * w_norm * evecs[:, 0]
-        axis = w @ basis + np.sqrt(max(0.0, 1 - w @ w)) * plane.normal
-        alpha = np.arcsin(np.clip(axis[1], -1, 1))
-        beta = np.arcsin(np.clip(-axis[0] / np.cos(alpha), -1, 1))
-        rot = rot_x(alpha) @ rot_y(beta)
-        centre = np.linalg.solve((rot[:2] @ basis.T).T, lin)
-        t = centre - rot[:2] @ (plane.distance_mm * plane.normal)
-        out.append((Pose(float(alpha), float(beta), float(t[0]), float(t[1])), float(np.sqrt(r2))))
-    return out
+    sols = _k.conic_poses(_as_points(q), _as_points(lin), float(c0), plane.distance_mm,
+                          plane.normal, plane.basis)
+    return [(Pose(*(float(v) for v in s[:4])), float(s[4])) for s in sols]
 
 
 def model_conic(pose: Pose, radius_mm: float, plane: LaserPlane) -> tuple[np.ndarray, np.ndarray,
@@ -281,120 +253,20 @@ def model_conic(pose: Pose, radius_mm: float, plane: LaserPlane) -> tuple[np.nda
 
     Inverse of :func:`pose_from_conic`: both mirror poses give the same conic.
     """
-    a_mat, c = plane_to_world(pose, plane)
-    return a_mat.T @ a_mat, a_mat.T @ c, float(c @ c - radius_mm**2)
+    q, lin, c0 = _k.model_conic(_pose_vector(pose, radius_mm), plane.distance_mm, plane.normal,
+                                plane.basis)
+    return q, lin, float(c0)
 
 
 def plane_to_world(pose: Pose, plane: LaserPlane) -> tuple[np.ndarray, np.ndarray]:
     """(A, c): a plane point u (in-plane coordinates) lies at world (x, y) = A u + c."""
-    rot = rot_x(pose.alpha) @ rot_y(pose.beta)
-    return (rot[:2] @ plane.basis.T,
-            rot[:2] @ (plane.distance_mm * plane.normal) + np.array([pose.dx_mm, pose.dy_mm]))
+    return _k.plane_to_world(_pose_vector(pose, 0.0), plane.distance_mm, plane.normal,
+                             plane.basis)
 
 
-def _rotation_rows(x: np.ndarray) -> np.ndarray:
-    """(6, 3): rows 0-1 of R = Rx(alpha)·Ry(beta), then of dR/dalpha, then of dR/dbeta."""
-    a, b = x[0], x[1]
-    rx, ry = rot_x(a), rot_y(b)
-    drx = np.array([[0, 0, 0], [0, -np.sin(a), -np.cos(a)], [0, np.cos(a), -np.sin(a)]])
-    dry = np.array([[-np.sin(b), 0, np.cos(b)], [0, 0, 0], [-np.cos(b), 0, -np.sin(b)]])
-    return np.vstack([(rx @ ry)[:2], (drx @ ry)[:2], (rx @ dry)[:2]])
-
-
-def _residuals_jacobian(x: np.ndarray, p3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_residuals` and its analytic Jacobian in (alpha, beta, dx, dy, r)."""
-    prod = p3 @ _rotation_rows(x).T
-    q = prod[:, :2] + x[2:4]
-    rho = np.hypot(q[:, 0], q[:, 1])
-    n = q / rho[:, None]
-    jac = np.empty((len(p3), 5))
-    jac[:, 0] = n[:, 0] * prod[:, 2] + n[:, 1] * prod[:, 3]
-    jac[:, 1] = n[:, 0] * prod[:, 4] + n[:, 1] * prod[:, 5]
-    jac[:, 2:4] = n
-    jac[:, 4] = -1.0
-    return rho - x[4], jac
-
-
-def _soft_l1(resid: np.ndarray, f_scale: float) -> tuple[float, np.ndarray]:
-    """Soft-L1 cost 0.5 f² Σ 2(√(1 + (r/f)²) − 1) (scipy's definition) and IRLS weights."""
-    root = np.sqrt(1 + (resid / f_scale) ** 2)
-    return float(f_scale**2 * np.sum(root - 1)), 1 / root
-
-
-def _refine(pose: Pose, radius: float, p3: np.ndarray, fit_radius: bool,
-            f_scale: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Robust (soft-L1) least squares of the radial residuals from a close start.
-
-    Hand-written damped Gauss-Newton on iteratively reweighted normal equations
-    rather than ``scipy.optimize.least_squares``: the problem has 4-5 parameters and
-    an analytic Jacobian, and scipy's per-call set-up alone cost ~3 ms per
-    hypothesis (measured), 20× the arithmetic here. The loss and cost are scipy's
-    soft-L1. The closed-form start is within a few thousandths of a degree, so two
-    or three iterations reach a step far below the noise.
-    """
-    x = np.array([pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm, radius])
-    return _gauss_newton(x, p3, 5 if fit_radius else 4, f_scale)
-
-
-def _gauss_newton(x: np.ndarray, p3: np.ndarray, n_free: int, f_scale: float,
-                  max_iter: int = 30) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Damped IRLS Gauss-Newton; stops once a step is below 2 % of every parameter's sigma."""
-    resid, jac = _residuals_jacobian(x, p3)
-    cost, weight = _soft_l1(resid, f_scale)
-    damping = 1e-9
-    dof = max(1, len(p3) - n_free)
-    for _ in range(max_iter):
-        jw = jac[:, :n_free] * weight[:, None]
-        normal = jw.T @ jac[:, :n_free]
-        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), -(jw.T @ resid))
-        # sigma of each parameter (weighted normal equations, residual variance)
-        sigma2 = np.diag(np.linalg.inv(normal)) * max(float(weight @ resid**2) / dof, 1e-12)
-        trial = x.copy()
-        trial[:n_free] += step
-        trial_resid, trial_jac = _residuals_jacobian(trial, p3)
-        trial_cost, trial_weight = _soft_l1(trial_resid, f_scale)
-        if trial_cost <= cost:
-            x, resid, jac, weight, cost = trial, trial_resid, trial_jac, trial_weight, trial_cost
-            damping /= 10
-            if np.all(step**2 <= 4e-4 * sigma2):
-                break
-        else:
-            damping = max(damping * 10, 1e-6)
-            if damping > 1e6:
-                break
-    return x, cost, resid, jac
-
-
-def _uncertainty(jac: np.ndarray, residuals: np.ndarray,
-                 fit_radius: bool) -> tuple[dict[str, float], np.ndarray | None]:
-    """1-sigma of each parameter and the pose's 4 x 4 information matrix.
-
-    From the plain (unweighted) Jacobian and residuals; with the radius fitted it is
-    marginalised out of the information (Schur complement).
-    """
-    dof = max(1, len(residuals) - jac.shape[1])
-    sigma2 = max(float(residuals @ residuals) / dof, 1e-12)
-    info = jac.T @ jac / sigma2
-    if fit_radius:
-        pose_info = info[:4, :4] - np.outer(info[:4, 4], info[4, :4]) / max(info[4, 4], 1e-300)
-    else:
-        pose_info = info
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return {}, pose_info
-    names = PARAMS if fit_radius else PARAMS[:4]
-    return {n: float(np.sqrt(max(cov[i, i], 0))) for i, n in enumerate(names)}, pose_info
-
-
-def _ransac_conic(pts: np.ndarray, threshold_mm: float,
-                  rng: np.random.Generator) -> tuple[ConicModel | None, np.ndarray]:
-    model, inliers = ransac(pts, ConicModel, min_samples=5, residual_threshold=threshold_mm,
-                            max_trials=200, rng=rng)
-    if model is None or inliers is None:
-        return None, np.zeros(len(pts), bool)
-    model.estimate(pts[inliers])  # final fit on all inliers
-    return model, inliers
+def _pose_vector(pose: Pose, radius_mm: float) -> np.ndarray:
+    """(alpha, beta, dx, dy, radius): the kernels' pose vector."""
+    return np.array([pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm, radius_mm], dtype=np.float64)
 
 
 def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: float, *,
@@ -435,102 +307,96 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         return PoseFit(False, f"ring not found (coverage {detection.coverage:.0%})",
                        coverage=detection.coverage)
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    pts, valid = plane_points(detection.pixels, camera, plane_distance_mm, plane.normal)
-    azimuth, pixels = detection.azimuth[valid], detection.pixels[valid]
-    threshold = max(0.3, 6 * noise_mm)
-    conic, inliers = _initial_inliers(pts, detection.rank[valid], threshold, seed)
-    if conic is None or inliers.sum() < 12:
-        return PoseFit(False, "no ellipse found among ring candidates", coverage=detection.coverage)
-    keep = inliers
-    for _ in range(4):
-        # Re-select inliers among all candidates, one per ray, until the set is
-        # stable (the start may have missed a stretch of the ring). The conic's
-        # Sampson distance is accurate to microns near the curve, so this needs no
-        # nonlinear fit.
-        new_keep = _one_per_azimuth(conic.residuals(pts), azimuth, max(0.25, 5 * noise_mm))
-        if np.array_equal(new_keep, keep) or new_keep.sum() < 12 or not conic.estimate(
-                pts[new_keep]):
-            break
-        keep = new_keep
-    starts = pose_from_conic(*conic.normalised(), plane_distance_mm, plane.normal)
-    if not starts:
-        return PoseFit(False, "ring is not the section of a cylinder", coverage=detection.coverage)
-    coverage = np.count_nonzero(np.bincount(azimuth[keep])) / detection.n_azimuths
+    # px RMS points: every stride-th candidate, ~128 of the ring's (one strongest a ray)
+    stride = _rms_stride(int(np.count_nonzero(detection.rank == 0)))
+    rays = _frame_rays(detection.pixels, stride, camera)
+    uv, kept, starts, rays_hit, status = _select_ring(rays, detection, plane, noise_mm, seed)
+    if status != _k.FOUND:
+        reason = ("no ellipse found among ring candidates" if status == _k.NO_ELLIPSE
+                  else "ring is not the section of a cylinder")
+        return PoseFit(False, reason, coverage=detection.coverage)
+    coverage = rays_hit / detection.n_azimuths
     if coverage < min_coverage:
         return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
                        coverage=coverage)
-    step = max(1, -(-int(keep.sum()) // 720))   # <= 720 points, float32: <= 12 kB a frame
-    ring = RingPoints(pts[keep][::step].astype(np.float32),
-                      pixels[keep][::step].astype(np.float32), plane)
+    start = starts[0]
+    if not fit_radius:
+        start[4] = nominal_radius_mm
     try:
-        hyps = _both_hypotheses(starts[0], pts[keep], pixels[keep], camera, plane,
-                                nominal_radius_mm, fit_radius, noise_mm)
+        hyps = _both_hypotheses(start, uv, kept, stride, plane, 5 if fit_radius else 4, noise_mm)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=coverage)
-    return PoseFit(True, "", hyps, int(keep.sum()), float(coverage), "circle", ring)
+    # <= 720 points, float32: <= 12 kB a frame
+    ring = RingPoints(*_k.ring_subsample(uv[:len(kept)], _as_points(detection.pixels), kept, 720),
+                      plane)
+    return PoseFit(True, "", hyps, int(np.count_nonzero(kept)), float(coverage), "circle", ring)
 
 
-def _both_hypotheses(start: tuple[Pose, float], uv: np.ndarray, pixels: np.ndarray,
-                     camera: CameraModel, plane: LaserPlane, nominal_radius_mm: float | None,
-                     fit_radius: bool, noise_mm: float) -> tuple[Hypothesis, Hypothesis]:
+def _frame_rays(pixels: np.ndarray, stride: int, camera: CameraModel) -> np.ndarray:
+    """Rays of the candidates, then of every ``stride``-th one moved one column, one row.
+
+    The camera's unprojection has a fixed cost of tens of microseconds a call, as
+    much as a thousand points, so the steps of the px RMS (:func:`ring_rms_px`) ride
+    along with the candidates: before the fit it is not known which candidates are
+    the ring. On a ring without outliers these are the points :func:`ring_rms_px`
+    takes of the inliers.
+    """
+    return _as_points(camera.unproject(_k.step_query(_as_points(pixels), stride)))
+
+
+def _select_ring(rays: np.ndarray, detection: RingDetection, plane: LaserPlane, noise_mm: float,
+                 seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """Plane coordinates, the ring's candidates, closed-form starts, rays hit and status.
+
+    A first conic directly when the strongest candidates agree: most frames have
+    few outliers, and one algebraic fit of every ray's strongest candidate then
+    explains 90 % of them. Otherwise RANSAC, with samples from a generator seeded
+    with ``seed`` (reproducible). Then inliers are re-selected among all candidates,
+    one per ray, until the set is stable (the start may have missed a stretch of the
+    ring); the conic's Sampson distance is accurate to microns near the curve, so
+    this needs no nonlinear fit (:func:`pipestitch._pose_kernels.select_ring`).
+    """
+    args = (rays, np.asarray(detection.azimuth, dtype=np.int64),
+            np.asarray(detection.rank, dtype=np.int64), max(0.3, 6 * noise_mm),
+            max(0.25, 5 * noise_mm))
+    geometry = (plane.distance_mm, plane.normal, plane.basis)
+    out = _k.select_ring(*args, np.empty((0, 5)), *geometry)
+    if out[4] == _k.NEEDS_SAMPLES:
+        out = _k.select_ring(*args, np.random.default_rng(seed).random((RANSAC_TRIALS, 5)),
+                             *geometry)
+    return out
+
+
+def _both_hypotheses(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: int,
+                     plane: LaserPlane, n_free: int,
+                     noise_mm: float) -> tuple[Hypothesis, Hypothesis]:
     """Refine one hypothesis; its mirror is the other pose of the refined conic.
 
-    Both mirrors explain every plane point with the same residual (the same conic),
-    so the optimum of one maps to the optimum of the other in closed form.
+    ``start`` is the pose vector (alpha, beta, dx, dy, radius); with ``n_free`` 4 the
+    radius is held. Both mirrors explain every plane point with the same residual
+    (the same conic), so the optimum of one maps to the optimum of the other in
+    closed form. The robust least squares is a damped IRLS Gauss-Newton on the
+    soft-L1 loss (:func:`pipestitch._pose_kernels.gauss_newton`), not
+    ``scipy.optimize.least_squares``, whose per-call set-up alone cost ~3 ms per
+    hypothesis (measured) for 4-5 parameters; from the closed-form start two or three
+    iterations reach a step far below the noise. Both share one px RMS (``uv`` holds
+    the candidates' and then the steps' plane coordinates, :func:`_frame_rays`): they
+    are the same curve in the image.
     """
-    p3 = plane.to_probe(uv)
-    radius0 = start[1] if fit_radius else float(nominal_radius_mm)
-    x, cost, resid, jac = _refine(start[0], radius0, p3, fit_radius, noise_mm)
-    pose, radius = Pose(*x[:4]), float(x[4])
-    mirror = max(pose_from_conic(*model_conic(pose, radius, plane), plane.distance_mm,
-                                 plane.normal) or [(pose, radius)],
-                 key=lambda s: abs(s[0].alpha - pose.alpha) + abs(s[0].beta - pose.beta))[0]
-    hyps = []
-    for h in (pose, mirror):
-        if hyps:
-            resid, jac = _residuals_jacobian(np.array([h.alpha, h.beta, h.dx_mm, h.dy_mm, radius]),
-                                             p3)
-        std, info = _uncertainty(jac[:, :5 if fit_radius else 4], resid, fit_radius)
-        if not hyps:  # the same curve in the image for both
-            rms_px = ring_rms_px(h, radius, pixels, uv, resid, camera, plane)
-        hyps.append(Hypothesis(h, radius, cost, float(np.sqrt(np.mean(resid**2))), rms_px, std,
-                               info))
-    return hyps[0], hyps[1]
-
-
-def _initial_inliers(pts: np.ndarray, rank: np.ndarray, threshold: float,
-                     seed: int) -> tuple[ConicModel | None, np.ndarray]:
-    """A first conic and its inliers: directly when the strongest candidates agree.
-
-    Most frames have few outliers: one algebraic fit of every ray's strongest
-    candidate then explains 90 % of them and RANSAC is not needed.
-    """
-    strongest = rank == 0
-    if strongest.sum() >= 12:
-        conic = ConicModel.from_estimate(pts[strongest])
-        if conic is not None:
-            inliers = strongest & (conic.residuals(pts) < threshold)
-            if inliers.sum() >= 0.9 * strongest.sum() and conic.estimate(pts[inliers]):
-                return conic, inliers
-    return _ransac_conic(pts, threshold, np.random.default_rng(seed))
-
-
-def _one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) -> np.ndarray:
-    """Mask keeping, per ray, the candidate closest to the model if within threshold."""
-    if np.bincount(azimuth).max() <= 1:  # one candidate per ray: nothing to choose
-        return resid < threshold
-    order = np.lexsort((resid, azimuth))
-    first = np.ones(order.size, bool)
-    first[1:] = azimuth[order][1:] != azimuth[order][:-1]
-    keep = np.zeros(resid.size, bool)
-    best = order[first]
-    keep[best[resid[best] < threshold]] = True
-    return keep
+    poses, cost, rms_mm, rms_px, sigma, info, sigma_ok = _k.refine_frame(
+        start, uv, kept, stride, plane.distance_mm, plane.normal, plane.basis, n_free, noise_mm)
+    first, second = (
+        Hypothesis(Pose(*poses[h, :4].tolist()), float(poses[h, 4]), float(cost),
+                   float(rms_mm[h]), float(rms_px),
+                   dict(zip(PARAMS, sigma[h].tolist(), strict=False)) if sigma_ok[h] else {},
+                   info[h])
+        for h in range(2))
+    return first, second
 
 
 def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
-            resid_mm: np.ndarray, camera: CameraModel, plane: LaserPlane) -> float:
+                resid_mm: np.ndarray, camera: CameraModel, plane: LaserPlane) -> float:
     """RMS image distance between observed points and the model ring at the same angle.
 
     To first order in the residual (tens of microns): a point's radial residual on the
@@ -538,28 +404,43 @@ def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
     centre) and the plane offset is turned into pixels with the local pixel -> plane
     Jacobian (finite differences of the unprojection, one pixel apart). Projecting the
     model ring instead costs a lens-polynomial inversion per point.
+
+    Parameters
+    ----------
+    pose : Pose
+        The pose of the model ring.
+    radius : float
+        Its radius, mm (unused by the first-order form; kept for the callers).
+    pixels, uv : numpy.ndarray, shape (N, 2)
+        Observed ring pixels (col, row) and their in-plane coordinates (mm).
+    resid_mm : numpy.ndarray, shape (N,)
+        Radial wall residual of each point at the pose, mm.
+    camera : CameraModel
+        Camera model.
+    plane : LaserPlane
+        The laser plane.
+
+    Returns
+    -------
+    float
+        RMS in pixels (NaN if no point could be converted).
     """
-    sub = slice(None, None, max(1, len(uv) // 128))  # ~128 points estimate an RMS to ~6 %
-    px, u, r = pixels[sub], uv[sub], resid_mm[sub]
-    d_col = _plane_coords(px + [1.0, 0.0], camera, plane) - u
-    d_row = _plane_coords(px + [0.0, 1.0], camera, plane) - u
+    sub = slice(None, None, _rms_stride(len(uv)))
+    px = np.asarray(pixels, dtype=np.float64)[sub]
+    # one unprojection for both one-pixel steps (column, then row)
+    moved = _plane_coords(np.concatenate([px + [1.0, 0.0], px + [0.0, 1.0]]), camera, plane)[0]
     a_mat, c = plane_to_world(pose, plane)
-    q = u @ a_mat.T + c
-    n_w = q / np.linalg.norm(q, axis=1, keepdims=True)
-    u_hat = u / np.linalg.norm(u, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        du = u_hat * (r / np.sum(n_w * (u_hat @ a_mat.T), axis=1))[:, None]
-        jac = np.stack([d_col, d_row], axis=2)          # d(uv)/d(col, row)
-        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        dcol = (jac[:, 1, 1] * du[:, 0] - jac[:, 0, 1] * du[:, 1]) / det
-        drow = (jac[:, 0, 0] * du[:, 1] - jac[:, 1, 0] * du[:, 0]) / det
-    err2 = dcol**2 + drow**2
-    return float(np.sqrt(np.nanmean(err2))) if np.any(np.isfinite(err2)) else float("nan")
+    return float(_k.px_rms(_as_points(uv[sub]), _as_points(resid_mm[sub]), moved[:len(px)],
+                           moved[len(px):], a_mat, c))
 
 
-def _plane_coords(pixels: np.ndarray, camera: CameraModel, plane: LaserPlane) -> np.ndarray:
-    """In-plane coordinates of each pixel's ray, NaN where it misses the plane."""
-    out = np.full((len(pixels), 2), np.nan)
-    uv, valid = plane_points(pixels, camera, plane.distance_mm, plane.normal)
-    out[valid] = uv
-    return out
+def _rms_stride(n: int) -> int:
+    """Subsampling of n points for the px RMS: ~128 points estimate an RMS to ~6 %."""
+    return max(1, n // 128)
+
+
+def _plane_coords(pixels: np.ndarray, camera: CameraModel,
+                  plane: LaserPlane) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane coordinates of each pixel's ray (NaN where it misses the plane), and the mask."""
+    rays = _as_points(camera.unproject(pixels))
+    return _k.rays_to_plane(rays, plane.distance_mm, plane.normal, plane.basis)

@@ -29,9 +29,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import tifffile
 
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
+from pipestitch.io.outputs import mosaic_from_uint8
 from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.run import RunSummary, run_dataset
 from pipestitch.pipeline.simulate import simulate_dataset
@@ -50,8 +52,11 @@ def score(dataset: Path, summary: RunSummary):
     meta = json.loads((dataset / "truth" / "wall.json").read_text())
     wall = read_image(dataset / "truth" / "wall.png").astype(np.float32) / 255
     truth_wall = WallImage(wall, meta["deg_per_px"], meta["mm_per_px_axial"], meta["z0_mm"])
-    g = result.grid
-    mosaic = WallImage(result.image, g.deg_per_px, g.mm_per_px, g.z0_mm)
+    # The full-resolution mosaic as written (8-bit, mosaic.ome.tif: run streams it).
+    full = json.loads((summary.out / "mosaic.json").read_text())["full_resolution"]
+    with tifffile.TiffFile(summary.out / full["file"]) as tif:
+        image = mosaic_from_uint8(tif.series[0].levels[0].asarray())
+    mosaic = WallImage(image, full["deg_per_px"], full["mm_per_px_axial"], full["z0_mm"])
     return score_mosaic(mosaic, truth_wall, meta["radius_mm"], z_off, roll_off)
 
 

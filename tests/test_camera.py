@@ -106,6 +106,24 @@ def test_outside_valid_range_is_nan() -> None:
     assert np.all(np.isnan(fish.unproject(np.array([[1e5, 1e5]]))))
 
 
+def test_ocam_projection_solves_its_lens_equation_for_points_in_any_order() -> None:
+    cam = default_camera("half")
+    rng = np.random.default_rng(5)
+    # Unordered points over the whole field of view, at all distances.
+    theta = rng.uniform(0, cam.max_incidence_rad, 20_000)
+    phi = rng.uniform(0, 2 * np.pi, theta.size)
+    rays = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+    px = cam.project(rays * rng.uniform(0.1, 1000, (theta.size, 1)))
+    # rho from the pixel (affine undone) must satisfy theta = atan2(rho, -F(rho)).
+    uv = np.linalg.solve([[cam.c, cam.d], [cam.e, 1.0]],
+                         np.stack([px[:, 1] - cam.center_row, px[:, 0] - cam.center_col]))
+    rho = np.hypot(*uv)
+    lens = np.arctan2(rho, -np.polynomial.polynomial.polyval(rho, cam.pol))
+    assert np.max(np.abs(lens - theta)) < 1e-12   # radians: float64 rounding
+    bad = cam.project(np.array([[np.nan, 0.0, 1.0], [np.inf, 0.0, 1.0], [0.0, 0.0, np.nan]]))
+    assert np.all(np.isnan(bad))
+
+
 def test_bad_shapes_and_parameters_raise() -> None:
     cam = default_camera("half")
     with pytest.raises(ValueError, match=r"expected shape \(N, 3\)"):

@@ -19,6 +19,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from pipestitch._strip_kernels import quantile_over_frames
+
 __all__ = ["occluder_mask"]
 
 NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
@@ -67,9 +69,10 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     ratios = np.empty_like(stack)
     for k, frame in enumerate(stack):
         ratios[k] = frame / np.maximum(_smooth(frame, sigma), 1e-6)
-    ratio = np.quantile(ratios, NEARLY_ALL, axis=0)
-    level = np.quantile(stack, NEARLY_ALL, axis=0)
-    typical = np.median(stack, axis=0)
+    # numpy.quantile's "linear" virtual index (n·q + (1 - q) - 1), in its arithmetic.
+    virtual = len(stack) * NEARLY_ALL + (1 - NEARLY_ALL) - 1
+    ratio = quantile_over_frames(ratios, virtual, False)[0]
+    level, typical = quantile_over_frames(stack, virtual, True)
     scale = float(np.median(typical[typical > 0])) if np.any(typical > 0) else 1.0
     mask = (ratio < relative) | (level < absolute * scale)
     margin = max(2, round(height / 200)) if margin_px is None else margin_px

@@ -22,6 +22,12 @@ import numpy as np
 from scipy.sparse import csr_matrix, identity, lil_matrix
 from scipy.sparse.linalg import spsolve
 
+from pipestitch._strip_kernels import (
+    cross_power_ccs,
+    gradient_moments,
+    residual_moments,
+    weighted_peak,
+)
 from pipestitch.unwrap import Strip, StripGrid, local_contrast
 
 __all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "phase_shift", "predict_motion",
@@ -72,24 +78,36 @@ def phase_shift(first: np.ndarray, second: np.ndarray, window: np.ndarray | None
     return dx, dy, float(response)
 
 
-def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray, dx: float, dy: float,
-            iterations: int) -> tuple[float, float]:
-    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``."""
+def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx: float,
+            dy: float, iterations: int) -> tuple[float, float]:
+    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``.
+
+    ``weight`` None weighs every pixel 1.
+    """
     if not (np.isfinite(dx) and np.isfinite(dy)):
         return float(dx), float(dy)
-    gy, gx = np.gradient(first.astype(np.float32))
-    a11, a12, a22 = (float(np.sum(weight * v)) for v in (gx * gx, gx * gy, gy * gy))
+    first = np.ascontiguousarray(first, np.float32)
+    second = np.ascontiguousarray(second, np.float32)
+    weight = (np.zeros((0, 0), np.float32) if weight is None
+              else np.ascontiguousarray(weight, np.float32))
+    a11, a12, a22 = gradient_moments(first, weight)
     det = a11 * a22 - a12 * a12
     if det <= 1e-12 * max(a11 * a22, 1e-30):
         return float(dx), float(dy)
+    n_rows, n_cols = second.shape
     for _ in range(iterations):
-        back = cv2.warpAffine(second, np.float32([[1, 0, dx], [0, 1, dy]]),
-                              (second.shape[1], second.shape[0]),
-                              flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_WRAP)
         # back(x) = second(x + d) = first(x - delta) ~ first(x) - grad(first) . delta
-        err = weight * (back - first)
-        bx, by = -float(np.sum(err * gx)), -float(np.sum(err * gy))
+        if float(dx).is_integer() and float(dy).is_integer() and abs(dx) < n_cols \
+                and abs(dy) < n_rows:
+            # Whole pixels (a correlation peak): cubic interpolation there is a copy,
+            # so the kernel reads ``second`` shifted instead of a warped copy.
+            bx, by = residual_moments(first, second, weight, int(dy), int(dx))
+        else:
+            back = cv2.warpAffine(second, np.float32([[1, 0, dx], [0, 1, dy]]), (n_cols, n_rows),
+                                  flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                                  borderMode=cv2.BORDER_WRAP)
+            bx, by = residual_moments(first, back, weight, 0, 0)
+        bx, by = -bx, -by
         step_x, step_y = (a22 * bx - a12 * by) / det, (a11 * by - a12 * bx) / det
         if abs(step_x) > 1 or abs(step_y) > 1:
             break  # not in the linear range: keep the correlation's estimate
@@ -134,8 +152,12 @@ def predict_motion(i: int, j: int, links: Sequence[Link],
 
 
 def spectrum(image: np.ndarray) -> np.ndarray:
-    """The DFT (complex, two channels) :func:`measure_shift` correlates, for reuse."""
-    return cv2.dft(image, flags=cv2.DFT_COMPLEX_OUTPUT)
+    """The DFT :func:`measure_shift` correlates, for reuse (float32 ``image``).
+
+    Packed (CCS, ``cv2.dft`` of a real image): half the work and memory of the
+    complex form, which the correlation does not need.
+    """
+    return cv2.dft(image)
 
 
 def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float, float],
@@ -148,20 +170,17 @@ def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float,
     peak, as ``cv2.phaseCorrelate`` reports it.
     """
     fa, fb = spectra if spectra is not None else (spectrum(first), spectrum(second))
-    cross = cv2.mulSpectrums(fb, fa, 0, conjB=True)
-    cross /= np.maximum(np.hypot(cross[..., 0], cross[..., 1]), 1e-12)[..., None]
-    surface = cv2.idft(cross, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    surface = cv2.idft(cross_power_ccs(fb, fa), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
     n_rows, n_cols = surface.shape
     sy = (np.arange(n_rows) + n_rows // 2) % n_rows - n_rows // 2
     sx = (np.arange(n_cols) + n_cols // 2) % n_cols - n_cols // 2
     wy = (sy - expected_px[1] + n_rows / 2) % n_rows - n_rows / 2
-    # The Gaussian is separable: an outer product of two 1-D profiles (float32).
+    # The Gaussian is separable: two 1-D profiles (float32), multiplied in the kernel.
     g_rows = np.exp(-0.5 * (wy / sigma_px[1]) ** 2).astype(np.float32)
     g_cols = np.exp(-0.5 * ((sx - expected_px[0]) / sigma_px[0]) ** 2).astype(np.float32)
     # The floor lets a clearly stronger peak far from the prior win (an odometer that
     # slipped by more than its slack) while a comparable one (one period off) does not.
-    weight = np.float32(PRIOR_FLOOR) + np.float32(1 - PRIOR_FLOOR) * np.outer(g_rows, g_cols)
-    row, col = np.unravel_index(np.argmax(np.maximum(surface, 0) * weight), surface.shape)
+    row, col = weighted_peak(surface, g_rows, g_cols, PRIOR_FLOOR)
     near = surface[np.ix_((row + np.arange(-2, 3)) % n_rows, (col + np.arange(-2, 3)) % n_cols)]
     return float(sx[col]), float(sy[row]), float(np.sum(near))
 
@@ -197,7 +216,7 @@ def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int
         sigma = (prior.dz_sigma_mm / grid.mm_per_px, prior.droll_sigma_deg / grid.deg_per_px)
         dx, dy, response = _prior_peak(first, second, expected, sigma, spectra)
     # One polishing step: ~0.03 px, and the refinement replaces most links anyway.
-    dx, dy = _polish(first, second, np.ones_like(first), dx, dy, 1)
+    dx, dy = _polish(first, second, None, dx, dy, 1)
     if not np.isfinite(response) or response < MIN_RESPONSE:
         return None
     # phaseCorrelate: second(x) = first(x - d), and strip_j(x) = strip_i(x + motion).

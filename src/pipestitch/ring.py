@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipestitch._strip_kernels import divide_by_reflectance, ridge_peaks
 from pipestitch.camera import CameraModel
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame"]
@@ -177,22 +178,15 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     # an 8-bit step so that a noise-free frame does not turn every ripple into a candidate.
     sample = ridge[::3, ::3]
     noise = max(1.4826 * float(np.median(np.abs(sample - np.median(sample)))), 0.25 / 255)
-    is_peak = (ridge > np.roll(ridge, 1, axis=1)) & (ridge >= np.roll(ridge, -1, axis=1))
-    is_peak[:, :2] = is_peak[:, -2:] = False
-    # Weak ridges are neither ring nor worth a candidate: keep those above the noise
-    # and above a fraction of the typical ring response of this frame.
+    # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
+    # the noise and above a fraction of the typical ring response of this frame.
     strongest = np.max(ridge, axis=1)
     typical = float(np.median(strongest[strongest > min_snr * noise])) if np.any(
         strongest > min_snr * noise) else np.inf
-    is_peak &= (ridge > min_snr * noise) & (ridge > min_relative * typical)
     # A broad glint also has a ridge maximum; a thin line has a much larger ridge
     # response relative to its height, so rank by the response itself.
-    score = np.where(is_peak, ridge, -np.inf)
-    order = np.argpartition(-score, max_candidates - 1, axis=1)[:, :max_candidates]
-    top = np.take_along_axis(score, order, axis=1)
-    rank_order = np.argsort(-top, axis=1)
-    order = np.take_along_axis(order, rank_order, axis=1)
-    top = np.take_along_axis(top, rank_order, axis=1)
+    order, top = ridge_peaks(ridge, max(min_snr * noise, min_relative * typical),
+                             max_candidates)
     az_idx, rank = np.nonzero(np.isfinite(top))
     idx = order[az_idx, rank]
     radius = _centroid(polar, narrow, az_idx, idx, sigma / step) * step + radii[0]
@@ -227,10 +221,7 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     # A broad local mean (two passes of an 81-sample box, ~ a Gaussian of 33 samples).
     broad = cv2.blur(cv2.blur(local, (81, 1), borderType=cv2.BORDER_REPLICATE), (81, 1),
                      borderType=cv2.BORDER_REPLICATE)
-    floor = 0.15 * broad
-    valid = (local > floor) & (broad > 0)
-    relative = np.where(valid, local / np.where(broad > 0, broad, 1.0), 1.0)
-    return np.where(valid, polar / np.maximum(relative, 0.15), 0.0).astype(np.float32)
+    return divide_by_reflectance(polar, local, broad, 0.15, 0.15)
 
 
 def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,

@@ -23,12 +23,19 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipestitch._strip_kernels import (
+    column_medians,
+    contrast_of,
+    fill_invalid,
+    mask_strip,
+    upsample_masked,
+)
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose
 
-__all__ = ["Strip", "StripGrid", "UnwrapMaps", "default_mm_per_px", "local_contrast",
-           "polar_unwrap_maps", "strip_window_mm", "to_grey", "unwrap", "unwrap_maps",
-           "unwrap_with_quality"]
+__all__ = ["Strip", "StripGrid", "UnwrapMaps", "column_levels", "default_mm_per_px",
+           "local_contrast", "polar_unwrap_maps", "strip_window_mm", "to_grey", "unwrap",
+           "unwrap_maps", "unwrap_with_quality"]
 
 
 @dataclass(frozen=True)
@@ -74,31 +81,23 @@ class StripGrid:
         return cls(360.0 / n_rows, mm_per_px, z0_mm, n_cols)
 
 
-def _upsample(coarse: np.ndarray, step: int, n_rows: int, n_cols: int) -> np.ndarray:
-    """Bilinear interpolation of nodes every ``step`` rows/columns to every node.
+def _grid_points(grid: StripGrid, section: PipeSection, pose: Pose,
+                 step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes of every ``step``-th row and column (the last ones always included).
 
-    ``coarse`` is (rows, cols, fields). Exact weights: ``cv2.resize``/``remap``
-    quantise them to 1/32, which would cost ~0.05 px on a map that moves several
-    pixels per coarse cell.
+    Returns the wall points of the rows' ring at z = 0 (rows, 3), the columns' z
+    (cols,) and the nodes in the probe frame (rows, cols, 3). The wall's section
+    depends on theta alone and the world-to-probe map is affine, so the ring is
+    mapped once and each column adds z times the pipe axis seen from the probe (no
+    (N, 3) x (3, 3) product, which a multi-threaded BLAS makes costly).
     """
-    w = (np.arange(step) / step).astype(coarse.dtype)
-    for axis, n in ((0, n_rows), (1, n_cols)):
-        a = np.moveaxis(coarse, axis, 0)
-        shape = (1, step) + (1,) * (a.ndim - 1)
-        fine = a[:-1, None] * (1 - w).reshape(shape) + a[1:, None] * w.reshape(shape)
-        fine = np.concatenate([fine.reshape(-1, *a.shape[1:]), a[-1:]])[:n]
-        coarse = np.moveaxis(fine, 0, axis)
-    return coarse
-
-
-def _grid_points(grid: StripGrid, step: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
-    """theta (rad) and z (mm) of every ``step``-th node (always including the last)."""
     n_r = -(-(grid.n_rows - 1) // step) + 1
     n_c = -(-(grid.n_cols - 1) // step) + 1
     theta = np.deg2rad(grid.theta0_deg + np.arange(n_r) * step * grid.deg_per_px)
     z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px
-    th, zz = np.meshgrid(theta, z, indexing="ij")
-    return th, zz, (n_r, n_c)
+    ring = section.points(theta, np.zeros_like(theta))
+    axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
+    return ring, z, pose.to_probe(ring)[:, None, :] + z[None, :, None] * axis
 
 
 @dataclass(frozen=True)
@@ -143,40 +142,45 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
     with_quality : bool
         Also return the quality weight (an :class:`UnwrapMaps`).
     """
-    th, zz, shape = _grid_points(grid, step)
-    wall = section.points(th.ravel(), zz.ravel())
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
-    px = camera.project(local.to_probe(wall)).reshape(*shape, 2)
+    ring, z, probe = _grid_points(grid, section, local, step)
+    shape = probe.shape[:2]
+    px = camera.project(probe.reshape(-1, 3)).reshape(*shape, 2)
     valid = np.isfinite(px).all(axis=2)
     px = np.where(valid[..., None], px, 0.0)
     fields = [px[..., 0], px[..., 1], valid.astype(float)]
     if with_quality:
         # Smooth quantities: computed on the projected nodes, interpolated with the maps.
-        cosine, distance = _line_of_sight(local, section, wall)
-        cosine = np.clip(cosine.reshape(shape), 0, 1)
+        cosine, distance = _line_of_sight(local, section, ring, z)
+        cosine = np.clip(cosine, 0, 1)
         resolution = _resolution(px[..., 0], px[..., 1]) / step
-        fields += [resolution * cosine,
-                   cosine * (section.mean_radius_mm / distance.reshape(shape)) ** 2]
+        fields += [resolution * cosine, cosine * (section.mean_radius_mm / distance) ** 2]
     # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
-    stacked = np.stack(fields, axis=-1).astype(np.float32)
-    if step > 1:
-        stacked = _upsample(stacked, step, grid.n_rows, grid.n_cols)
-    ok = stacked[..., 2] > 0.999
-    map_x = np.where(ok, stacked[..., 0], -1.0).astype(np.float32)
-    map_y = np.where(ok, stacked[..., 1], -1.0).astype(np.float32)
+    # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
+    # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
+    # nodes whose interpolated validity is not ~1 are masked (-1, quality 0).
+    out = upsample_masked(np.stack(fields).astype(np.float32), step, grid.n_rows, grid.n_cols,
+                          0.999)
     if not with_quality:
-        return map_x, map_y
-    return UnwrapMaps(map_x, map_y, np.where(ok, stacked[..., 3], 0).astype(np.float32),
-                      np.where(ok, stacked[..., 4], 0).astype(np.float32))
+        return out[0], out[1]
+    return UnwrapMaps(*out)
 
 
-def _line_of_sight(pose: Pose, section: PipeSection,
-                   wall: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """|cos| of the angle between line of sight and wall normal, and the distance (mm)."""
-    sight = wall - pose.translation_world_probe()
-    distance = np.linalg.norm(sight, axis=1)
-    return np.abs(np.sum(sight * section.normals(wall), axis=1)) / distance, distance
+def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray,
+                   z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|cos| of the angle between line of sight and wall normal, and the distance (mm).
+
+    At the wall points ``ring`` (rows, 3; at z = 0) moved to each ``z`` (cols,):
+    (rows, cols) arrays. The wall normal has no axial part, so the sight's component
+    along it depends on the row alone.
+    """
+    centre = pose.translation_world_probe()
+    sight = ring - centre
+    along_normal = np.abs(np.sum(sight * section.normals(ring), axis=1))
+    across = sight[:, 0] ** 2 + sight[:, 1] ** 2
+    distance = np.sqrt(across[:, None] + (z - centre[2])[None, :] ** 2)
+    return along_normal[:, None] / distance, distance
 
 
 def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
@@ -231,24 +235,38 @@ def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: 
         Boolean mask of the frame's pixels that never show the wall (mirror assembly,
         laser-holder arm, outside the lens' image circle); see :mod:`pipestitch.occluder`.
     """
-    values = _remap(frame, maps.map_x, maps.map_y)
-    bad = ~np.isfinite(values) | (maps.quality < min_resolution)
-    if occluded is not None:
-        hidden = cv2.remap(occluded.astype(np.uint8), maps.map_x, maps.map_y, cv2.INTER_NEAREST,
-                           borderMode=cv2.BORDER_CONSTANT, borderValue=1)
-        bad |= hidden.astype(bool)
-    values[bad] = np.nan
-    return Strip(values, np.where(bad, 0.0, maps.quality).astype(np.float32), maps.shading)
+    values = cv2.remap(frame, maps.map_x, maps.map_y, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    hidden = np.zeros((0, 0), bool) if occluded is None else np.asarray(occluded, bool)
+    weight = mask_strip(values, maps.map_x, maps.map_y, maps.quality, float(min_resolution),
+                        hidden)
+    return Strip(values, weight, maps.shading)
+
+
+def column_levels(strip: Strip) -> np.ndarray:
+    """Median over theta of strip / shading per column (NaN where a column has no data).
+
+    The vignetting (and exposure) along the strip: what is left of the values once the
+    LED shading is divided out, averaged over the wall's texture. A column needs data
+    at a tenth of its nodes; every 4th row is enough for a median over ~1000 rows (and
+    4x faster).
+    """
+    valid = strip.weight[::4] > 0
+    ratio = np.where(valid, strip.values[::4] / np.maximum(strip.shading[::4], 1e-6), np.nan)
+    return column_medians(ratio.astype(np.float32), 0.1 * ratio.shape[0])
 
 
 def to_grey(img: np.ndarray) -> np.ndarray:
     """An 8/16-bit or float, grey or BGR(A) frame as grey float32 (integer ranges to [0, 1])."""
     arr = np.asarray(img)
-    scale = 1.0 / np.iinfo(arr.dtype).max if arr.dtype.kind in "ui" else 1.0
+    integer = arr.dtype.kind in "ui"
+    scale = 1.0 / np.iinfo(arr.dtype).max if integer else 1.0
     arr = arr.astype(np.float32)
     if arr.ndim == 3:
         arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]
-    return np.nan_to_num(arr * np.float32(scale), nan=0.0, posinf=0.0, neginf=0.0)
+    arr = np.multiply(arr, np.float32(scale), out=arr if arr.flags.writeable else None)
+    # Only a float frame can hold NaN or infinities.
+    return arr if integer else np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
@@ -256,14 +274,10 @@ def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarra
 
     Removes illumination and exposure, keeps texture. Invalid nodes give 0.
     """
-    valid = np.isfinite(values)
-    filled = np.where(valid, values, 0).astype(np.float32)
-    support = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma_px,
-                               borderType=cv2.BORDER_REFLECT)
+    filled, valid = fill_invalid(np.asarray(values, np.float32))
+    support = cv2.GaussianBlur(valid, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
     local = cv2.GaussianBlur(filled, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
-    local /= np.maximum(support, 1e-6)
-    contrast = np.where(valid, filled / np.maximum(local, 1e-6) - 1, 0).astype(np.float32)
-    return contrast, support
+    return contrast_of(filled, valid, support, local), support
 
 
 def strip_window_mm(camera: CameraModel, radius_mm: float, mm_per_px: float, *,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -47,6 +48,7 @@ from pipestitch.unwrap import (
     Strip,
     StripGrid,
     UnwrapMaps,
+    column_levels,
     default_mm_per_px,
     polar_unwrap_maps,
     strip_window_mm,
@@ -197,20 +199,6 @@ def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
         return occluder_mask(greys)
 
 
-def _column_levels(strip: Strip) -> np.ndarray:
-    """Median over theta of strip / shading per column (NaN where a column has no data).
-
-    Every 4th row is enough for a median over ~1000 rows (and 4x faster).
-    """
-    valid = strip.weight[::4] > 0
-    ratio = np.where(valid, strip.values[::4] / np.maximum(strip.shading[::4], 1e-6), np.nan)
-    out = np.full(ratio.shape[1], np.nan)
-    enough = np.sum(np.isfinite(ratio), axis=0) > 0.1 * ratio.shape[0]
-    if enough.any():
-        out[enough] = np.nanmedian(ratio[:, enough], axis=0)
-    return out
-
-
 @dataclass(frozen=True)
 class _Candidate:
     """One view of a frame unwrapped for registration."""
@@ -249,7 +237,7 @@ def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
     with timer("register"):
         contrast = strip_contrast(strip)
         image = registration_image(contrast, strip.weight)
-        return _Candidate(contrast, strip.weight > 0, image, _column_levels(strip),
+        return _Candidate(contrast, strip.weight > 0, image, column_levels(strip),
                           spectrum(image))
 
 
@@ -302,35 +290,46 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
         return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer)
                                for v in options])
 
+    def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
+        with timer("refine"):
+            return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
+                                (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
+                                link.i, link.j)
+
     out = _Pass1()
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
-    for reg in track(ordered_map(work, order, unwrapper.settings.workers), "register",
-                     total=len(order), enabled=show_progress):
-        if not reg.candidates:
-            skipped[reg.index] = reg.error
-            continue
-        with timer("register"):
-            found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
-                     for c in reg.candidates]
-        best = _better_hypothesis(found) if len(found) > 1 else None
-        if best is not None:
-            out.switched[reg.index] = best == 1
-            if best == 1:
-                views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
-        best = best or 0
-        cand = reg.candidates[best]
-        for link, prev in found[best]:
-            out.links.append(link)
-            if patches:
-                with timer("refine"):
-                    out.patches.append(patch_shifts(
-                        prev.contrast, prev.valid, cand.contrast, cand.valid,
-                        (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
-                        link.i, link.j))
-        recent.append((reg.index, cand))
-        out.levels.append(cand.level)
-        out.done.append(reg.index)
+    workers = unwrapper.settings.workers
+    # The links are found in order here (each frame's motion prior and hypothesis
+    # choice depend on the links before it); their patch shifts, which nothing else
+    # waits for, are measured on a pool of their own, at most 2 per worker pending
+    # (memory stays bounded), kept in link order.
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        pending: deque[Future[PatchShifts]] = deque()
+        for reg in track(ordered_map(work, order, workers), "register", total=len(order),
+                         enabled=show_progress):
+            if not reg.candidates:
+                skipped[reg.index] = reg.error
+                continue
+            with timer("register"):
+                found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
+                         for c in reg.candidates]
+            best = _better_hypothesis(found) if len(found) > 1 else None
+            if best is not None:
+                out.switched[reg.index] = best == 1
+                if best == 1:
+                    views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
+            cand = reg.candidates[best or 0]
+            for link, prev in found[best or 0]:
+                out.links.append(link)
+                if patches:
+                    pending.append(pool.submit(patch_job, link, prev, cand))
+            while len(pending) > 2 * max(1, workers):
+                out.patches.append(pending.popleft().result())
+            recent.append((reg.index, cand))
+            out.levels.append(cand.level)
+            out.done.append(reg.index)
+        out.patches.extend(f.result() for f in pending)
     return out
 
 

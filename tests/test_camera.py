@@ -211,3 +211,62 @@ def test_real_opencv_fisheye_reprojects_its_corners(shared_data) -> None:
     cam = ros_camera()
     px = pixels_in_circle(cam, np.deg2rad(89.0), 5000, seed=5)
     assert np.max(np.abs(cam.project(cam.unproject(px)) - px)) < 1e-6
+
+
+
+# --- compiled unprojection against array-expression references -------------------------
+
+def numpy_unproject_ocam(cam: OcamModel, px: np.ndarray) -> np.ndarray:
+    """OCam unprojection as numpy array expressions (affine undone with linalg.solve)."""
+    uv = np.linalg.solve([[cam.c, cam.d], [cam.e, 1.0]],
+                         np.stack([px[:, 1] - cam.center_row, px[:, 0] - cam.center_col]))
+    rho = np.hypot(*uv)
+    rays = np.stack([uv[1], uv[0], -np.polynomial.polynomial.polyval(rho, cam.pol)], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays[~(rho <= cam.max_rho_px)] = np.nan
+    return rays
+
+
+def numpy_unproject_fisheye(cam: OpenCVFisheyeModel, px: np.ndarray) -> np.ndarray:
+    """OpenCV fisheye unprojection as numpy: theta_d(theta) inverted by bisection."""
+    def distort(theta: np.ndarray) -> np.ndarray:
+        k1, k2, k3, k4 = cam.k
+        t2 = theta * theta
+        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    yd = (px[:, 1] - cam.cy) / cam.fy
+    xd = (px[:, 0] - cam.cx) / cam.fx - cam.skew * yd
+    thetad = np.hypot(xd, yd)
+    lo, hi = np.zeros_like(thetad), np.full_like(thetad, cam.max_incidence_rad)
+    for _ in range(80):   # to float64 resolution, independently of the table and Newton
+        mid = 0.5 * (lo + hi)
+        above = distort(mid) > thetad
+        lo, hi = np.where(above, lo, mid), np.where(above, mid, hi)
+    theta, phi = 0.5 * (lo + hi), np.arctan2(yd, xd)
+    rays = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+    rays[~(thetad <= distort(np.array(cam.max_incidence_rad)))] = np.nan
+    return rays
+
+
+@pytest.mark.parametrize("name", CAMERAS)
+def test_compiled_unprojection_equals_numpy_reference(name: str) -> None:
+    cam = CAMERAS[name]()
+    reference = numpy_unproject_ocam if isinstance(cam, OcamModel) else numpy_unproject_fisheye
+    rng = np.random.default_rng(6)
+    # the whole image circle, the sensor (corners beyond the circle: NaN), the centre
+    # and pixels that are not numbers
+    px = np.concatenate([
+        pixels_in_circle(cam, cam.max_incidence_rad * (1 - 1e-9), 20_000, seed=7),
+        rng.uniform([-0.5 * cam.width, -0.5 * cam.height], [1.5 * cam.width, 1.5 * cam.height],
+                    (5000, 2)),
+        cam.project(np.array([[0.0, 0.0, 1.0]])),
+        [[np.nan, 10.0], [10.0, np.inf]],
+    ])
+    with np.errstate(invalid="ignore"):   # inf · 0 in the reference's arithmetic
+        ours, theirs = cam.unproject(px), reference(cam, px)
+    assert np.array_equal(np.isnan(ours), np.isnan(theirs))
+    assert np.isnan(ours).any(axis=1).sum() > 1000   # the test covers invalid pixels
+    assert np.nanmax(np.abs(ours - theirs)) < 1e-12
+    # and the same through any array layout or dtype the API accepts
+    np.testing.assert_array_equal(cam.unproject(np.asfortranarray(px[:100]).astype(np.float32)),
+                                  cam.unproject(px[:100].astype(np.float32).astype(np.float64)))

@@ -138,6 +138,16 @@ def test_to_grey_handles_16_bit_and_colour() -> None:
     assert to_grey(np.full((4, 5), 128, np.uint8)).max() == pytest.approx(128 / 255)
 
 
+def test_to_grey_of_integer_frames_is_the_cast_times_the_scale() -> None:
+    """The one-pass conversion does the float32 arithmetic of cast-then-scale exactly."""
+    rng = np.random.default_rng(3)
+    for dtype in (np.uint8, np.uint16):
+        img = rng.integers(0, np.iinfo(dtype).max, (40, 50), endpoint=True).astype(dtype)
+        expected = img.astype(np.float32) * np.float32(1.0 / np.iinfo(dtype).max)
+        grey = to_grey(img)
+        assert grey.dtype == np.float32 and np.array_equal(grey, expected)
+
+
 def test_occluder_mask_keeps_static_dark_and_drops_moving_dark() -> None:
     rng = np.random.default_rng(0)
     frames = []

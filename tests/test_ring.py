@@ -84,3 +84,15 @@ def test_colour_frame_uses_the_laser_channel() -> None:
     grey = prepare_laser_frame(img)
     assert grey[21, 5] == pytest.approx(60000 / 65535)
     assert grey[5, 5] == pytest.approx(1000 / 65535)
+
+
+def test_integer_frames_are_cast_then_scaled_exactly() -> None:
+    """The one-pass conversion gives the float32 values of a cast and then a product."""
+    rng = np.random.default_rng(2)
+    for dtype in (np.uint8, np.uint16):
+        img = rng.integers(0, np.iinfo(dtype).max, (30, 40, 3), endpoint=True).astype(dtype)
+        scale = np.float32(1.0 / np.iinfo(dtype).max)
+        for frame, expected in ((img[..., 1], img[..., 1]), (img, img[..., 2])):
+            grey = prepare_laser_frame(frame, channel=2 if frame.ndim == 3 else None)
+            assert grey.dtype == np.float32
+            assert np.array_equal(grey, expected.astype(np.float32) * scale)

@@ -404,9 +404,7 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
     uv, valid = rays_to_plane(rays, distance, normal, basis)
     valid = valid[:azimuth.size]
     idx = np.flatnonzero(valid)
-    pts = np.empty((idx.size, 2))
-    for i in range(idx.size):
-        pts[i] = uv[idx[i]]
+    pts = take_rows(uv, idx)
     az, rk = azimuth[idx], rank[idx]
     kept = np.zeros(valid.size, np.bool_)
     none = np.empty((0, 5))
@@ -704,10 +702,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     """
     n = kept.size
     m = (n + stride - 1) // stride
-    idx = np.flatnonzero(kept)
-    pts = np.empty((idx.size, 2))
-    for i in range(idx.size):
-        pts[i] = uv[idx[i]]
+    pts = take_rows(uv, np.flatnonzero(kept))
     x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, pts, distance, normal,
                                                               basis, n_free, f_scale)
     # px RMS on the kept points of the subsample the steps were taken at
@@ -733,10 +728,17 @@ def ring_subsample(uv: np.ndarray, pixels: np.ndarray, kept: np.ndarray,
     """Every k-th kept point (k the smallest giving <= max_points): uv and pixels, float32."""
     idx = np.flatnonzero(kept)
     idx = idx[::max(1, -(-idx.size // max_points))]
-    out_uv, out_px = np.empty((idx.size, 2), np.float32), np.empty((idx.size, 2), np.float32)
+    return take_rows(uv, idx).astype(np.float32), take_rows(pixels, idx).astype(np.float32)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for an (N, 2) array, element by element: copying row views in a loop
+    (``out[i] = a[idx[i]]``) costs ~20 ns a row in numba, ten times this."""
+    out = np.empty((idx.size, 2))
     for i in range(idx.size):
-        out_uv[i], out_px[i] = uv[idx[i]], pixels[idx[i]]
-    return out_uv, out_px
+        out[i, 0], out[i, 1] = a[idx[i], 0], a[idx[i], 1]
+    return out
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -15,14 +15,15 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from pipestitch.unwrap import Strip, StripGrid
 
-__all__ = ["Canvas", "Overview", "canvas_grid", "frame_grid", "overview_factor",
-           "vignetting_profile"]
+__all__ = ["Canvas", "Overview", "ShadedStrip", "canvas_grid", "frame_grid", "overview_factor",
+           "shade", "vignetting_profile"]
 
 FEATHER_PX = 24       # width of the feather at a strip's edges (output pixels)
 GAIN_LIMITS = (0.5, 2.0)
@@ -86,6 +87,27 @@ def _feather(valid: np.ndarray) -> np.ndarray:
     return np.clip(dist / FEATHER_PX, 0, 1).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class ShadedStrip:
+    """A strip ready to blend (:func:`shade`).
+
+    ``albedo``: values divided by shading and vignetting, 0 where there is no data;
+    ``weight``: blend weight (quality x feather), float32, 0 where there is no data.
+    """
+
+    albedo: np.ndarray
+    weight: np.ndarray
+
+
+def shade(strip: Strip, level: np.ndarray) -> ShadedStrip:
+    """Divide out the LED shading and the vignetting ``level`` (per strip column) and
+    weigh every node by its quality times the feather (see :class:`Canvas`)."""
+    values = strip.values / np.maximum(strip.shading * level[None, :], 1e-6)
+    valid = np.isfinite(values) & (strip.weight > 0)
+    weight = np.where(valid, strip.weight * _feather(valid), 0).astype(np.float32)
+    return ShadedStrip(np.where(valid, values, 0), weight)
+
+
 class Canvas:
     """Accumulates weighted strips over a window of columns that slides along the run.
 
@@ -105,7 +127,23 @@ class Canvas:
         """Blend ``strip`` (its grid's columns start at canvas ``column``).
 
         ``level`` (per strip column) times the strip's shading is the brightness of a
-        unit albedo; returns the exposure gain applied.
+        unit albedo; returns the exposure gain applied. Same as
+        ``blend(shade(strip, level), column)``.
+
+        Raises
+        ------
+        ValueError
+            If the strip reaches columns already released.
+        """
+        return self.blend(shade(strip, level), column)
+
+    def blend(self, shaded: ShadedStrip, column: int) -> float:
+        """Blend a strip made ready by :func:`shade` (its columns start at canvas
+        ``column``); returns the exposure gain applied.
+
+        Only the gain and the sums depend on the canvas: the rest of the work per strip
+        is in :func:`shade`, which worker threads run side by side while strips are
+        blended here in order.
 
         Raises
         ------
@@ -115,14 +153,12 @@ class Canvas:
         if column < self.first:
             raise ValueError(f"canvas columns before {self.first} were released; a strip "
                              f"starts at {column}")
-        values = strip.values / np.maximum(strip.shading * level[None, :], 1e-6)
-        valid = np.isfinite(values) & (strip.weight > 0)
-        weight = np.where(valid, strip.weight * _feather(valid), 0).astype(np.float32)
-        self._reach(column + values.shape[1])
-        cols = slice(column - self.first, column - self.first + values.shape[1])
-        gain = self._gain(values, weight, cols)
-        self.total[:, cols] += np.where(valid, values * gain, 0) * weight
-        self.weights[:, cols] += weight
+        width = shaded.albedo.shape[1]
+        self._reach(column + width)
+        cols = slice(column - self.first, column - self.first + width)
+        gain = self._gain(shaded.albedo, shaded.weight, cols)
+        self.total[:, cols] += shaded.albedo * gain * shaded.weight
+        self.weights[:, cols] += shaded.weight
         return gain
 
     def _reach(self, end: int) -> None:

@@ -19,8 +19,8 @@ candidates do not already agree, then by re-selecting one candidate per ray by i
 distance from the conic until the set is stable. This module fits one frame;
 choosing between the hypotheses over a run is :mod:`pipestitch.ambiguity`.
 
-The loops over the points are compiled (:mod:`pipestitch._pose_kernels`): a frame
-takes a fraction of a millisecond, most of it in the camera's unprojection.
+The loops over the points are compiled (:mod:`pipestitch._pose_kernels`, and the
+camera models' unprojection): a frame takes a few tenths of a millisecond.
 """
 
 from __future__ import annotations
@@ -336,11 +336,10 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
 def _frame_rays(pixels: np.ndarray, stride: int, camera: CameraModel) -> np.ndarray:
     """Rays of the candidates, then of every ``stride``-th one moved one column, one row.
 
-    The camera's unprojection has a fixed cost of tens of microseconds a call, as
-    much as a thousand points, so the steps of the px RMS (:func:`ring_rms_px`) ride
-    along with the candidates: before the fit it is not known which candidates are
-    the ring. On a ring without outliers these are the points :func:`ring_rms_px`
-    takes of the inliers.
+    One unprojection call for all (each call has a fixed cost: argument checks and
+    dispatch), so the steps of the px RMS (:func:`ring_rms_px`) ride along with the
+    candidates: before the fit it is not known which candidates are the ring. On a
+    ring without outliers these are the points :func:`ring_rms_px` takes of the inliers.
     """
     return _as_points(camera.unproject(_k.step_query(_as_points(pixels), stride)))
 
@@ -386,11 +385,11 @@ def _both_hypotheses(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride
     """
     poses, cost, rms_mm, rms_px, sigma, info, sigma_ok = _k.refine_frame(
         start, uv, kept, stride, plane.distance_mm, plane.normal, plane.basis, n_free, noise_mm)
+    # as Python floats once: indexing the arrays element by element costs more here
+    poses, rms_mm, sigma = poses.tolist(), rms_mm.tolist(), sigma.tolist()
     first, second = (
-        Hypothesis(Pose(*poses[h, :4].tolist()), float(poses[h, 4]), float(cost),
-                   float(rms_mm[h]), float(rms_px),
-                   dict(zip(PARAMS, sigma[h].tolist(), strict=False)) if sigma_ok[h] else {},
-                   info[h])
+        Hypothesis(Pose(*poses[h][:4]), poses[h][4], float(cost), rms_mm[h], float(rms_px),
+                   dict(zip(PARAMS, sigma[h], strict=False)) if sigma_ok[h] else {}, info[h])
         for h in range(2))
     return first, second
 

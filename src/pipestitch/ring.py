@@ -91,15 +91,17 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarr
     arr = np.asarray(img)
     if arr.dtype.kind not in "uif":
         raise ValueError(f"laser frame: expected a numeric image, got dtype {arr.dtype}")
-    scale = 1.0 / np.iinfo(arr.dtype).max if arr.dtype.kind in "ui" else 1.0
+    integer = arr.dtype.kind in "ui"
+    scale = np.float32(1.0 / np.iinfo(arr.dtype).max if integer else 1.0)
     if arr.ndim == 3:
         index = laser_channel(arr) if channel is None else min(channel, arr.shape[2] - 1)
-        arr = arr[..., index].astype(np.float32) * np.float32(scale)
+        arr = arr[..., index]
     elif arr.ndim != 2:
         raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
-    else:
-        arr = arr.astype(np.float32) * np.float32(scale)
-    if not np.all(np.isfinite(arr)):
+    # Cast and scale in one pass (the float32 arithmetic of a cast, then a product).
+    arr = np.multiply(arr, scale, dtype=np.float32)
+    # Only a float frame can hold NaN or infinities.
+    if not integer and not np.all(np.isfinite(arr)):
         arr = np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
     return arr
 

@@ -261,6 +261,10 @@ def to_grey(img: np.ndarray) -> np.ndarray:
     arr = np.asarray(img)
     integer = arr.dtype.kind in "ui"
     scale = 1.0 / np.iinfo(arr.dtype).max if integer else 1.0
+    if integer and arr.ndim == 2:
+        # One pass (cast and scale, the same float32 arithmetic): a frame is read
+        # once per pass of the mosaic.
+        return np.multiply(arr, np.float32(scale), dtype=np.float32)
     arr = arr.astype(np.float32)
     if arr.ndim == 3:
         arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]

@@ -13,7 +13,6 @@ that breaks at 90°. Outside its valid range a model returns NaN, never garbage.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -21,9 +20,7 @@ import numpy as np
 __all__ = [
     "CameraModel",
     "as_points",
-    "invert_monotonic",
     "pixel_grid",
-    "rays_from_angles",
 ]
 
 
@@ -70,61 +67,6 @@ def as_points(points: np.ndarray, ncols: int, name: str) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != ncols:
         raise ValueError(f"{name}: expected shape (N, {ncols}), got {np.shape(points)}")
     return arr
-
-
-def rays_from_angles(theta: np.ndarray, cos_phi: np.ndarray, sin_phi: np.ndarray) -> np.ndarray:
-    """Unit rays from incidence angle ``theta`` and image azimuth (cos, sin).
-
-    The azimuth is the direction of the pixel offset from the image centre in
-    (x = column, y = row) terms.
-    """
-    s = np.sin(theta)
-    return np.stack([s * cos_phi, s * sin_phi, np.cos(theta)], axis=-1)
-
-
-def invert_monotonic(
-    func: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-    target: np.ndarray,
-    grid_x: np.ndarray,
-    grid_y: np.ndarray,
-    *,
-    iterations: int = 6,
-) -> np.ndarray:
-    """Solve ``func(x) = target`` for a monotonic increasing scalar function.
-
-    A lookup table (``grid_x`` -> ``grid_y``, sampled once when the model is built)
-    gives the starting point and Newton's method polishes it to machine precision.
-    This is the exact inverse the models use instead of a fitted inverse
-    polynomial, whose error (OCamCalib fits ``invpol`` to ~0.01 px) is far above
-    the 1e-6 px round trip we require.
-
-    Parameters
-    ----------
-    func : callable
-        ``func(x) -> (value, derivative)``, vectorised.
-    target : numpy.ndarray
-        Values to invert; must lie inside ``[grid_y[0], grid_y[-1]]``.
-    grid_x, grid_y : numpy.ndarray
-        Increasing samples of the function over its valid domain.
-    iterations : int
-        At most this many Newton steps (quadratic convergence: 6 is ample from a
-        dense table); stops early once every step is below 1e-13 of the domain.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``x`` with ``func(x) = target``, clipped to the valid domain.
-    """
-    x = np.interp(target, grid_y, grid_x)
-    lo, hi = grid_x[0], grid_x[-1]
-    tol = 1e-13 * max(abs(lo), abs(hi), 1.0)
-    for _ in range(iterations):
-        value, slope = func(x)
-        step = (value - target) / slope
-        x = np.clip(x - step, lo, hi)
-        if step.size == 0 or float(np.max(np.abs(step))) <= tol:
-            break  # converged (quadratically): usually after 2 steps from the table
-    return x
 
 
 def pixel_grid(width: int, height: int) -> np.ndarray:

@@ -9,11 +9,12 @@ has x along rows, y along columns and z backwards; the SPEC probe frame is
 (x_probe, y_probe, z_probe) = (y_ocam, x_ocam, -z_ocam).
 
 ``project`` does not use ``invpol``: it inverts ``pol`` exactly (lookup table +
-Newton, as :func:`pipestitch.camera.base.invert_monotonic` does), so that project
-and unproject agree to float64 rounding (~1e-12 px) over the whole image circle,
-including rays more than 90° off the axis. Its per-point loop is compiled
-(numba): the unwrapping projects ~10⁵ wall points per strip, and as array
-expressions the table look-up and the Newton steps cost ~100 ns a point. ``invpol``
+Newton), so that project and unproject agree to float64 rounding (~1e-12 px) over
+the whole image circle, including rays more than 90° off the axis. The per-point
+loops of both directions are compiled (numba): the unwrapping projects ~10⁵ wall
+points per strip, and as array expressions the table look-up and the Newton steps
+cost ~100 ns a point; the pose fit unprojects ~1,700 ring points a frame, where a
+dozen array expressions' fixed costs outweighed the arithmetic. ``invpol``
 is kept for export and for comparison with other tools
 (:meth:`OcamModel.project_invpol`).
 """
@@ -61,6 +62,8 @@ class OcamModel:
     _rho_table: np.ndarray = field(init=False, repr=False, compare=False)
     _theta_table: np.ndarray = field(init=False, repr=False, compare=False)
     _theta_start: np.ndarray = field(init=False, repr=False, compare=False)
+    _pol_array: np.ndarray = field(init=False, repr=False, compare=False)
+    _affine_array: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pol = tuple(float(v) for v in self.pol)
@@ -75,6 +78,10 @@ class OcamModel:
             raise ValueError(f"ocam: image size must be positive, got {self.width}x{self.height}")
         object.__setattr__(self, "pol", pol)
         object.__setattr__(self, "invpol", tuple(float(v) for v in self.invpol))
+        # the kernels' arguments: pol and (c, d, e, center_row, center_col)
+        object.__setattr__(self, "_pol_array", np.array(pol))
+        object.__setattr__(self, "_affine_array", np.array(
+            [self.c, self.d, self.e, self.center_row, self.center_col], dtype=np.float64))
         rho, theta = self._monotonic_table()
         object.__setattr__(self, "_rho_table", rho)
         object.__setattr__(self, "_theta_table", theta)
@@ -137,14 +144,8 @@ class OcamModel:
 
         Pixels outside the valid image circle give NaN rays.
         """
-        px = as_points(pixels, 2, "pixels")
-        u, v = self._unaffine(px[:, 1], px[:, 0])
-        rho = np.hypot(u, v)
-        f = np.polynomial.polynomial.polyval(rho, self.pol)
-        rays = np.stack([v, u, -f], axis=1)  # (y_ocam, x_ocam, -z_ocam)
-        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        rays[~(rho <= self.max_rho_px)] = np.nan
-        return rays
+        px = np.ascontiguousarray(as_points(pixels, 2, "pixels"))
+        return _rays(px, self._pol_array, self._affine_array, float(self._rho_table[-1]))
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Probe-frame points (N, 3) -> pixels (N, 2) as (col, row).
@@ -153,9 +154,8 @@ class OcamModel:
         beyond the valid incidence angle, at the origin or non-finite.
         """
         pts = np.ascontiguousarray(as_points(points, 3, "points"))
-        pol = np.array(self.pol)
-        dpol = np.polynomial.polynomial.polyder(pol)
-        rho = _rho_of_points(pts, pol, dpol, self._rho_table, self._theta_table,
+        dpol = np.polynomial.polynomial.polyder(self._pol_array)
+        rho = _rho_of_points(pts, self._pol_array, dpol, self._rho_table, self._theta_table,
                              self._theta_start)
         return self._rho_to_pixels(pts, rho)
 
@@ -174,8 +174,7 @@ class OcamModel:
         return self._rho_to_pixels(pts, np.where(valid, rho, np.nan))
 
     def _rho_to_pixels(self, pts: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        return _pixels(pts, rho, np.array([self.c, self.d, self.e, self.center_row,
-                                           self.center_col]))
+        return _pixels(pts, rho, self._affine_array)
 
     def scaled(self, factor: float) -> OcamModel:
         """The same lens on a sensor resampled by ``factor`` (pixel centres kept)."""
@@ -220,16 +219,48 @@ def _rho_of_points(pts: np.ndarray, pol: np.ndarray, dpol: np.ndarray, rho_table
         rho = rho_table[j] + ((rho_table[j + 1] - rho_table[j]) * (theta - theta_table[j])
                               / (theta_table[j + 1] - theta_table[j]))
         for _ in range(6):
-            f, df = pol[-1], dpol[-1]
-            for i in range(pol.shape[0] - 2, -1, -1):
-                f = pol[i] + f * rho
-            for i in range(dpol.shape[0] - 2, -1, -1):
-                df = dpol[i] + df * rho
+            f, df = _horner(pol, rho), _horner(dpol, rho)
             step = (n * f + z * rho) / (n * df + z)
             rho = min(max(rho - step, lo), hi)
             if abs(step) <= tol:
                 break
         out[k] = rho
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _horner(coef: np.ndarray, x: float) -> float:
+    """Polynomial with ascending coefficients at x (as numpy's ``polyval`` sums it)."""
+    f = coef[-1]
+    for i in range(coef.shape[0] - 2, -1, -1):
+        f = coef[i] + f * x
+    return f
+
+
+@numba.njit(cache=True, nogil=True)
+def _rays(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: float) -> np.ndarray:
+    """Unit rays (SPEC probe frame) of pixels (col, row); NaN beyond ``max_rho`` or NaN.
+
+    ``affine`` is (c, d, e, center_row, center_col). The ray in OCamCalib's frame is
+    (u, v, F(rho)) for the pre-affine offset (u, v) along (row, column), rho = |(u, v)|;
+    in the probe frame (v, u, -F(rho)), normalised. Compiled because the pose of a frame
+    unprojects ~1,700 points, and as a dozen array expressions that took as long as
+    the rest of the fit (no library has the OCamCalib model with the SPEC frame).
+    """
+    c, d, e, center_row, center_col = affine[0], affine[1], affine[2], affine[3], affine[4]
+    invdet = 1.0 / (c - d * e)
+    out = np.empty((pixels.shape[0], 3))
+    for k in range(pixels.shape[0]):
+        dr, dc = pixels[k, 1] - center_row, pixels[k, 0] - center_col
+        u = invdet * (dr - d * dc)
+        v = invdet * (-e * dr + c * dc)
+        rho = math.hypot(u, v)
+        if not rho <= max_rho:
+            out[k, 0] = out[k, 1] = out[k, 2] = np.nan
+            continue
+        z = -_horner(pol, rho)
+        norm = math.sqrt(v * v + u * u + z * z)
+        out[k, 0], out[k, 1], out[k, 2] = v / norm, u / norm, z / norm
     return out
 
 

@@ -27,7 +27,14 @@ from pipestitch.camera import CameraModel
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
-from pipestitch.mosaic import Canvas, canvas_grid, frame_grid, vignetting_profile
+from pipestitch.mosaic import (
+    Canvas,
+    ShadedStrip,
+    canvas_grid,
+    frame_grid,
+    shade,
+    vignetting_profile,
+)
 from pipestitch.occluder import occluder_mask
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
@@ -278,7 +285,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
 
     For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
     one whose strip correlates better with the previous frames is kept (``views`` is
-    updated). With ``patches`` the local patch shifts of every link are measured too
+    updated; once decided, a frame loses its alternative, so the later, finer rounds
+    unwrap it once). With ``patches`` the local patch shifts of every link are measured too
     (for the photometric pose refinement).
     """
     def work(i: int) -> _Registered:
@@ -316,9 +324,10 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                          for c in reg.candidates]
             best = _better_hypothesis(found) if len(found) > 1 else None
             if best is not None:
+                # Decided: later rounds unwrap the chosen view alone.
                 out.switched[reg.index] = best == 1
-                if best == 1:
-                    views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
+                mirror = views[reg.index].alternative if best == 1 else None
+                views[reg.index] = mirror or replace(views[reg.index], alternative=None)
             cand = reg.candidates[best or 0]
             for link, prev in found[best or 0]:
                 out.links.append(link)
@@ -425,24 +434,28 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
     frame (in blocks of at least ``RELEASE_COLS``), so the canvas holds only the frames
     in flight.
     """
-    def work(i: int) -> tuple[int, Strip | None, int, StripGrid | None, str]:
+    def work(i: int) -> tuple[int, ShadedStrip | None, int, str]:
         grid, col = frame_grid(canvas.grid, positions.z_mm[i], positions.roll_deg[i], window)
         try:
             grey = _read_grey(dataset, i, timer)
         except DatasetError as exc:  # readable in pass 1: changed on disk since
-            return i, None, col, None, f"{exc.path.name}: {exc.problem}"
+            return i, None, col, f"{exc.path.name}: {exc.problem}"
         with timer("unwrap"):
-            return i, unwrapper.strip(grey, views[i], grid), col, grid, ""
+            strip = unwrapper.strip(grey, views[i], grid)
+        with timer("blend"):
+            z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+            return i, shade(strip, profile(z_local)), col, ""
 
     gains = {}
     release = _release_points(canvas.grid, positions, placed, window)
+    # Unwrapping and shading run on the workers; only the blend, whose gain depends on
+    # the strips before, waits for them here in order.
     frames = ordered_map(work, placed, unwrapper.settings.workers)
-    for k, (i, strip, col, grid, error) in enumerate(track(frames, "stitch", total=len(placed),
-                                                           enabled=show_progress)):
-        if strip is not None and grid is not None:
-            z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+    for k, (i, shaded, col, error) in enumerate(track(frames, "stitch", total=len(placed),
+                                                      enabled=show_progress)):
+        if shaded is not None:
             with timer("blend"):
-                gains[i] = canvas.add(strip, col, profile(z_local))
+                gains[i] = canvas.blend(shaded, col)
         else:
             skipped[i] = error
         if sink is not None and (release[k] - canvas.first >= RELEASE_COLS

@@ -28,6 +28,7 @@ EPS = float(np.spacing(1.0))   # skimage's RANSAC clips its trial-count ratio to
 RESELECT_ROUNDS = 4            # re-selections of one candidate per ray
 GN_MAX_ITER = 30               # Gauss-Newton iterations at most
 JACOBI_SWEEPS = 30             # a bound only: 6 x 6 needs 5 or 6, 2 x 2 one
+INVERSE_ITERATIONS = 12        # a bound only: a conic's scatter needs 3 to 6
 MONOMIALS = np.array([[2, 0], [1, 1], [0, 2], [1, 0], [0, 1], [0, 0]])   # x^i y^j of a conic
 # Float options of the vectorised loops: reassociation lets LLVM sum in vector lanes.
 FAST = {"reassoc", "contract", "nsz", "arcp"}
@@ -138,6 +139,88 @@ def solve_vector(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return solve(a, b.reshape(b.size, 1))[:, 0].copy()
 
 
+@numba.njit(cache=True, error_model="numpy")
+def lu_solve(f: np.ndarray, order: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with a x = b for a vector b, from :func:`lu`'s factors of a (non-singular)."""
+    n = b.size
+    x = np.empty(n)
+    for i in range(n):                 # L y = P b
+        x[i] = b[order[i]]
+        for j in range(i):
+            x[i] -= f[i, j] * x[j]
+    for i in range(n - 1, -1, -1):     # U x = y
+        for j in range(i + 1, n):
+            x[i] -= f[i, j] * x[j]
+        x[i] /= f[i, i]
+    return x
+
+
+@numba.njit(cache=True, error_model="numpy")
+def smallest_eigvec(a: np.ndarray) -> np.ndarray:
+    """Unit eigenvector of the smallest eigenvalue of a small positive semi-definite matrix.
+
+    Inverse iteration (a few triangular solves with one LU of ``a``: the smallest
+    eigenvalue of a conic's scatter is the fit's residual, far below the next one,
+    so each step gains digits by their ratio), checked by its residual
+    |a x - (x^T a x) x| against rounding; :func:`sym_eig` when the check fails or
+    ``a`` is exactly singular (noise-free points). A tenth of the cost of the Jacobi
+    sweeps that diagonalise all of ``a``, for the one vector a conic fit needs.
+    """
+    n = a.shape[0]
+    f, order, det = lu(a)
+    norm_a = 0.0
+    for i in range(n):
+        for j in range(n):
+            norm_a = max(norm_a, abs(a[i, j]))
+    if det != 0.0:
+        x = np.full(n, 1.0 / np.sqrt(n))
+        for _ in range(INVERSE_ITERATIONS):
+            y = lu_solve(f, order, x)
+            y /= np.sqrt(np.sum(y * y))
+            if dot(y, x) < 0.0:
+                y = -y
+            change = np.max(np.abs(y - x))
+            x = y
+            if change <= 1e-15:
+                break
+        ax = matvec(a, x)
+        lam = dot(ax, x)
+        if np.max(np.abs(ax - lam * x)) <= 1e-12 * norm_a:
+            return x
+    return sym_eig(a)[1][:, 0].copy()
+
+
+@numba.njit(cache=True, error_model="numpy")
+def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a b for small matrices, as loops: numba's ``@`` calls BLAS, whose per-call cost
+    (~1 µs) is many times the arithmetic of a 2 x 3 by 3 x 2 product."""
+    out = np.zeros((a.shape[0], b.shape[1]))
+    for i in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            for j in range(b.shape[1]):
+                out[i, j] += a[i, k] * b[k, j]
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """a x for a small matrix (see :func:`matmul`)."""
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            out[i] += a[i, k] * x[k]
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def dot(a: np.ndarray, b: np.ndarray) -> float:
+    """a · b for small vectors (see :func:`matmul`)."""
+    total = 0.0
+    for i in range(a.size):
+        total += a[i] * b[i]
+    return total
+
+
 # --- the conic of the ring in the plane -------------------------------------------
 
 @numba.njit(cache=True, error_model="numpy")
@@ -159,7 +242,7 @@ def conic_fit(pts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, float, boo
         for k in range(6):
             i, m = MONOMIALS[j, 0] + MONOMIALS[k, 0], MONOMIALS[j, 1] + MONOMIALS[k, 1]
             scatter[j, k] = mom[i, m] / scale ** (i + m)
-    return _if_ellipse(sym_eig(scatter)[1][:, 0].copy(), scale)
+    return _if_ellipse(smallest_eigvec(scatter), scale)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -177,24 +260,26 @@ def _moments(pts: np.ndarray, mask: np.ndarray) -> np.ndarray:
     m00 = m10 = m01 = m20 = m11 = m02 = m30 = m21 = m12 = m03 = 0.0
     m40 = m31 = m22 = m13 = m04 = 0.0
     for k in range(pts.shape[0]):
-        if mask[k]:
-            x, y = pts[k, 0], pts[k, 1]
-            xx, xy, yy = x * x, x * y, y * y
-            m00 += 1.0
-            m10 += x
-            m01 += y
-            m20 += xx
-            m11 += xy
-            m02 += yy
-            m30 += xx * x
-            m21 += xx * y
-            m12 += xy * y
-            m03 += yy * y
-            m40 += xx * xx
-            m31 += xx * xy
-            m22 += xx * yy
-            m13 += xy * yy
-            m04 += yy * yy
+        # branch-free (a masked-out point adds zeros, even if NaN): the loop vectorises
+        on = 1.0 if mask[k] else 0.0
+        x = pts[k, 0] if mask[k] else 0.0
+        y = pts[k, 1] if mask[k] else 0.0
+        xx, xy, yy = x * x, x * y, y * y
+        m00 += on
+        m10 += x
+        m01 += y
+        m20 += xx
+        m11 += xy
+        m02 += yy
+        m30 += xx * x
+        m21 += xx * y
+        m12 += xy * y
+        m03 += yy * y
+        m40 += xx * xx
+        m31 += xx * xy
+        m22 += xx * yy
+        m13 += xy * yy
+        m04 += yy * yy
     return np.array([[m00, m01, m02, m03, m04], [m10, m11, m12, m13, 0.0],
                      [m20, m21, m22, 0.0, 0.0], [m30, m31, 0.0, 0.0, 0.0],
                      [m40, 0.0, 0.0, 0.0, 0.0]])
@@ -298,8 +383,11 @@ def initial_conic(pts: np.ndarray, rank: np.ndarray,
     if not ok:
         return coef, scale, inliers, False
     inliers = strongest & (sampson(pts, coef, scale) < threshold)
-    if np.count_nonzero(inliers) < 0.9 * n_strong:
+    n_in = np.count_nonzero(inliers)
+    if n_in < 0.9 * n_strong:
         return coef, scale, inliers, False
+    if n_in == n_strong:   # the same points: the same conic
+        return coef, scale, inliers, True
     coef2, scale2, ok2 = conic_fit(pts, inliers)
     return coef2, scale2, inliers, ok2
 
@@ -381,7 +469,8 @@ def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.nd
     return keep, coef, scale
 
 
-FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION = 0, 1, 2, 3   # select_ring's status
+# select_ring's and fit_frame's status
+FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION, LOW_COVERAGE = 0, 1, 2, 3, 4
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -426,6 +515,26 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
 
 
 @numba.njit(cache=True, error_model="numpy")
+def ring_query(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray,
+               n_azimuths: int) -> tuple[np.ndarray, int, float]:
+    """What a fit unprojects, and the detection's coverage, in one call.
+
+    Returns (:func:`step_query` of the pixels at ``stride``, ``stride``, coverage):
+    ``stride`` subsamples the rays' strongest candidates to ~128 for the px RMS
+    (~6 % on an RMS), coverage is the fraction of the ``n_azimuths`` rays with a
+    candidate (:attr:`pipestitch.ring.RingDetection.coverage`).
+    """
+    hit = np.zeros(max(n_azimuths, azimuth.max() + 1 if azimuth.size else 0), np.bool_)
+    n_strong = 0
+    for i in range(azimuth.size):
+        hit[azimuth[i]] = True
+        n_strong += rank[i] == 0
+    coverage = np.count_nonzero(hit) / n_azimuths if n_azimuths > 0 else 0.0
+    stride = max(1, n_strong // 128)
+    return step_query(pixels, stride), stride, coverage
+
+
+@numba.njit(cache=True, error_model="numpy")
 def step_query(pixels: np.ndarray, stride: int) -> np.ndarray:
     """(N + 2M, 2): the pixels, then pixels[::stride] moved one column, then one row."""
     n = pixels.shape[0]
@@ -459,7 +568,7 @@ def conic_poses(q: np.ndarray, lin: np.ndarray, c0: float, distance: float,
     """
     evals, evecs = sym_eig(q)
     w_norm = np.sqrt(max(0.0, 1 - evals[0]))
-    r2 = lin @ solve_vector(q, lin) - c0
+    r2 = dot(lin, solve_vector(q, lin)) - c0
     if not r2 > 0:
         return np.empty((0, 5))
     minor = evecs[:, 0]
@@ -472,13 +581,13 @@ def conic_poses(q: np.ndarray, lin: np.ndarray, c0: float, distance: float,
     out = np.empty((2, 5))
     for k in range(2):
         w = (1.0 - 2.0 * k) * w_norm * minor
-        axis = w @ basis + np.sqrt(max(0.0, 1 - w @ w)) * normal
+        axis = matvec(np.ascontiguousarray(basis.T), w) + np.sqrt(max(0.0, 1 - dot(w, w))) * normal
         alpha = np.arcsin(min(max(axis[1], -1.0), 1.0))
         beta = np.arcsin(min(max(-axis[0] / np.cos(alpha), -1.0), 1.0))
         rot = rotation_rows(alpha, beta)[:2].copy()
-        centre = solve_vector(np.ascontiguousarray((rot @ np.ascontiguousarray(basis.T)).T),
+        centre = solve_vector(np.ascontiguousarray(matmul(rot, np.ascontiguousarray(basis.T)).T),
                               lin)
-        t = centre - rot @ (distance * normal)
+        t = centre - matvec(rot, distance * normal)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = alpha, beta, t[0], t[1]
         out[k, 4] = np.sqrt(r2)
     return out
@@ -489,7 +598,7 @@ def plane_to_world(x: np.ndarray, distance: float, normal: np.ndarray,
                    basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(A, c): plane point u lies at world (x, y) = A u + c for pose vector ``x``."""
     rot = rotation_rows(x[0], x[1])[:2].copy()
-    return rot @ np.ascontiguousarray(basis.T), rot @ (distance * normal) + x[2:4]
+    return matmul(rot, np.ascontiguousarray(basis.T)), matvec(rot, distance * normal) + x[2:4]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -497,7 +606,8 @@ def model_conic(x: np.ndarray, distance: float, normal: np.ndarray,
                 basis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """The ring conic (q, lin, c0) in plane coordinates of pose vector ``x``."""
     a_mat, c = plane_to_world(x, distance, normal, basis)
-    return np.ascontiguousarray(a_mat.T) @ a_mat, a_mat.T @ c, c @ c - x[4] ** 2
+    a_t = np.ascontiguousarray(a_mat.T)
+    return matmul(a_t, a_mat), matvec(a_t, c), dot(c, c) - x[4] ** 2
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -639,7 +749,8 @@ def _symmetric5(m00: float, m01: float, m02: float, m03: float, m04: float, m11:
 def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
                  normal: np.ndarray, basis: np.ndarray, n_free: int,
                  f_scale: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Damped IRLS Gauss-Newton; stops once a step is below 2 % of every parameter's sigma.
+    """Damped IRLS Gauss-Newton; stops once the next step would be below 2 % of every
+    parameter's sigma (without taking it: x, its residuals and J^T J are then final).
 
     Only the first ``n_free`` parameters move (4: the radius is held). Returns
     (x, cost, residuals, unweighted J^T J at x). Raises
@@ -657,14 +768,14 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
         step = solve_vector(damped, -grad[:n_free])
         # sigma of each parameter (weighted normal equations, residual variance)
         sigma2 = np.diag(solve(a, np.eye(n_free))) * max(wrr / dof, 1e-12)
+        if np.all(step**2 <= 4e-4 * sigma2):
+            break   # converged: x is within 2 % of a sigma of the optimum
         trial = x.copy()
         trial[:n_free] += step
         out = wall_pass(trial, u, v, distance, normal, basis, f_scale)
         if out[1] <= cost:
             x, (resid, cost, wrr, hess, grad, jtj) = trial, out
             damping /= 10
-            if np.all(step**2 <= 4e-4 * sigma2):
-                break
         else:
             damping = max(damping * 10, 1e-6)
             if damping > 1e6:
@@ -715,11 +826,50 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     rms_mm, ok = np.empty(2), np.empty(2, np.bool_)
     sigma, info = np.empty((2, n_free)), np.empty((2, 4, 4))
     poses[0], poses[1] = x, mirror
-    rms_mm[0] = np.sqrt(resid @ resid / resid.size)
-    rms_mm[1] = np.sqrt(m_resid @ m_resid / resid.size)
+    rms_mm[0] = np.sqrt(dot(resid, resid) / resid.size)
+    rms_mm[1] = np.sqrt(dot(m_resid, m_resid) / resid.size)
     sigma[0], info[0], ok[0] = uncertainty(resid, jtj, n_free)
     sigma[1], info[1], ok[1] = uncertainty(m_resid, m_jtj, n_free)
     return poses, cost, rms_mm, rms_px, sigma, info, ok
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold: float,
+              reselect_threshold: float, uniforms: np.ndarray, distance: float,
+              normal: np.ndarray, basis: np.ndarray, min_hit: int, radius: float,
+              n_free: int, f_scale: float, stride: int, pixels: np.ndarray,
+              max_points: int) -> tuple:
+    """A frame's whole fit in one call: :func:`select_ring`, then :func:`refine_frame`
+    from the first closed-form start, then :func:`ring_subsample` of the kept points.
+
+    One entry from Python instead of three: right after a ring extraction every entry's
+    argument handling and code are cold, and cost more than the arithmetic. ``radius``
+    replaces the start's radius when ``n_free`` is 4 (held); ``min_hit`` is the number
+    of rays that must keep a candidate (else status LOW_COVERAGE).
+
+    Returns
+    -------
+    (status, rays hit, points kept, poses, cost, rms_mm, rms_px, sigma, information,
+    sigma_ok, ring uv, ring pixels): the last nine as :func:`refine_frame` and
+    :func:`ring_subsample` give them, empty unless status is FOUND.
+    """
+    uv, kept, starts, hit, status = select_ring(rays, azimuth, rank, threshold,
+                                                reselect_threshold, uniforms, distance,
+                                                normal, basis)
+    if status == FOUND and hit < min_hit:
+        status = LOW_COVERAGE
+    if status != FOUND:
+        ring = np.empty((0, 2), np.float32)
+        return (status, hit, 0, np.empty((0, 5)), 0.0, np.empty(0), 0.0,
+                np.empty((0, n_free)), np.empty((0, 4, 4)), np.empty(0, np.bool_), ring, ring)
+    start = starts[0].copy()
+    if n_free == 4:
+        start[4] = radius
+    poses, cost, rms_mm, rms_px, sigma, info, ok = refine_frame(
+        start, uv, kept, stride, distance, normal, basis, n_free, f_scale)
+    ring_uv, ring_px = ring_subsample(uv[:kept.size], pixels, kept, max_points)
+    return (status, hit, np.count_nonzero(kept), poses, cost, rms_mm, rms_px, sigma, info, ok,
+            ring_uv, ring_px)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -751,7 +901,7 @@ def uncertainty(resid: np.ndarray, jtj: np.ndarray,
     (sigma NaN) when the information is singular.
     """
     dof = max(1, resid.size - n_free)
-    info = jtj[:n_free, :n_free] / max(resid @ resid / dof, 1e-12)
+    info = jtj[:n_free, :n_free] / max(dot(resid, resid) / dof, 1e-12)
     pose_info = info[:4, :4].copy()
     if n_free == 5:
         pose_info -= np.outer(info[:4, 4], info[4, :4]) / max(info[4, 4], 1e-300)
@@ -774,16 +924,15 @@ def rays_to_plane(rays: np.ndarray, distance: float, normal: np.ndarray,
     Rows of rays that miss the plane (behind it, grazing, NaN) are NaN.
     """
     n = rays.shape[0]
-    valid = np.zeros(n, np.bool_)
-    uv = np.full((n, 2), np.nan)
+    valid = np.empty(n, np.bool_)
+    uv = np.empty((n, 2))
     for i in range(n):
         along = rays[i, 0] * normal[0] + rays[i, 1] * normal[1] + rays[i, 2] * normal[2]
-        scale = distance / along if along != 0.0 else np.inf
-        if np.isfinite(scale) and along > 1e-6:
-            valid[i] = True
-            for k in range(2):
-                uv[i, k] = (rays[i, 0] * scale * basis[k, 0] + rays[i, 1] * scale * basis[k, 1]
-                            + rays[i, 2] * scale * basis[k, 2])
+        valid[i] = along > 1e-6    # False for NaN: then the plane point is NaN too
+        scale = distance / along if valid[i] else np.nan
+        for k in range(2):
+            uv[i, k] = scale * (rays[i, 0] * basis[k, 0] + rays[i, 1] * basis[k, 1]
+                                + rays[i, 2] * basis[k, 2])
     return uv, valid
 
 

@@ -26,6 +26,7 @@ camera models' unprojection): a frame takes a few tenths of a millisecond.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -211,6 +212,12 @@ class ConicModel:
         return q, lin, float(c0)
 
 
+def _as_index(data: np.ndarray) -> np.ndarray:
+    """Integer array as the kernels take it (int64), copied only when it is not one."""
+    return data if isinstance(data, np.ndarray) and data.dtype == np.int64 else np.asarray(
+        data, dtype=np.int64)
+
+
 def _as_points(data: np.ndarray) -> np.ndarray:
     """(N, k) float64, C-contiguous: one compiled signature for every caller."""
     return np.ascontiguousarray(data, dtype=np.float64)
@@ -303,88 +310,77 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     """
     if not fit_radius and nominal_radius_mm is None:
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
-    if detection.pixels.shape[0] < 12 or detection.coverage < min_coverage:
-        return PoseFit(False, f"ring not found (coverage {detection.coverage:.0%})",
-                       coverage=detection.coverage)
+    pixels = _as_points(detection.pixels)
+    azimuth, rank = _as_index(detection.azimuth), _as_index(detection.rank)
+    # what is unprojected: the candidates, then every stride-th moved one column, one row
+    query, stride, found = _k.ring_query(pixels, azimuth, rank, detection.n_azimuths)
+    if pixels.shape[0] < 12 or found < min_coverage:
+        return PoseFit(False, f"ring not found (coverage {found:.0%})", coverage=found)
+    rays = _as_points(camera.unproject(query))
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    # px RMS points: every stride-th candidate, ~128 of the ring's (one strongest a ray)
-    stride = _rms_stride(int(np.count_nonzero(detection.rank == 0)))
-    rays = _frame_rays(detection.pixels, stride, camera)
-    uv, kept, starts, rays_hit, status = _select_ring(rays, detection, plane, noise_mm, seed)
-    if status != _k.FOUND:
-        reason = ("no ellipse found among ring candidates" if status == _k.NO_ELLIPSE
-                  else "ring is not the section of a cylinder")
-        return PoseFit(False, reason, coverage=detection.coverage)
-    coverage = rays_hit / detection.n_azimuths
-    if coverage < min_coverage:
-        return PoseFit(False, f"too few ring points fit ({coverage:.0%} of the ring)",
-                       coverage=coverage)
-    start = starts[0]
-    if not fit_radius:
-        start[4] = nominal_radius_mm
+    min_hit = math.ceil(min_coverage * detection.n_azimuths)
     try:
-        hyps = _both_hypotheses(start, uv, kept, stride, plane, 5 if fit_radius else 4, noise_mm)
+        out = _fit_kernel(rays, azimuth, rank, plane, noise_mm, seed, min_hit,
+                          np.nan if fit_radius else float(nominal_radius_mm), stride, pixels)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
-                       coverage=coverage)
-    # <= 720 points, float32: <= 12 kB a frame
-    ring = RingPoints(*_k.ring_subsample(uv[:len(kept)], _as_points(detection.pixels), kept, 720),
-                      plane)
-    return PoseFit(True, "", hyps, int(np.count_nonzero(kept)), float(coverage), "circle", ring)
+                       coverage=found)
+    status, rays_hit = out[0], out[1]
+    coverage = rays_hit / detection.n_azimuths
+    if status != _k.FOUND:
+        reason = {_k.NO_ELLIPSE: "no ellipse found among ring candidates",
+                  _k.NOT_A_SECTION: "ring is not the section of a cylinder"}.get(
+            status, f"too few ring points fit ({coverage:.0%} of the ring)")
+        return PoseFit(False, reason, coverage=coverage if status == _k.LOW_COVERAGE
+                       else found)
+    # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
+    return PoseFit(True, "", _hypotheses(*out[3:10]), int(out[2]), float(coverage), "circle",
+                   RingPoints(out[10], out[11], plane))
 
 
-def _frame_rays(pixels: np.ndarray, stride: int, camera: CameraModel) -> np.ndarray:
-    """Rays of the candidates, then of every ``stride``-th one moved one column, one row.
+def _fit_kernel(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, plane: LaserPlane,
+                noise_mm: float, seed: int, min_hit: int, radius: float, stride: int,
+                pixels: np.ndarray) -> tuple:
+    """:func:`pipestitch._pose_kernels.fit_frame` of the candidates' rays.
 
-    One unprojection call for all (each call has a fixed cost: argument checks and
-    dispatch), so the steps of the px RMS (:func:`ring_rms_px`) ride along with the
-    candidates: before the fit it is not known which candidates are the ring. On a
-    ring without outliers these are the points :func:`ring_rms_px` takes of the inliers.
+    ``rays`` are those of the candidates, then of every ``stride``-th one moved one
+    column, then one row (:func:`pipestitch._pose_kernels.step_query`: one
+    unprojection for all, as each call has a fixed cost; before the fit it is not known
+    which candidates are the ring, and on a ring without outliers these are the points
+    :func:`ring_rms_px` takes of the inliers).
+
+    Selection: a first conic directly when the strongest candidates agree (most frames
+    have few outliers, and one algebraic fit of every ray's strongest candidate then
+    explains 90 % of them); otherwise RANSAC, with samples from a generator seeded with
+    ``seed`` (reproducible), drawn only then. Inliers are then re-selected among all
+    candidates, one per ray, until the set is stable (the start may have missed a
+    stretch of the ring); the conic's Sampson distance is accurate to microns near the
+    curve, so this needs no nonlinear fit. ``radius`` NaN fits the radius, else holds
+    it. Refinement: :func:`_hypotheses`.
     """
-    return _as_points(camera.unproject(_k.step_query(_as_points(pixels), stride)))
-
-
-def _select_ring(rays: np.ndarray, detection: RingDetection, plane: LaserPlane, noise_mm: float,
-                 seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """Plane coordinates, the ring's candidates, closed-form starts, rays hit and status.
-
-    A first conic directly when the strongest candidates agree: most frames have
-    few outliers, and one algebraic fit of every ray's strongest candidate then
-    explains 90 % of them. Otherwise RANSAC, with samples from a generator seeded
-    with ``seed`` (reproducible). Then inliers are re-selected among all candidates,
-    one per ray, until the set is stable (the start may have missed a stretch of the
-    ring); the conic's Sampson distance is accurate to microns near the curve, so
-    this needs no nonlinear fit (:func:`pipestitch._pose_kernels.select_ring`).
-    """
-    args = (rays, np.asarray(detection.azimuth, dtype=np.int64),
-            np.asarray(detection.rank, dtype=np.int64), max(0.3, 6 * noise_mm),
-            max(0.25, 5 * noise_mm))
-    geometry = (plane.distance_mm, plane.normal, plane.basis)
-    out = _k.select_ring(*args, np.empty((0, 5)), *geometry)
-    if out[4] == _k.NEEDS_SAMPLES:
-        out = _k.select_ring(*args, np.random.default_rng(seed).random((RANSAC_TRIALS, 5)),
-                             *geometry)
+    args = (rays, azimuth, rank, max(0.3, 6 * noise_mm), max(0.25, 5 * noise_mm))
+    rest = (plane.distance_mm, plane.normal, plane.basis, min_hit, radius,
+            4 if radius == radius else 5, noise_mm, stride, pixels, 720)
+    out = _k.fit_frame(*args, np.empty((0, 5)), *rest)
+    if out[0] == _k.NEEDS_SAMPLES:
+        out = _k.fit_frame(*args, np.random.default_rng(seed).random((RANSAC_TRIALS, 5)), *rest)
     return out
 
 
-def _both_hypotheses(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: int,
-                     plane: LaserPlane, n_free: int,
-                     noise_mm: float) -> tuple[Hypothesis, Hypothesis]:
-    """Refine one hypothesis; its mirror is the other pose of the refined conic.
+def _hypotheses(poses: np.ndarray, cost: float, rms_mm: np.ndarray, rms_px: float,
+                sigma: np.ndarray, info: np.ndarray,
+                sigma_ok: np.ndarray) -> tuple[Hypothesis, Hypothesis]:
+    """The refined hypothesis and its mirror, the other pose of the refined conic.
 
-    ``start`` is the pose vector (alpha, beta, dx, dy, radius); with ``n_free`` 4 the
-    radius is held. Both mirrors explain every plane point with the same residual
-    (the same conic), so the optimum of one maps to the optimum of the other in
-    closed form. The robust least squares is a damped IRLS Gauss-Newton on the
-    soft-L1 loss (:func:`pipestitch._pose_kernels.gauss_newton`), not
+    Both mirrors explain every plane point with the same residual (the same conic), so
+    the optimum of one maps to the optimum of the other in closed form. The robust
+    least squares is a damped IRLS Gauss-Newton on the soft-L1 loss
+    (:func:`pipestitch._pose_kernels.gauss_newton`), not
     ``scipy.optimize.least_squares``, whose per-call set-up alone cost ~3 ms per
-    hypothesis (measured) for 4-5 parameters; from the closed-form start two or three
-    iterations reach a step far below the noise. Both share one px RMS (``uv`` holds
-    the candidates' and then the steps' plane coordinates, :func:`_frame_rays`): they
-    are the same curve in the image.
+    hypothesis (measured) for 4-5 parameters; from the closed-form start one or two
+    iterations reach a step far below the noise. Both share one px RMS: they are the
+    same curve in the image.
     """
-    poses, cost, rms_mm, rms_px, sigma, info, sigma_ok = _k.refine_frame(
-        start, uv, kept, stride, plane.distance_mm, plane.normal, plane.basis, n_free, noise_mm)
     # as Python floats once: indexing the arrays element by element costs more here
     poses, rms_mm, sigma = poses.tolist(), rms_mm.tolist(), sigma.tolist()
     first, second = (

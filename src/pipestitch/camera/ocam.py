@@ -237,7 +237,8 @@ def _horner(coef: np.ndarray, x: float) -> float:
     return f
 
 
-@numba.njit(cache=True, nogil=True)
+# reassociation and contraction only (NaN and inf keep their meaning: the NaN tests below)
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
 def _rays(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: float) -> np.ndarray:
     """Unit rays (SPEC probe frame) of pixels (col, row); NaN beyond ``max_rho`` or NaN.
 
@@ -254,13 +255,13 @@ def _rays(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: floa
         dr, dc = pixels[k, 1] - center_row, pixels[k, 0] - center_col
         u = invdet * (dr - d * dc)
         v = invdet * (-e * dr + c * dc)
-        rho = math.hypot(u, v)
-        if not rho <= max_rho:
+        rho2 = u * u + v * v
+        if not rho2 <= max_rho * max_rho:
             out[k, 0] = out[k, 1] = out[k, 2] = np.nan
             continue
-        z = -_horner(pol, rho)
-        norm = math.sqrt(v * v + u * u + z * z)
-        out[k, 0], out[k, 1], out[k, 2] = v / norm, u / norm, z / norm
+        z = -_horner(pol, math.sqrt(rho2))
+        inv_norm = 1.0 / math.sqrt(rho2 + z * z)
+        out[k, 0], out[k, 1], out[k, 2] = v * inv_norm, u * inv_norm, z * inv_norm
     return out
 
 

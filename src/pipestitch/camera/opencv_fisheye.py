@@ -167,7 +167,7 @@ def _rays(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray, theta_table
     for i in range(pixels.shape[0]):
         yd = (pixels[i, 1] - cy) / fy
         xd = (pixels[i, 0] - cx) / fx - skew * yd
-        thetad = math.hypot(xd, yd)
+        thetad = math.sqrt(xd * xd + yd * yd)
         if not thetad <= thetad_table[-1]:
             out[i, 0] = out[i, 1] = out[i, 2] = np.nan
             continue

@@ -7,6 +7,7 @@ measures; roll and z come from registration or odometry.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,7 +42,8 @@ class Pose:
 
     def __post_init__(self) -> None:
         values = (self.alpha, self.beta, self.dx_mm, self.dy_mm, self.roll, self.z_mm)
-        if not np.all(np.isfinite(values)):
+        # math.isfinite per value: np.isfinite of a tuple costs ~5 µs, a pose fit makes two
+        if not all(math.isfinite(v) for v in values):
             raise ValueError(f"Pose: expected finite values, got {values}")
 
     @classmethod

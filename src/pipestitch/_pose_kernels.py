@@ -367,29 +367,33 @@ def conic_normalised(coef: np.ndarray, scale: float) -> tuple[np.ndarray, np.nda
 
 
 @numba.njit(cache=True, error_model="numpy")
-def initial_conic(pts: np.ndarray, rank: np.ndarray,
-                  threshold: float) -> tuple[np.ndarray, float, np.ndarray, bool]:
+def initial_conic(pts: np.ndarray, rank: np.ndarray, threshold: float) -> tuple[
+        np.ndarray, float, np.ndarray, bool, np.ndarray]:
     """Conic of every ray's strongest candidate, and its inliers among all candidates.
 
     ``ok`` only when >= 12 strongest candidates exist and >= 90 % of them fit;
-    the conic is then refitted to all inliers. Otherwise the caller runs RANSAC.
+    the conic is then refitted to all inliers (unless they are all of them: the same
+    conic). Otherwise the caller runs RANSAC. The last item is every point's Sampson
+    distance from the returned conic when it is at hand (not refitted), else empty.
     """
     strongest = rank == 0
     n_strong = np.count_nonzero(strongest)
     inliers = np.zeros(pts.shape[0], np.bool_)
+    none = np.empty(0)
     if n_strong < 12:
-        return np.zeros(6), 1.0, inliers, False
+        return np.zeros(6), 1.0, inliers, False, none
     coef, scale, ok = conic_fit(pts, strongest)
     if not ok:
-        return coef, scale, inliers, False
-    inliers = strongest & (sampson(pts, coef, scale) < threshold)
+        return coef, scale, inliers, False, none
+    dist = sampson(pts, coef, scale)
+    inliers = strongest & (dist < threshold)
     n_in = np.count_nonzero(inliers)
     if n_in < 0.9 * n_strong:
-        return coef, scale, inliers, False
+        return coef, scale, inliers, False, none
     if n_in == n_strong:   # the same points: the same conic
-        return coef, scale, inliers, True
+        return coef, scale, inliers, True, dist
     coef2, scale2, ok2 = conic_fit(pts, inliers)
-    return coef2, scale2, inliers, ok2
+    return coef2, scale2, inliers, ok2, none
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -453,13 +457,17 @@ def one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) ->
 
 @numba.njit(cache=True, error_model="numpy")
 def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.ndarray,
-             scale: float, threshold: float) -> tuple[np.ndarray, np.ndarray, float]:
+             scale: float, threshold: float,
+             dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Re-select one candidate per ray from the conic and refit, until the set is stable.
 
-    At most ``RESELECT_ROUNDS`` rounds.
+    At most ``RESELECT_ROUNDS`` rounds. ``dist``: the points' Sampson distances from
+    the given conic if at hand (else empty: computed).
     """
-    for _ in range(RESELECT_ROUNDS):
-        new_keep = one_per_azimuth(sampson(pts, coef, scale), azimuth, threshold)
+    for k in range(RESELECT_ROUNDS):
+        if k > 0 or dist.size != pts.shape[0]:
+            dist = sampson(pts, coef, scale)
+        new_keep = one_per_azimuth(dist, azimuth, threshold)
         if np.array_equal(new_keep, keep) or np.count_nonzero(new_keep) < 12:
             break
         new_coef, new_scale, ok = conic_fit(pts, new_keep)
@@ -497,14 +505,15 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
     az, rk = azimuth[idx], rank[idx]
     kept = np.zeros(valid.size, np.bool_)
     none = np.empty((0, 5))
-    coef, scale, inliers, ok = initial_conic(pts, rk, threshold)
+    coef, scale, inliers, ok, dist = initial_conic(pts, rk, threshold)
     if not ok:
         if uniforms.shape[0] == 0:
             return uv, kept, none, 0, NEEDS_SAMPLES
         coef, scale, inliers, ok = ransac_conic(pts, uniforms, threshold)
+        dist = np.empty(0)   # of another conic
     if not ok or np.count_nonzero(inliers) < 12:
         return uv, kept, none, 0, NO_ELLIPSE
-    keep, coef, scale = reselect(pts, az, inliers, coef, scale, reselect_threshold)
+    keep, coef, scale = reselect(pts, az, inliers, coef, scale, reselect_threshold, dist)
     kept[idx[keep]] = True
     starts = conic_poses(*conic_normalised(coef, scale), distance, normal, basis)
     if starts.shape[0] == 0:
@@ -784,15 +793,14 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def refine_both(start: np.ndarray, uv: np.ndarray, distance: float, normal: np.ndarray,
-                basis: np.ndarray, n_free: int, f_scale: float) -> tuple[
+def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
+                normal: np.ndarray, basis: np.ndarray, n_free: int, f_scale: float) -> tuple[
         np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`gauss_newton` from ``start``, then the mirror of the optimum.
 
     Returns (x, cost, resid, jtj) of the optimum and (mirror, resid, jtj) of its
     mirror (:func:`mirror_of`), residuals and unweighted J^T J at each.
     """
-    u, v = uv[:, 0].copy(), uv[:, 1].copy()
     x, cost, resid, jtj = gauss_newton(start, u, v, distance, normal, basis, n_free, f_scale)
     mirror = mirror_of(x, distance, normal, basis)
     m_pass = wall_pass(mirror, u, v, distance, normal, basis, f_scale)
@@ -813,8 +821,11 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     """
     n = kept.size
     m = (n + stride - 1) // stride
-    pts = take_rows(uv, np.flatnonzero(kept))
-    x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, pts, distance, normal,
+    idx = np.flatnonzero(kept)
+    u, v = np.empty(idx.size), np.empty(idx.size)
+    for i in range(idx.size):
+        u[i], v[i] = uv[idx[i], 0], uv[idx[i], 1]
+    x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, u, v, distance, normal,
                                                               basis, n_free, f_scale)
     # px RMS on the kept points of the subsample the steps were taken at
     position = np.cumsum(kept) - 1

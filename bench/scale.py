@@ -25,12 +25,15 @@ Run: python -u bench/scale.py [--quick] [--pairs N ...] [--work DIR]
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib
 import json
 import resource
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -54,18 +57,70 @@ def child(*args: str) -> dict:
 
 # --- child modes -------------------------------------------------------------------------
 
+# The passes of a run whose peak resident memory is reported (module, class or "",
+# function): the pose stage, the registration passes and their refinement, the
+# stitch, the outputs.
+PASSES = (("pipestitch.pipeline.run", "", "estimate_poses"),
+          ("pipestitch.pipeline.mosaic", "", "_occluders"),
+          ("pipestitch.pipeline.mosaic", "", "_register"),
+          ("pipestitch.pipeline.mosaic", "", "_refine_views"),
+          ("pipestitch.pipeline.mosaic", "", "_stitch"),
+          ("pipestitch.pipeline.mosaic_output", "StreamedMosaic", "finish"),
+          ("pipestitch.pipeline.run", "", "_write_mosaic"),
+          ("pipestitch.pipeline.run", "", "_coded"),
+          ("pipestitch.pipeline.run", "", "render_report"))
+
+
+class PassMemory:
+    """Peak resident memory per pass of a run (``name#k``: its k-th call), sampled every
+    20 ms from /proc/self/statm by a thread while the wrapped passes say which runs."""
+
+    def __init__(self) -> None:
+        import os
+        import threading
+
+        self.page = os.sysconf("SC_PAGE_SIZE")
+        self.current, self.peak_mb, self.calls = ["other"], {}, {}
+        for module, cls, name in PASSES:
+            owner = importlib.import_module(module)
+            owner = getattr(owner, cls) if cls else owner
+            if hasattr(owner, name):
+                setattr(owner, name, self._wrapped(getattr(owner, name), name))
+        threading.Thread(target=self._sample, daemon=True).start()
+
+    def _sample(self) -> None:
+        while True:
+            stage = self.current[-1]
+            with open("/proc/self/statm") as f:
+                rss = int(f.read().split()[1]) * self.page / 2**20
+            self.peak_mb[stage] = max(rss, self.peak_mb.get(stage, 0.0))
+            time.sleep(0.02)
+
+    def _wrapped(self, func: Callable, name: str) -> Callable:
+        @functools.wraps(func)
+        def run(*args: object, **kwargs: object) -> object:
+            self.calls[name] = self.calls.get(name, 0) + 1
+            self.current.append(f"{name}#{self.calls[name]}")
+            try:
+                return func(*args, **kwargs)
+            finally:
+                self.current.pop()
+        return run
+
+
 def child_run(root: str, out: str, video: str | None, threads: int,
               led_cache_mb: float | None) -> dict:
     from pipestitch.pipeline.mosaic import MosaicSettings
     from pipestitch.pipeline.run import run_dataset
 
+    passes = PassMemory()
     start = time.perf_counter()
     cache = {} if led_cache_mb is None else {"led_cache_mb": led_cache_mb}
     summary = run_dataset(root, out, settings=MosaicSettings(workers=threads),
                           show_progress=False, video=Path(video) if video else None, **cache)
     seconds = time.perf_counter() - start
     return {"pairs": summary.n_frames, "placed": summary.n_placed, "seconds": seconds,
-            "rss_mb": peak_rss_mb()}
+            "rss_mb": peak_rss_mb(), "pass_rss_mb": passes.peak_mb}
 
 
 def _synthetic_column(rows: int, col0: int, width: int) -> np.ndarray:
@@ -174,6 +229,9 @@ def bench_runs(work: Path, pairs: list[int], size: str, threads: int,
             rows.append((n, kind, rate, got["rss_mb"]))
             print(f"{n:>6} {kind:>7} {got['seconds']:>8.1f} {rate:>8.2f} {got['rss_mb']:>12.0f}",
                   flush=True)
+            top = sorted(got["pass_rss_mb"].items(), key=lambda kv: -kv[1])[:4]
+            print("       peak RSS by pass (MB): "
+                  + ", ".join(f"{name} {mb:.0f}" for name, mb in top), flush=True)
     for kind in inputs:
         mine = sorted((r for r in rows if r[1] == kind), key=lambda r: r[0])
         first, last = mine[0], mine[-1]      # shortest and longest run

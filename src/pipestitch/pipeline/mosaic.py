@@ -36,6 +36,7 @@ from pipestitch.mosaic import (
     vignetting_profile,
 )
 from pipestitch.occluder import occluder_mask
+from pipestitch.pipeline.memory import release_free_memory
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pose_fit import RingPoints
@@ -394,11 +395,51 @@ def _refit_section(view: FrameView) -> FrameView:
                                start=start)
     except ValueError:   # no valid section (degenerate ring points): keep the view
         return view
+    # Kept for the whole run: the per-point residuals (~6 kB a frame) are not read again.
+    measured = replace(measured, residuals_mm=measured.residuals_mm[:0].copy())
     oval = measured.section.ovality
     if view.oval or oval > max(OVAL_SIGNIFICANCE * measured.ovality_std, OVAL_MIN):
         return replace(view, pose=measured.pose, section=measured.section, measured=measured,
                        information=measured.information, oval=True)
     return replace(view, measured=measured)
+
+
+@dataclass
+class _Registration:
+    """What the registration rounds leave for the stitch: per frame only its view and
+    links (the patch shifts and column levels of the passes are dropped)."""
+
+    views: dict[int, FrameView]
+    links: list[Link]
+    done: list[int]
+    switched: dict[int, bool]
+    vignetting: np.ndarray          # vignetting_profile of the last pass's levels
+    grid: StripGrid                 # the last pass's grid (the profile's columns)
+
+
+def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
+                         grids: tuple[StripGrid, StripGrid], rounds: int, timer: StageTimer,
+                         show_progress: bool, skipped: dict[int, str]) -> _Registration:
+    """Registration passes with photometric refinement between them.
+
+    Early rounds on the coarse grid (4x cheaper), the last on the mosaic's scale. Each
+    pass's patch shifts are released once the refinement has used them, and only the
+    last pass's column levels are kept, reduced to the vignetting profile at once.
+    """
+    camera, switched = unwrapper.camera, {}
+    for k in range(max(1, rounds)):
+        own = grids[0] if k < rounds - 1 else grids[1]
+        release_free_memory()   # each pass starts from what is live (pipeline/memory.py)
+        pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
+                          patches=rounds > 0)
+        switched.update(pass1.switched)
+        links, done, levels = pass1.links, pass1.done, pass1.levels
+        if pass1.patches:
+            with timer("refine"):
+                views, links = _refine_views(views, pass1, camera, own)
+                views = {i: _refit_section(v) for i, v in views.items()}
+        del pass1   # its patches: before the next pass gathers its own
+    return _Registration(views, links, done, switched, vignetting_profile(levels), own)
 
 
 RELEASE_COLS = 512     # the canvas releases finished columns in blocks of at least this
@@ -512,41 +553,31 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         raise StageError("no frame has both a pose and an LED frame")
     occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
     unwrapper = _Unwrapper(camera, settings, radius, occluded)
-    views = _views(usable, settings.mode, nominal)
     rounds = settings.refine_iterations if settings.mode == "ours" else 0
-    switched: dict[int, bool] = {}
-    for k in range(max(1, rounds)):
-        # Early rounds on coarse strips (4x cheaper), the last on the mosaic's scale.
-        own = coarse if k < rounds - 1 else fine
-        pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
-                          patches=rounds > 0)
-        switched.update(pass1.switched)
-        links = pass1.links
-        if pass1.patches:
-            with timer("refine"):
-                views, links = _refine_views(views, pass1, camera, own)
-                views = {i: _refit_section(v) for i, v in views.items()}
-    levels, done = pass1.levels, pass1.done
+    reg = _registration_rounds(dataset, _views(usable, settings.mode, nominal), unwrapper,
+                               (coarse, fine), rounds, timer, show_progress, skipped)
+    views, links = reg.views, reg.links
     with timer("register"):
         positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,
-                                    placed=done)
-    placed = [i for i in done if np.isfinite(positions.z_mm[i])]
-    for i in done:
+                                    placed=reg.done)
+    placed = [i for i in reg.done if np.isfinite(positions.z_mm[i])]
+    for i in reg.done:
         if i not in placed:
             skipped[i] = "not registered to the run (no common texture, no odometer)"
     if not placed:
         raise StageError("no frame could be placed in the mosaic")
-    prof = vignetting_profile(levels)
+    prof, own = reg.vignetting, reg.grid
     z_own = own.z0_mm + np.arange(own.n_cols) * own.mm_per_px
 
     def profile(z_local: np.ndarray) -> np.ndarray:
         return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
 
     canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
+    release_free_memory()   # the stitch starts from what is live, not the passes' peak
     if sink is not None:
         sink.start(canvas.grid, radius)
     gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
                     timer, show_progress, skipped, sink)
     image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
-                        [i for i in placed if i in gains], skipped, gains, switched, views)
+                        [i for i in placed if i in gains], skipped, gains, reg.switched, views)

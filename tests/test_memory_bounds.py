@@ -1,0 +1,157 @@
+"""Memory that must not grow with the run's length (issue 8): what is kept per frame,
+and the working memory of the one solve over all frames (the photometric pose
+refinement). Measured as bytes (tracemalloc, numpy's nbytes), never as RSS or time,
+so the checks are exact and cheap."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from pipestitch.refine import SHIFT_SIGMA_PX, PatchShifts, _prior_root, solve_pose_errors
+
+PATCHES = 34        # patch shifts per link on the mosaic's grid (measured: 34 on average)
+
+
+def _chain(n_frames: int, seed: int = 0) -> tuple[list[PatchShifts], dict, dict, np.ndarray]:
+    """Patch shifts of a run linked to its next two frames, exactly consistent with
+    known pose errors ``truth`` (n_frames, 4) and a rigid shift per link."""
+    rng = np.random.default_rng(seed)
+    truth = rng.normal(0, [2e-3, 2e-3, 0.05, 0.05], (n_frames, 4))
+    observations, jacobians = [], {}
+    for i in range(n_frames):
+        for j in (i + 1, i + 2):
+            if j >= n_frames:
+                continue
+            g_i = rng.normal(0, 40, (PATCHES, 2, 4))
+            g_j = rng.normal(0, 40, (PATCHES, 2, 4))
+            rigid = rng.normal(0, 30, 2)
+            shift = rigid + g_j @ truth[j] - g_i @ truth[i]
+            nodes = rng.uniform(0, 500, (PATCHES, 2))
+            observations.append(PatchShifts(i, j, nodes, shift, np.full(PATCHES, 0.6)))
+            jacobians[(i, j)] = (g_i, g_j)
+    information = {f: np.diag([1e4, 1e4, 10.0, 10.0]) for f in range(n_frames)}
+    return observations, jacobians, information, truth
+
+
+def _dense_reference(observations, jacobians, information) -> np.ndarray:
+    """The same weighted least squares (no reweighting needed: the data are exact)
+    by a dense solve of the stacked rows."""
+    n = len(information)
+    n_unknown = 4 * n + 2 * len(observations)
+    rows, rhs, sigma = [], [], []
+    for k, o in enumerate(observations):
+        g_i, g_j = jacobians[(o.i, o.j)]
+        for p in range(len(o.nodes)):
+            for axis in range(2):
+                a = np.zeros(n_unknown)
+                a[4 * n + 2 * k + axis] = 1.0
+                a[4 * o.j:4 * o.j + 4] += g_j[p, axis]
+                a[4 * o.i:4 * o.i + 4] -= g_i[p, axis]
+                rows.append(a)
+                rhs.append(o.shift[p, axis])
+                sigma.append(SHIFT_SIGMA_PX / np.sqrt(o.response[p]))
+    for f in range(n):
+        root = _prior_root(information[f])
+        for r in range(4):
+            a = np.zeros(n_unknown)
+            a[4 * f:4 * f + 4] = root[r]
+            rows.append(a)
+            rhs.append(0.0)
+            sigma.append(1.0)
+    a, b, s = np.array(rows), np.array(rhs), np.array(sigma)
+    w = 1.0 / s**2
+    normal = a.T @ (a * w[:, None]) + 1e-9 * np.eye(n_unknown)
+    return np.linalg.solve(normal, a.T @ (w * b))
+
+
+def test_pose_error_solve_matches_a_dense_solve_of_the_same_rows() -> None:
+    observations, jacobians, information, truth = _chain(8)
+    errors, motions = solve_pose_errors(observations, jacobians, information)
+    x = _dense_reference(observations, jacobians, information)
+    found = np.array([errors[f] for f in range(8)])
+    np.testing.assert_allclose(found, x[:32].reshape(8, 4), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(found, truth, atol=1e-4)   # exact data, weak priors
+    for k, o in enumerate(observations):
+        np.testing.assert_allclose(motions[(o.i, o.j)], x[32 + 2 * k:34 + 2 * k], rtol=1e-9,
+                                   atol=1e-9)
+
+
+def _solve_peak_bytes(n_frames: int) -> int:
+    args = _chain(n_frames)[:3]
+    tracemalloc.start()
+    try:
+        solve_pose_errors(*args)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_pose_error_solve_working_memory_per_frame_is_small() -> None:
+    """The solve's working memory beyond its inputs: ~12 kB a frame (a 10 x 10 block,
+    the weights and the sparse normal matrix per link). Built as one sparse matrix with
+    a row per patch shift from Python lists, it was ~170 kB a frame (670 MB at 4000
+    pairs)."""
+    per_frame = (_solve_peak_bytes(240) - _solve_peak_bytes(60)) / 180
+    assert per_frame < 20_000, f"{per_frame:.0f} bytes a frame"
+
+
+def _nbytes(obj: object, seen: set[int]) -> int:
+    """Bytes held by ``obj`` through dataclass fields, containers and arrays."""
+    if id(obj) in seen:
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes + (_nbytes(obj.base, seen) if obj.base is not None else 0)
+    size = sys.getsizeof(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        size += sum(_nbytes(getattr(obj, f.name), seen) for f in dataclasses.fields(obj))
+    elif isinstance(obj, dict):
+        size += sum(_nbytes(k, seen) + _nbytes(v, seen) for k, v in obj.items())
+    elif isinstance(obj, list | tuple | set):
+        size += sum(_nbytes(v, seen) for v in obj)
+    return size
+
+
+@pytest.fixture(scope="module")
+def summary(tmp_path_factory: pytest.TempPathFactory, simulate_small):
+    from pipestitch.pipeline.run import run_dataset
+
+    root = simulate_small(tmp_path_factory.mktemp("mem") / "ds", "--pairs", "6", "--seed", "3")
+    return run_dataset(root, tmp_path_factory.mktemp("mem") / "out", show_progress=False,
+                       led_cache_mb=0)
+
+
+def test_the_views_kept_for_the_whole_run_are_compact(summary) -> None:
+    """Per frame the stitch and the outputs keep the view (pose, section, information)
+    with the ring's plane coordinates for the section refits, not the ring's image
+    pixels nor the refit's per-point residuals: ~7 kB a frame (was ~19 kB)."""
+    views = summary.mosaic.views
+    assert len(views) == 6
+    per_frame = _nbytes(views, set()) / len(views)
+    assert per_frame < 9_000, f"{per_frame:.0f} bytes a frame"
+    for view in views.values():
+        assert view.ring is not None and view.ring.pixels.size == 0
+        assert view.measured is not None and view.measured.residuals_mm.size == 0
+
+
+def test_links_and_positions_are_all_the_registration_keeps(summary) -> None:
+    """The mosaic result holds links and positions, no patch shifts or column levels."""
+    result = summary.mosaic
+    per_frame = _nbytes([result.links, result.positions], set()) / len(result.views)
+    assert per_frame < 2_000, f"{per_frame:.0f} bytes a frame"
+
+
+def test_frames_no_longer_carry_their_rings_once_the_views_hold_them() -> None:
+    from pipestitch.pipeline.pose import FramePose
+    from pipestitch.pipeline.run import _without_rings
+    from pipestitch.pose_fit import PoseFit, RingPoints
+
+    ring = RingPoints(np.zeros((720, 2), np.float32), np.zeros((720, 2), np.float32), None)
+    frames = [FramePose(0, PoseFit(True, "", ring=ring)), FramePose(1, PoseFit(False, "no ring"))]
+    out = _without_rings(frames)
+    assert out[0].fit.ring is None and out[0].fit.ok and out[1] is frames[1]

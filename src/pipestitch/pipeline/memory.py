@@ -1,10 +1,14 @@
-"""Handing freed heap memory back to the system between the passes of a run.
+"""Handing freed heap memory back to the system during a run.
 
 Each pass of ``pipestitch run`` allocates and frees hundreds of MB of strips, spectra
-and patches on several threads. glibc keeps what was freed in its arenas (one per
-thread), so a pass that follows one with a higher peak can start from that peak's
-resident size instead of from what is live. ``malloc_trim(0)`` releases the free
-pages of every arena; elsewhere (another C library) this is a no-op.
+and patches on several threads, between which small per-frame results stay alive for
+the whole run. glibc serves a freed large block's size from its heap afterwards (its
+mmap threshold rises up to 32 MB), so the large buffers come to share heap pages with
+those small results, and the heap grows with the run. :func:`map_large_blocks` keeps
+the threshold at glibc's default of 128 kB (large buffers are mapped and unmapped,
+never left in the heap); :func:`release_free_memory` (``malloc_trim(0)``) returns the
+free pages of every arena between passes. Elsewhere (another C library) both are
+no-ops.
 """
 
 from __future__ import annotations
@@ -13,17 +17,36 @@ import ctypes
 import ctypes.util
 import functools
 
-__all__ = ["release_free_memory"]
+__all__ = ["MMAP_THRESHOLD_BYTES", "map_large_blocks", "release_free_memory"]
+
+MMAP_THRESHOLD_BYTES = 128 * 1024
+_M_MMAP_THRESHOLD = -3          # mallopt parameter (glibc malloc.h)
 
 
 @functools.cache
-def _malloc_trim() -> ctypes._CFuncPtr | None:
-    name = ctypes.util.find_library("c")
+def _libc_function(name: str) -> ctypes._CFuncPtr | None:
+    path = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name) if name else None
+        libc = ctypes.CDLL(path) if path else None
     except OSError:
         return None
-    return getattr(libc, "malloc_trim", None) if libc is not None else None
+    return getattr(libc, name, None) if libc is not None else None
+
+
+def map_large_blocks(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Serve every heap block of at least ``threshold`` bytes by its own mapping.
+
+    glibc ``mallopt(M_MMAP_THRESHOLD, threshold)``, which also stops glibc raising the
+    threshold as large blocks are freed. Process-wide; measured on a 150-pair run:
+    peak 623 MB instead of 710, the same time.
+
+    Returns
+    -------
+    bool
+        True when set; False where the C library has no ``mallopt``.
+    """
+    mallopt = _libc_function("mallopt")
+    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold))) if mallopt is not None else False
 
 
 def release_free_memory() -> bool:
@@ -35,5 +58,5 @@ def release_free_memory() -> bool:
         True when memory was released; False when none could be or the C library
         has no ``malloc_trim``.
     """
-    trim = _malloc_trim()
+    trim = _libc_function("malloc_trim")
     return bool(trim(0)) if trim is not None else False

@@ -499,11 +499,15 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
     the number of azimuths with a kept candidate.
     """
     uv, valid = rays_to_plane(rays, distance, normal, basis)
-    valid = valid[:azimuth.size]
-    idx = np.flatnonzero(valid)
-    pts = take_rows(uv, idx)
-    az, rk = azimuth[idx], rank[idx]
-    kept = np.zeros(valid.size, np.bool_)
+    idx = np.flatnonzero(valid[:azimuth.size])
+    # the candidates that meet the plane, gathered in one loop (numba's fancy indexing
+    # inlines much generic code, cold right after a ring extraction)
+    pts = np.empty((idx.size, 2))
+    az, rk = np.empty(idx.size, np.int64), np.empty(idx.size, np.int64)
+    for i in range(idx.size):
+        j = idx[i]
+        pts[i, 0], pts[i, 1], az[i], rk[i] = uv[j, 0], uv[j, 1], azimuth[j], rank[j]
+    kept = np.zeros(azimuth.size, np.bool_)
     none = np.empty((0, 5))
     coef, scale, inliers, ok, dist = initial_conic(pts, rk, threshold)
     if not ok:
@@ -514,12 +518,13 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
     if not ok or np.count_nonzero(inliers) < 12:
         return uv, kept, none, 0, NO_ELLIPSE
     keep, coef, scale = reselect(pts, az, inliers, coef, scale, reselect_threshold, dist)
-    kept[idx[keep]] = True
+    hit = np.zeros(az.max() + 1, np.bool_)
+    for i in range(idx.size):
+        if keep[i]:
+            kept[idx[i]] = hit[az[i]] = True
     starts = conic_poses(*conic_normalised(coef, scale), distance, normal, basis)
     if starts.shape[0] == 0:
         return uv, kept, none, 0, NOT_A_SECTION
-    hit = np.zeros(az.max() + 1, np.bool_)
-    hit[az[keep]] = True
     return uv, kept, starts, np.count_nonzero(hit), FOUND
 
 
@@ -827,12 +832,20 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
         u[i], v[i] = uv[idx[i], 0], uv[idx[i], 1]
     x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, u, v, distance, normal,
                                                               basis, n_free, f_scale)
-    # px RMS on the kept points of the subsample the steps were taken at
-    position = np.cumsum(kept) - 1
-    sub = np.flatnonzero(kept[::stride])
+    # px RMS on the kept points of the subsample the steps were taken at: candidate
+    # k * stride, its residual (the kept points' running count) and its two steps
+    pts, res = np.empty((m, 2)), np.empty(m)
+    col, row = np.empty((m, 2)), np.empty((m, 2))
+    count = position = 0
+    for i in range(n):
+        if kept[i] and i % stride == 0:
+            k = i // stride
+            pts[count], res[count] = uv[i], resid[position]
+            col[count], row[count] = uv[n + k], uv[n + m + k]
+            count += 1
+        position += kept[i]
     a_mat, c = plane_to_world(x, distance, normal, basis)
-    rms_px = px_rms(uv[sub * stride], resid[position[sub * stride]], uv[n + sub],
-                    uv[n + m + sub], a_mat, c)
+    rms_px = px_rms(pts[:count], res[:count], col[:count], row[:count], a_mat, c)
     poses = np.empty((2, 5))
     rms_mm, ok = np.empty(2), np.empty(2, np.bool_)
     sigma, info = np.empty((2, n_free)), np.empty((2, 4, 4))

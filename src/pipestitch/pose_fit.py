@@ -318,7 +318,7 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         return PoseFit(False, f"ring not found (coverage {found:.0%})", coverage=found)
     rays = _as_points(camera.unproject(query))
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    min_hit = math.ceil(min_coverage * detection.n_azimuths)
+    min_hit = _min_rays(min_coverage, detection.n_azimuths)
     try:
         out = _fit_kernel(rays, azimuth, rank, plane, noise_mm, seed, min_hit,
                           np.nan if fit_radius else float(nominal_radius_mm), stride, pixels)
@@ -336,6 +336,17 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
     return PoseFit(True, "", _hypotheses(*out[3:10]), int(out[2]), float(coverage), "circle",
                    RingPoints(out[10], out[11], plane))
+
+
+def _min_rays(min_coverage: float, n_azimuths: int) -> int:
+    """Fewest rays hit with ``hit / n_azimuths >= min_coverage`` (the float test itself:
+    ``ceil(c * n)`` is one too many where the product rounds up, 0.55 * 100 = 55.0…07)."""
+    hit = max(0, math.ceil(min_coverage * n_azimuths))
+    while hit > 0 and (hit - 1) / n_azimuths >= min_coverage:
+        hit -= 1
+    while n_azimuths and hit / n_azimuths < min_coverage:
+        hit += 1
+    return hit
 
 
 def _fit_kernel(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, plane: LaserPlane,

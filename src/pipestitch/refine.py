@@ -222,7 +222,7 @@ def _normal_equations(pairs: Sequence[_PairRows], weights: Sequence[np.ndarray],
         a = p.design()
         aw = a * w[:, None]
         blocks[k] = aw.T @ a
-        rhs[p.unknowns] += aw.T @ p.shift
+        np.add.at(rhs, p.unknowns, aw.T @ p.shift)   # sums repeated unknowns, as += does not
     data[100 * len(pairs):] = fixed.data
     return sp.csc_matrix((data, pattern), shape=(n_unknown, n_unknown)), rhs
 

@@ -286,9 +286,9 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
 
     For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
     one whose strip correlates better with the previous frames is kept (``views`` is
-    updated; once decided, a frame loses its alternative, so the later, finer rounds
-    unwrap it once). With ``patches`` the local patch shifts of every link are measured too
-    (for the photometric pose refinement).
+    updated; a frame kept on its first hypothesis keeps the other, so a later, finer
+    round can still reverse the choice). With ``patches`` the local patch shifts of
+    every link are measured too (for the photometric pose refinement).
     """
     def work(i: int) -> _Registered:
         try:
@@ -325,10 +325,9 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                          for c in reg.candidates]
             best = _better_hypothesis(found) if len(found) > 1 else None
             if best is not None:
-                # Decided: later rounds unwrap the chosen view alone.
                 out.switched[reg.index] = best == 1
-                mirror = views[reg.index].alternative if best == 1 else None
-                views[reg.index] = mirror or replace(views[reg.index], alternative=None)
+                if best == 1:
+                    views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
             cand = reg.candidates[best or 0]
             for link, prev in found[best or 0]:
                 out.links.append(link)

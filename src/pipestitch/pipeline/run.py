@@ -28,7 +28,7 @@ from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_
 from pipestitch.measure.defects import Defect
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measure import write_defects_csv
-from pipestitch.pipeline.memory import map_large_blocks, release_free_memory
+from pipestitch.pipeline.memory import release_free_memory
 from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
 from pipestitch.pipeline.mosaic_output import PYRAMID, TILES, StreamedMosaic, WrittenMosaic
 from pipestitch.pipeline.pose import (
@@ -234,7 +234,6 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     (pipeline/frame_cache.py; 0: never).
     """
     settings = settings or MosaicSettings()
-    map_large_blocks()   # large buffers never left in the heap (pipeline/memory.py)
     dataset = CachedLedFrames(open_dataset(root, video=video),
                               budget_bytes=int(led_cache_mb * 2**20))
     try:

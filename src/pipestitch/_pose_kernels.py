@@ -29,6 +29,7 @@ RESELECT_ROUNDS = 4            # re-selections of one candidate per ray
 GN_MAX_ITER = 30               # Gauss-Newton iterations at most
 JACOBI_SWEEPS = 30             # a bound only: 6 x 6 needs 5 or 6, 2 x 2 one
 INVERSE_ITERATIONS = 12        # a bound only: a conic's scatter needs 3 to 6
+RMS_POINTS = 128               # px RMS on ~this many ring points: an RMS to ~6 %
 MONOMIALS = np.array([[2, 0], [1, 1], [0, 2], [1, 0], [0, 1], [0, 0]])   # x^i y^j of a conic
 # Float options of the vectorised loops: reassociation lets LLVM sum in vector lanes.
 FAST = {"reassoc", "contract", "nsz", "arcp"}
@@ -119,17 +120,9 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     f, order, det = lu(a)
     if det == 0.0:
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
-    n, m = b.shape
-    x = np.empty((n, m))
-    for c in range(m):
-        for i in range(n):                 # L y = P b
-            x[i, c] = b[order[i], c]
-            for j in range(i):
-                x[i, c] -= f[i, j] * x[j, c]
-        for i in range(n - 1, -1, -1):     # U x = y
-            for j in range(i + 1, n):
-                x[i, c] -= f[i, j] * x[j, c]
-            x[i, c] /= f[i, i]
+    x = np.empty(b.shape)
+    for c in range(b.shape[1]):
+        x[:, c] = lu_solve(f, order, np.ascontiguousarray(b[:, c]))
     return x
 
 
@@ -544,7 +537,7 @@ def ring_query(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray,
         hit[azimuth[i]] = True
         n_strong += rank[i] == 0
     coverage = np.count_nonzero(hit) / n_azimuths if n_azimuths > 0 else 0.0
-    stride = max(1, n_strong // 128)
+    stride = max(1, n_strong // RMS_POINTS)
     return step_query(pixels, stride), stride, coverage
 
 

@@ -441,8 +441,8 @@ def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,
 
 
 def _rms_stride(n: int) -> int:
-    """Subsampling of n points for the px RMS: ~128 points estimate an RMS to ~6 %."""
-    return max(1, n // 128)
+    """Subsampling of n points for the px RMS, as the fit takes it (``RMS_POINTS``)."""
+    return max(1, n // _k.RMS_POINTS)
 
 
 def _plane_coords(pixels: np.ndarray, camera: CameraModel,

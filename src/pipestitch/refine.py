@@ -94,7 +94,7 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
                 continue
             b = second[rows_j, c:c + PATCH_PX]
             a = first[rows_i, c1:c1 + PATCH_PX]
-            if np.std(b) < MIN_CONTRAST or np.std(a) < MIN_CONTRAST:
+            if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
                 continue
             sx, sy, resp = phase_shift(a, b, win, iterations=2)
             if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
@@ -105,6 +105,11 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
             responses.append(resp)
     return PatchShifts(i, j, np.array(nodes, float).reshape(-1, 2),
                        np.array(shifts, float).reshape(-1, 2), np.array(responses, float))
+
+
+def _std(patch: np.ndarray) -> float:
+    """Standard deviation of a patch (``cv2.meanStdDev``: a fifth of ``np.std``'s time)."""
+    return float(cv2.meanStdDev(patch)[1][0, 0])
 
 
 def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,

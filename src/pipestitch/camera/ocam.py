@@ -63,6 +63,7 @@ class OcamModel:
     _theta_table: np.ndarray = field(init=False, repr=False, compare=False)
     _theta_start: np.ndarray = field(init=False, repr=False, compare=False)
     _pol_array: np.ndarray = field(init=False, repr=False, compare=False)
+    _dpol_array: np.ndarray = field(init=False, repr=False, compare=False)
     _affine_array: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -80,6 +81,7 @@ class OcamModel:
         object.__setattr__(self, "invpol", tuple(float(v) for v in self.invpol))
         # the kernels' arguments: pol and (c, d, e, center_row, center_col)
         object.__setattr__(self, "_pol_array", np.array(pol))
+        object.__setattr__(self, "_dpol_array", np.polynomial.polynomial.polyder(self._pol_array))
         object.__setattr__(self, "_affine_array", np.array(
             [self.c, self.d, self.e, self.center_row, self.center_col], dtype=np.float64))
         rho, theta = self._monotonic_table()
@@ -154,9 +156,8 @@ class OcamModel:
         beyond the valid incidence angle, at the origin or non-finite.
         """
         pts = np.ascontiguousarray(as_points(points, 3, "points"))
-        dpol = np.polynomial.polynomial.polyder(self._pol_array)
-        rho = _rho_of_points(pts, self._pol_array, dpol, self._rho_table, self._theta_table,
-                             self._theta_start)
+        rho = _rho_of_points(pts, self._pol_array, self._dpol_array, self._rho_table,
+                             self._theta_table, self._theta_start)
         return self._rho_to_pixels(pts, rho)
 
     def project_invpol(self, points: np.ndarray) -> np.ndarray:

@@ -98,8 +98,10 @@ class MosaicSettings:
         as they are). Each round costs one more unwrapping pass.
     register_coarsening : int
         All refinement rounds but the last work on strips this many times coarser than
-        the mosaic (4x fewer pixels for 2); the last round, whose links place the
-        frames, works on the mosaic's scale.
+        the mosaic (4x fewer pixels for 2).
+    final_coarsening : int
+        The same for the last round, whose links place the frames (1: the mosaic's
+        scale).
     """
 
     mm_per_px: float | None = None
@@ -110,6 +112,7 @@ class MosaicSettings:
     reference_frames: int = 11
     refine_iterations: int = 2
     register_coarsening: int = 2
+    final_coarsening: int = 1
 
     def __post_init__(self) -> None:
         if self.mode not in UNWRAP_MODES:
@@ -546,6 +549,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     fine = StripGrid.window(radius, mm, *window, fft_sizes=True)
     coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window,
                               fft_sizes=True)
+    if settings.final_coarsening != 1:
+        fine = StripGrid.window(radius, mm * settings.final_coarsening, *window,
+                                fft_sizes=True)
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:

@@ -34,6 +34,7 @@ from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.progress import StageTimer, console, track
+from pipestitch.pipeline.threads import opencv_threads
 from pipestitch.pose_fit import PoseFit, fit_pose
 from pipestitch.ring import detect_ring, prepare_laser_frame
 from pipestitch.section_fit import oval_if_circle_infeasible
@@ -268,7 +269,9 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
              workers: int = 2, video: Path | None = None) -> PoseSummary:
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
     dataset = open_dataset(root, video=video)
-    frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers)
+    with opencv_threads(1 if workers > 1 else 0):   # see pipeline/threads.py
+        frames, choices = estimate_poses(dataset, show_progress=show_progress,
+                                         workers=workers)
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)

@@ -39,6 +39,7 @@ from pipestitch.pipeline.pose import (
 )
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.standards import CodedRun, code_run
+from pipestitch.pipeline.threads import opencv_threads
 from pipestitch.pose_fit import Hypothesis, RingPoints
 from pipestitch.report.html import FrameRow, ReportData, render_report
 from pipestitch.report.viewer import write_viewer
@@ -238,7 +239,11 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
                               budget_bytes=int(led_cache_mb * 2**20))
     try:
         read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
-        return _run(dataset, Path(out), settings, show_progress, tolerance_pct, crown_deg)
+        # The frames are spread over the workers: OpenCV splitting each call again
+        # costs more than it gains (pipeline/threads.py).
+        with opencv_threads(1 if settings.workers > 1 else 0):
+            return _run(dataset, Path(out), settings, show_progress, tolerance_pct,
+                        crown_deg)
     finally:
         close = getattr(dataset, "close", None)   # a video's decoder
         if close is not None:

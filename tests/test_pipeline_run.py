@@ -14,6 +14,8 @@ from typer.testing import CliRunner
 from pipestitch.cli import app
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
+from pipestitch.pipeline.mosaic import MosaicSettings
+from pipestitch.pipeline.run import run_dataset
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -66,7 +68,8 @@ def test_mosaic_scale_matches_the_truth(dataset: Path, output: Path) -> None:
     assert meta["frames_placed"] == list(range(6)) and meta["frames_skipped"] == []
 
 
-def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
+def _wall_score(dataset: Path, output: Path):
+    """The written mosaic against the simulator's wall (after the global z and roll)."""
     meta = json.loads((output / "mosaic.json").read_text())
     image = read_image(output / "mosaic.png").astype(np.float32)
     image[image == 0] = np.nan
@@ -74,12 +77,32 @@ def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
     truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
     wall_meta = json.loads((dataset / "truth" / "wall.json").read_text())
     wall = read_image(dataset / "truth" / "wall.png").astype(np.float32) / 255
-    score = score_mosaic(
+    return score_mosaic(
         WallImage(image, meta["deg_per_px"], meta["mm_per_px_axial"], meta["z0_mm"]),
         WallImage(wall, wall_meta["deg_per_px"], wall_meta["mm_per_px_axial"],
                   wall_meta["z0_mm"]),
         wall_meta["radius_mm"], float(np.median(truth["z_mm"] - est["z_mm"])),
         float(np.median(truth["roll_deg"] - est["roll_deg"])))
+
+
+def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
+    score = _wall_score(dataset, output)
+    assert score.ssim > 0.9
+    assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
+
+
+def test_coarser_final_registration_keeps_the_scale_and_the_geometry(
+        dataset: Path, output: Path, tmp_path: Path) -> None:
+    """final_coarsening 2: the placing round on 2x coarser strips; the canvas keeps the
+    mosaic's scale and the wall its geometry."""
+    out = tmp_path / "coarse"
+    summary = run_dataset(dataset, out, settings=MosaicSettings(final_coarsening=2),
+                          show_progress=False)
+    assert summary.n_placed == 6
+    meta, default = (json.loads((o / "mosaic.json").read_text()) for o in (out, output))
+    assert meta["mm_per_px_axial"] == default["mm_per_px_axial"]
+    assert meta["n_rows"] == default["n_rows"]
+    score = _wall_score(dataset, out)
     assert score.ssim > 0.9
     assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
 

@@ -557,12 +557,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     mm = settings.mm_per_px or default_mm_per_px(camera, radius)
     window = strip_window_mm(camera, radius, mm, min_resolution=settings.min_resolution)
     # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
-    fine = StripGrid.window(radius, mm, *window, fft_sizes=True)
+    fine = StripGrid.window(radius, mm * settings.final_coarsening, *window, fft_sizes=True)
     coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window,
                               fft_sizes=True)
-    if settings.final_coarsening != 1:
-        fine = StripGrid.window(radius, mm * settings.final_coarsening, *window,
-                                fft_sizes=True)
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:

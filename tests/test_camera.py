@@ -270,3 +270,19 @@ def test_compiled_unprojection_equals_numpy_reference(name: str) -> None:
     # and the same through any array layout or dtype the API accepts
     np.testing.assert_array_equal(cam.unproject(np.asfortranarray(px[:100]).astype(np.float32)),
                                   cam.unproject(px[:100].astype(np.float32).astype(np.float64)))
+
+
+@pytest.mark.parametrize("name", CAMERAS)
+def test_ray_kernel_gives_the_rays_of_unproject(name: str) -> None:
+    """What compiled callers unproject through (``ray_kernel``) is ``unproject`` exactly."""
+    from pipestitch.camera.kernels import rays_of
+
+    cam = CAMERAS[name]()
+    rng = np.random.default_rng(8)
+    px = np.concatenate([pixels_in_circle(cam, cam.max_incidence_rad * 0.999, 3000, seed=9),
+                         rng.uniform([-0.5 * cam.width, -0.5 * cam.height],
+                                     [1.5 * cam.width, 1.5 * cam.height], (500, 2)),
+                         [[np.nan, 10.0]]])
+    ours = rays_of(cam.ray_kernel.kind, np.ascontiguousarray(px), *cam.ray_kernel[1:])
+    assert np.isnan(ours).any(axis=1).sum() > 50
+    np.testing.assert_array_equal(ours, cam.unproject(px))

@@ -176,6 +176,44 @@ def test_opencv_fisheye_camera_end_to_end() -> None:
     assert fit.hypotheses[0].radius_mm == pytest.approx(40.0, abs=0.03)
 
 
+class UnprojectOnly:
+    """A camera model that offers ``unproject`` only (no compiled ``ray_kernel``)."""
+
+    def __init__(self, camera) -> None:
+        self.camera = camera
+
+    def unproject(self, pixels: np.ndarray) -> np.ndarray:
+        return self.camera.unproject(pixels)
+
+
+@pytest.mark.parametrize("camera", ["ocam", "opencv"])
+def test_fused_kernel_fits_as_the_unproject_path(camera: str) -> None:
+    """A frame fitted in one compiled call (the camera's ray kernel inside) gives the
+    same fit as unprojecting through ``unproject`` first; a model without a ray kernel
+    still fits, and a ringless frame fails the same way on both paths."""
+    cam = (default_camera("half") if camera == "ocam" else
+           OpenCVFisheyeModel(310.0, 310.0, 611.5, 511.5, (-0.01, 0.002, 0.0, 0.0), 1224, 1024))
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    r = Renderer(cam, PipeSection.circle(65.0),
+                 WallTexture(np.kron(base, np.ones((100, 60), np.float32)), 0.1, 0.1, -50.0), D)
+    laser, led = r.render_pair(Pose.from_degrees(3.0, -2.0, 4.0, -3.0), np.random.default_rng(5))
+    det = detect_ring(laser, cam, reflectance=led)
+    fused, plain = fit_pose(det, cam, D), fit_pose(det, UnprojectOnly(cam), D)
+    assert fused.ok and plain.ok and fused.n_points == plain.n_points > 100
+    for a, b in zip(fused.hypotheses, plain.hypotheses, strict=True):
+        np.testing.assert_allclose(as_vec(a.pose), as_vec(b.pose), rtol=0, atol=1e-12)
+        assert (a.radius_mm, a.cost, a.rms_mm, a.rms_px) == pytest.approx(
+            (b.radius_mm, b.cost, b.rms_mm, b.rms_px), rel=1e-12)
+        assert a.std == pytest.approx(b.std, rel=1e-9)
+    np.testing.assert_array_equal(fused.ring.uv, plain.ring.uv)
+    empty = RingDetection(np.empty((0, 2)), np.empty(0, np.int64), np.empty(0, np.int64),
+                          np.empty(0), 1440, 1.0)
+    for model in (cam, UnprojectOnly(cam)):
+        no_ring = fit_pose(empty, model, D)
+        assert not no_ring.ok and no_ring.reason.startswith("ring not found")
+
+
 def test_first_order_px_rms_matches_projecting_the_model() -> None:
     """rms_px to first order (residual moved along its ray in the plane, turned into
     pixels with the local pixel -> plane Jacobian) against projecting the model ring

@@ -24,6 +24,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch.camera.kernels import rays_of
+
 EPS = float(np.spacing(1.0))   # skimage's RANSAC clips its trial-count ratio to this
 RESELECT_ROUNDS = 4            # re-selections of one candidate per ray
 GN_MAX_ITER = 30               # Gauss-Newton iterations at most
@@ -471,7 +473,8 @@ def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.nd
 
 
 # select_ring's and fit_frame's status
-FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION, LOW_COVERAGE = 0, 1, 2, 3, 4
+FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION, LOW_COVERAGE, NO_RING = 0, 1, 2, 3, 4, 5
+SUMMARY_RMS, SUMMARY_OK, SUMMARY_SIGMA = 5, 6, 7   # columns of refine_frame's summary
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -809,13 +812,15 @@ def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float
 def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: int,
                  distance: float, normal: np.ndarray, basis: np.ndarray, n_free: int,
                  f_scale: float) -> tuple[
-        np.ndarray, float, np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+        np.ndarray, float, float, np.ndarray]:
     """Both hypotheses of a frame from the kept candidates, with their statistics.
 
     ``uv`` are the plane coordinates of the N candidates (``kept`` marks the ring's),
     then of candidates[::stride] moved one column, then one row (:func:`step_query`,
-    for :func:`px_rms`). Returns (poses (2, 5): optimum and mirror, cost, rms_mm (2,),
-    rms_px, sigma (2, n_free), information (2, 4, 4), sigma_ok (2,)).
+    for :func:`px_rms`). Returns (summary, cost, rms_px, information (2, 4, 4)); row 0
+    of the summary is the optimum, row 1 its mirror, each the pose vector (5), then at
+    SUMMARY_RMS its rms_mm, at SUMMARY_OK 1.0 where its sigma is valid, and from
+    SUMMARY_SIGMA the sigma of the n_free parameters.
     """
     n = kept.size
     m = (n + stride - 1) // stride
@@ -839,15 +844,15 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
         position += kept[i]
     a_mat, c = plane_to_world(x, distance, normal, basis)
     rms_px = px_rms(pts[:count], res[:count], col[:count], row[:count], a_mat, c)
-    poses = np.empty((2, 5))
-    rms_mm, ok = np.empty(2), np.empty(2, np.bool_)
-    sigma, info = np.empty((2, n_free)), np.empty((2, 4, 4))
-    poses[0], poses[1] = x, mirror
-    rms_mm[0] = np.sqrt(dot(resid, resid) / resid.size)
-    rms_mm[1] = np.sqrt(dot(m_resid, m_resid) / resid.size)
-    sigma[0], info[0], ok[0] = uncertainty(resid, jtj, n_free)
-    sigma[1], info[1], ok[1] = uncertainty(m_resid, m_jtj, n_free)
-    return poses, cost, rms_mm, rms_px, sigma, info, ok
+    # one row per hypothesis, so Python converts one array (each conversion has a cost)
+    summary, info = np.empty((2, SUMMARY_SIGMA + n_free)), np.empty((2, 4, 4))
+    summary[0, :5], summary[1, :5] = x, mirror
+    for h, (r, h_jtj) in enumerate(((resid, jtj), (m_resid, m_jtj))):
+        summary[h, SUMMARY_RMS] = np.sqrt(dot(r, r) / r.size)
+        sigma, info[h], ok = uncertainty(r, h_jtj, n_free)
+        summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
+        summary[h, SUMMARY_SIGMA:] = sigma
+    return summary, cost, rms_px, info
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -866,9 +871,9 @@ def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold
 
     Returns
     -------
-    (status, rays hit, points kept, poses, cost, rms_mm, rms_px, sigma, information,
-    sigma_ok, ring uv, ring pixels): the last nine as :func:`refine_frame` and
-    :func:`ring_subsample` give them, empty unless status is FOUND.
+    (status, rays hit, points kept, summary, cost, rms_px, information, ring uv, ring
+    pixels): the last six as :func:`refine_frame` and :func:`ring_subsample` give them,
+    empty unless status is FOUND.
     """
     uv, kept, starts, hit, status = select_ring(rays, azimuth, rank, threshold,
                                                 reselect_threshold, uniforms, distance,
@@ -876,17 +881,46 @@ def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold
     if status == FOUND and hit < min_hit:
         status = LOW_COVERAGE
     if status != FOUND:
-        ring = np.empty((0, 2), np.float32)
-        return (status, hit, 0, np.empty((0, 5)), 0.0, np.empty(0), 0.0,
-                np.empty((0, n_free)), np.empty((0, 4, 4)), np.empty(0, np.bool_), ring, ring)
+        return _no_fit(status, hit, n_free)
     start = starts[0].copy()
     if n_free == 4:
         start[4] = radius
-    poses, cost, rms_mm, rms_px, sigma, info, ok = refine_frame(
-        start, uv, kept, stride, distance, normal, basis, n_free, f_scale)
+    summary, cost, rms_px, info = refine_frame(start, uv, kept, stride, distance, normal,
+                                               basis, n_free, f_scale)
     ring_uv, ring_px = ring_subsample(uv[:kept.size], pixels, kept, max_points)
-    return (status, hit, np.count_nonzero(kept), poses, cost, rms_mm, rms_px, sigma, info, ok,
-            ring_uv, ring_px)
+    return (status, hit, np.count_nonzero(kept), summary, cost, rms_px, info, ring_uv, ring_px)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _no_fit(status: int, hit: int, n_free: int) -> tuple:
+    """:func:`fit_frame`'s result without a fit: the status and empty arrays."""
+    ring = np.empty((0, 2), np.float32)
+    return (status, hit, 0, np.empty((0, SUMMARY_SIGMA + n_free)), 0.0, 0.0,
+            np.empty((0, 4, 4)), ring, ring)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_pixels(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, n_azimuths: int,
+               min_coverage: float, kind: int, cam_a: np.ndarray, cam_b: np.ndarray,
+               cam_c: np.ndarray, cam_d: np.ndarray, cam_index: np.ndarray,
+               threshold: float, reselect_threshold: float, uniforms: np.ndarray,
+               distance: float, normal: np.ndarray, basis: np.ndarray, min_hit: int,
+               radius: float, n_free: int, f_scale: float, max_points: int) -> tuple:
+    """:func:`ring_query`, the camera's rays of the query and :func:`fit_frame`: one entry.
+
+    For cameras with a compiled unprojection (``kind``, ``cam_*``: a
+    :class:`pipestitch.camera.base.RayKernel`), so that a frame enters compiled code
+    once. Returns (detection coverage, :func:`fit_frame`'s tuple); status NO_RING
+    without unprojecting when fewer than 12 candidates or less than ``min_coverage``
+    of the rays have one.
+    """
+    query, stride, found = ring_query(pixels, azimuth, rank, n_azimuths)
+    if pixels.shape[0] < 12 or found < min_coverage:
+        return found, _no_fit(NO_RING, 0, n_free)
+    rays = rays_of(kind, query, cam_a, cam_b, cam_c, cam_d, cam_index)
+    return found, fit_frame(rays, azimuth, rank, threshold, reselect_threshold, uniforms,
+                            distance, normal, basis, min_hit, radius, n_free, f_scale, stride,
+                            pixels, max_points)
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -310,21 +310,15 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     """
     if not fit_radius and nominal_radius_mm is None:
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
-    pixels = _as_points(detection.pixels)
-    azimuth, rank = _as_index(detection.azimuth), _as_index(detection.rank)
-    # what is unprojected: the candidates, then every stride-th moved one column, one row
-    query, stride, found = _k.ring_query(pixels, azimuth, rank, detection.n_azimuths)
-    if pixels.shape[0] < 12 or found < min_coverage:
-        return PoseFit(False, f"ring not found (coverage {found:.0%})", coverage=found)
-    rays = _as_points(camera.unproject(query))
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    min_hit = _min_rays(min_coverage, detection.n_azimuths)
     try:
-        out = _fit_kernel(rays, azimuth, rank, plane, noise_mm, seed, min_hit,
-                          np.nan if fit_radius else float(nominal_radius_mm), stride, pixels)
+        found, out = _fit_kernel(detection, camera, plane, noise_mm, seed, min_coverage,
+                                 np.nan if fit_radius else float(nominal_radius_mm))
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
-                       coverage=found)
+                       coverage=detection.coverage)
+    if out[0] == _k.NO_RING:
+        return PoseFit(False, f"ring not found (coverage {found:.0%})", coverage=found)
     status, rays_hit = out[0], out[1]
     coverage = rays_hit / detection.n_azimuths
     if status != _k.FOUND:
@@ -334,8 +328,8 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         return PoseFit(False, reason, coverage=coverage if status == _k.LOW_COVERAGE
                        else found)
     # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
-    return PoseFit(True, "", _hypotheses(*out[3:10]), int(out[2]), float(coverage), "circle",
-                   RingPoints(out[10], out[11], plane))
+    return PoseFit(True, "", _hypotheses(*out[3:7]), out[2], coverage, "circle",
+                   RingPoints(out[7], out[8], plane))
 
 
 @functools.lru_cache(maxsize=64)
@@ -350,16 +344,19 @@ def _min_rays(min_coverage: float, n_azimuths: int) -> int:
     return hit
 
 
-def _fit_kernel(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, plane: LaserPlane,
-                noise_mm: float, seed: int, min_hit: int, radius: float, stride: int,
-                pixels: np.ndarray) -> tuple:
-    """:func:`pipestitch._pose_kernels.fit_frame` of the candidates' rays.
+def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane,
+                noise_mm: float, seed: int, min_coverage: float,
+                radius: float) -> tuple[float, tuple]:
+    """(detection coverage, :func:`pipestitch._pose_kernels.fit_frame`'s result) of a frame.
 
-    ``rays`` are those of the candidates, then of every ``stride``-th one moved one
-    column, then one row (:func:`pipestitch._pose_kernels.step_query`: one
-    unprojection for all, as each call has a fixed cost; before the fit it is not known
-    which candidates are the ring, and on a ring without outliers these are the points
-    :func:`ring_rms_px` takes of the inliers).
+    What is unprojected (:func:`pipestitch._pose_kernels.ring_query`): the candidates,
+    then every ``stride``-th one moved one column, then one row
+    (:func:`pipestitch._pose_kernels.step_query`: one unprojection for all, as each call
+    has a fixed cost; before the fit it is not known which candidates are the ring, and
+    on a ring without outliers these are the points :func:`ring_rms_px` takes of the
+    inliers). A camera with a compiled unprojection (``ray_kernel``) is unprojected
+    inside the one kernel call (:func:`pipestitch._pose_kernels.fit_pixels`), any other
+    through its ``unproject``.
 
     Selection: a first conic directly when the strongest candidates agree (most frames
     have few outliers, and one algebraic fit of every ray's strongest candidate then
@@ -370,20 +367,37 @@ def _fit_kernel(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, plane: 
     curve, so this needs no nonlinear fit. ``radius`` NaN fits the radius, else holds
     it. Refinement: :func:`_hypotheses`.
     """
-    args = (rays, azimuth, rank, max(0.3, 6 * noise_mm), max(0.25, 5 * noise_mm))
-    rest = (plane.distance_mm, plane.normal, plane.basis, min_hit, radius,
-            4 if radius == radius else 5, noise_mm, stride, pixels, 720)
-    out = _k.fit_frame(*args, np.empty((0, 5)), *rest)
+    pixels = _as_points(detection.pixels)
+    azimuth, rank = _as_index(detection.azimuth), _as_index(detection.rank)
+    n_az = detection.n_azimuths
+    fit = (max(0.3, 6 * noise_mm), max(0.25, 5 * noise_mm))
+    n_free = 4 if radius == radius else 5
+    rest = (plane.distance_mm, plane.normal, plane.basis, _min_rays(min_coverage, n_az),
+            radius, n_free, noise_mm)
+    kernel = getattr(camera, "ray_kernel", None)
+
+    def run(uniforms: np.ndarray) -> tuple[float, tuple]:
+        if kernel is not None:
+            return _k.fit_pixels(pixels, azimuth, rank, n_az, min_coverage, *kernel, *fit,
+                                 uniforms, *rest, 720)
+        query, stride, found = _k.ring_query(pixels, azimuth, rank, n_az)
+        if pixels.shape[0] < 12 or found < min_coverage:
+            return found, (_k.NO_RING,)
+        rays = _as_points(camera.unproject(query))
+        return found, _k.fit_frame(rays, azimuth, rank, *fit, uniforms, *rest, stride,
+                                   pixels, 720)
+
+    found, out = run(np.empty((0, 5)))
     if out[0] == _k.NEEDS_SAMPLES:
-        out = _k.fit_frame(*args, np.random.default_rng(seed).random((RANSAC_TRIALS, 5)), *rest)
-    return out
+        found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
+    return found, out
 
 
-def _hypotheses(poses: np.ndarray, cost: float, rms_mm: np.ndarray, rms_px: float,
-                sigma: np.ndarray, info: np.ndarray,
-                sigma_ok: np.ndarray) -> tuple[Hypothesis, Hypothesis]:
+def _hypotheses(summary: np.ndarray, cost: float, rms_px: float,
+                info: np.ndarray) -> tuple[Hypothesis, Hypothesis]:
     """The refined hypothesis and its mirror, the other pose of the refined conic.
 
+    ``summary`` is :func:`pipestitch._pose_kernels.refine_frame`'s: a row per hypothesis.
     Both mirrors explain every plane point with the same residual (the same conic), so
     the optimum of one maps to the optimum of the other in closed form. The robust
     least squares is a damped IRLS Gauss-Newton on the soft-L1 loss
@@ -393,15 +407,15 @@ def _hypotheses(poses: np.ndarray, cost: float, rms_mm: np.ndarray, rms_px: floa
     iterations reach a step far below the noise. Both share one px RMS: they are the
     same curve in the image.
     """
-    # as Python floats once, both hypotheses written out: indexing the arrays element
-    # by element, or a loop over the two, costs more here (~30 % of this function)
-    (p0, p1), (r0, r1), (s0, s1) = poses.tolist(), rms_mm.tolist(), sigma.tolist()
-    ok0, ok1 = sigma_ok.tolist()
-    cost, rms_px = float(cost), float(rms_px)
-    return (Hypothesis(Pose(p0[0], p0[1], p0[2], p0[3]), p0[4], cost, r0, rms_px,
-                       dict(zip(PARAMS, s0, strict=False)) if ok0 else {}, info[0]),
-            Hypothesis(Pose(p1[0], p1[1], p1[2], p1[3]), p1[4], cost, r1, rms_px,
-                       dict(zip(PARAMS, s1, strict=False)) if ok1 else {}, info[1]))
+    # one conversion to Python floats, both hypotheses written out: indexing the arrays
+    # element by element, or a loop over the two, costs more here (right after a ring
+    # extraction every distinct call is cold)
+    a, b = summary.tolist()
+    rms, ok, sig = _k.SUMMARY_RMS, _k.SUMMARY_OK, _k.SUMMARY_SIGMA
+    return (Hypothesis(Pose(a[0], a[1], a[2], a[3]), a[4], cost, a[rms], rms_px,
+                       dict(zip(PARAMS, a[sig:], strict=False)) if a[ok] else {}, info[0]),
+            Hypothesis(Pose(b[0], b[1], b[2], b[3]), b[4], cost, b[rms], rms_px,
+                       dict(zip(PARAMS, b[sig:], strict=False)) if b[ok] else {}, info[1]))
 
 
 def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,

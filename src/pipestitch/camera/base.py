@@ -13,15 +13,37 @@ that breaks at 90°. Outside its valid range a model returns NaN, never garbage.
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
 __all__ = [
+    "OCAM",
+    "OPENCV_FISHEYE",
     "CameraModel",
+    "RayKernel",
     "as_points",
     "pixel_grid",
 ]
+
+OCAM, OPENCV_FISHEYE = 1, 2   # RayKernel.kind of each model
+
+
+class RayKernel(NamedTuple):
+    """A model's compiled unprojection as data (:func:`pipestitch.camera.kernels.rays_of`).
+
+    ``kind`` names the model (:data:`OCAM`, :data:`OPENCV_FISHEYE`); ``a`` … ``d`` and
+    ``index`` are its loop's parameter arrays in that loop's order (float64, and int64
+    for ``index``; unused ones empty). Models offer it as ``ray_kernel``; a model
+    without one is unprojected through ``unproject`` only.
+    """
+
+    kind: int
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    index: np.ndarray
 
 
 @runtime_checkable

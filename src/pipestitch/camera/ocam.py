@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from pipestitch.camera.base import as_points
+from pipestitch.camera.base import OCAM, RayKernel, as_points
 
 __all__ = ["OcamModel", "fit_invpol"]
 
@@ -65,6 +65,7 @@ class OcamModel:
     _pol_array: np.ndarray = field(init=False, repr=False, compare=False)
     _dpol_array: np.ndarray = field(init=False, repr=False, compare=False)
     _affine_array: np.ndarray = field(init=False, repr=False, compare=False)
+    _ray_kernel: RayKernel = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pol = tuple(float(v) for v in self.pol)
@@ -93,6 +94,9 @@ class OcamModel:
         steps = np.arange(theta.size + 1) * (theta[-1] / theta.size)
         start = np.searchsorted(theta, steps, side="right") - 1
         object.__setattr__(self, "_theta_start", np.clip(start, 0, theta.size - 2))
+        object.__setattr__(self, "_ray_kernel", RayKernel(
+            OCAM, self._pol_array, self._affine_array, rho[-1:].copy(), np.empty(0),
+            np.empty(0, np.int64)))
 
     # --- radial function ---------------------------------------------------------
     def _theta_of_rho(self, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -140,6 +144,12 @@ class OcamModel:
         """Radius (pre-affine pixels) of the valid image circle."""
         return float(self._rho_table[-1])
 
+    @property
+    def ray_kernel(self) -> RayKernel:
+        """:meth:`unproject`'s loop as compiled callers take it
+        (:func:`pipestitch.camera.kernels.rays_of`)."""
+        return self._ray_kernel
+
     # --- projection ----------------------------------------------------------------
     def unproject(self, pixels: np.ndarray) -> np.ndarray:
         """Pixels (N, 2) as (col, row) -> unit rays (N, 3) in the SPEC probe frame.
@@ -147,7 +157,7 @@ class OcamModel:
         Pixels outside the valid image circle give NaN rays.
         """
         px = np.ascontiguousarray(as_points(pixels, 2, "pixels"))
-        return _rays(px, self._pol_array, self._affine_array, float(self._rho_table[-1]))
+        return ray_loop(px, self._pol_array, self._affine_array, float(self._rho_table[-1]))
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Probe-frame points (N, 3) -> pixels (N, 2) as (col, row).
@@ -240,7 +250,7 @@ def _horner(coef: np.ndarray, x: float) -> float:
 
 # reassociation and contraction only (NaN and inf keep their meaning: the NaN tests below)
 @numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
-def _rays(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: float) -> np.ndarray:
+def ray_loop(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: float) -> np.ndarray:
     """Unit rays (SPEC probe frame) of pixels (col, row); NaN beyond ``max_rho`` or NaN.
 
     ``affine`` is (c, d, e, center_row, center_col). The ray in OCamCalib's frame is

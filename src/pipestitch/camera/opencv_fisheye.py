@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from pipestitch.camera.base import as_points
+from pipestitch.camera.base import OPENCV_FISHEYE, RayKernel, as_points
 
 __all__ = ["OpenCVFisheyeModel"]
 
@@ -58,6 +58,7 @@ class OpenCVFisheyeModel:
     _k_array: np.ndarray = field(init=False, repr=False, compare=False)
     _intrinsics: np.ndarray = field(init=False, repr=False, compare=False)
     _thetad_start: np.ndarray = field(init=False, repr=False, compare=False)
+    _ray_kernel: RayKernel = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         k = tuple(float(v) for v in self.k)
@@ -81,7 +82,10 @@ class OpenCVFisheyeModel:
         # the table entry at or below each of stop equal steps of theta_d (as OcamModel)
         steps = np.arange(stop + 1) * (thetad[stop - 1] / stop)
         start = np.searchsorted(thetad[:stop], steps, side="right") - 1
-        object.__setattr__(self, "_thetad_start", np.clip(start, 0, stop - 2))
+        object.__setattr__(self, "_thetad_start", np.clip(start, 0, stop - 2).astype(np.int64))
+        object.__setattr__(self, "_ray_kernel", RayKernel(
+            OPENCV_FISHEYE, self._intrinsics, self._k_array, self._theta_table,
+            self._thetad_table, self._thetad_start))
 
     def _distort(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """theta_d(theta) and its derivative."""
@@ -91,6 +95,12 @@ class OpenCVFisheyeModel:
     def max_incidence_rad(self) -> float:
         """Largest incidence angle the model is valid for (radians)."""
         return float(self._theta_table[-1])
+
+    @property
+    def ray_kernel(self) -> RayKernel:
+        """:meth:`unproject`'s loop as compiled callers take it
+        (:func:`pipestitch.camera.kernels.rays_of`)."""
+        return self._ray_kernel
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Probe-frame points (N, 3) -> pixels (N, 2) as (col, row); NaN if invalid."""
@@ -108,7 +118,7 @@ class OpenCVFisheyeModel:
     def unproject(self, pixels: np.ndarray) -> np.ndarray:
         """Pixels (N, 2) as (col, row) -> unit rays (N, 3); NaN outside the valid range."""
         px = np.ascontiguousarray(as_points(pixels, 2, "pixels"))
-        return _rays(px, self._intrinsics, self._k_array, self._theta_table, self._thetad_table,
+        return ray_loop(px, self._intrinsics, self._k_array, self._theta_table, self._thetad_table,
                      self._thetad_start)
 
     def scaled(self, factor: float) -> OpenCVFisheyeModel:
@@ -145,7 +155,7 @@ def _distort_all(theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 @numba.njit(cache=True, nogil=True)
-def _rays(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray, theta_table: np.ndarray,
+def ray_loop(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray, theta_table: np.ndarray,
           thetad_table: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Unit rays of pixels (col, row); NaN beyond the table's largest theta_d or NaN.
 

@@ -41,9 +41,11 @@ class Pose:
     z_mm: float = 0.0
 
     def __post_init__(self) -> None:
-        values = (self.alpha, self.beta, self.dx_mm, self.dy_mm, self.roll, self.z_mm)
-        # math.isfinite per value: np.isfinite of a tuple costs ~5 µs, a pose fit makes two
-        if not all(math.isfinite(v) for v in values):
+        # math.isfinite per value, no generator: this runs for every pose a fit makes
+        finite = math.isfinite
+        if not (finite(self.alpha) and finite(self.beta) and finite(self.dx_mm)
+                and finite(self.dy_mm) and finite(self.roll) and finite(self.z_mm)):
+            values = (self.alpha, self.beta, self.dx_mm, self.dy_mm, self.roll, self.z_mm)
             raise ValueError(f"Pose: expected finite values, got {values}")
 
     @classmethod

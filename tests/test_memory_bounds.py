@@ -6,13 +6,21 @@ so the checks are exact and cheap."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import sys
 import tracemalloc
 
 import numpy as np
 import pytest
 
-from pipestitch.refine import SHIFT_SIGMA_PX, PatchShifts, _prior_root, solve_pose_errors
+from pipestitch.refine import (
+    SHIFT_SIGMA_PX,
+    PatchShifts,
+    _prior_root,
+    refinement_windows,
+    solve_in_windows,
+    solve_pose_errors,
+)
 
 PATCHES = 34        # patch shifts per link on the mosaic's grid (measured: 34 on average)
 
@@ -98,6 +106,76 @@ def test_pose_error_solve_working_memory_per_frame_is_small() -> None:
     pairs)."""
     per_frame = (_solve_peak_bytes(240) - _solve_peak_bytes(60)) / 180
     assert per_frame < 20_000, f"{per_frame:.0f} bytes a frame"
+
+
+@pytest.mark.parametrize(("n", "window", "margin"), [(1000, 600, 100), (600, 600, 100),
+                                                    (601, 600, 100), (37, 10, 2), (0, 10, 2)])
+def test_refinement_windows_tile_the_run(n: int, window: int, margin: int) -> None:
+    windows = refinement_windows(n, window, margin)
+    cores = [(c0, c1) for _, _, c0, c1 in windows]
+    assert cores[0][0] == 0 and cores[-1][1] == n
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(cores))
+    for lo, hi, c0, c1 in windows:
+        assert hi - lo <= window and lo <= c0 <= c1 <= hi
+        assert c0 - lo == min(c0, margin) and (hi - c1 == margin or hi == n)
+    assert len(windows) == 1 or n > window
+    with pytest.raises(ValueError, match="margin"):
+        refinement_windows(n, 2 * margin, margin)
+
+
+def _noisy_chain(n_frames: int, seed: int = 1) -> tuple[list[PatchShifts], dict, dict]:
+    """:func:`_chain` with patch-shift noise at its stated sigma and a few outliers."""
+    observations, jacobians, information, _ = _chain(n_frames, seed)
+    rng = np.random.default_rng(seed + 100)
+    noisy = []
+    for o in observations:
+        shift = o.shift + rng.normal(0, SHIFT_SIGMA_PX / np.sqrt(0.6), o.shift.shape)
+        shift[rng.random(len(shift)) < 0.03] += 5.0
+        noisy.append(dataclasses.replace(o, shift=shift))
+    return noisy, jacobians, information
+
+
+def test_windowed_solve_is_the_whole_runs_solve() -> None:
+    """In windows of 60 frames (20 of margin) the pose errors are the one solve's to a
+    small fraction of their uncertainty, the motions too; one window is the one solve
+    exactly; each pair's Jacobians are asked for once."""
+    observations, jacobians, information = _noisy_chain(200)
+    whole_e, whole_m = solve_pose_errors(observations, jacobians, information)
+    asked = []
+
+    def jacobians_of(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
+        asked.append((o.i, o.j))
+        return jacobians[(o.i, o.j)]
+
+    e, m = solve_in_windows(observations, jacobians_of, information, window=60, margin=20)
+    assert sorted(asked) == sorted(jacobians) and len(set(asked)) == len(asked)
+    assert set(e) == set(whole_e) and set(m) == set(whole_m)
+    diff = np.array([e[f] - whole_e[f] for f in whole_e])
+    spread = np.array(list(whole_e.values())).std(axis=0)
+    assert np.all(np.abs(diff).max(axis=0) < 0.01 * spread), np.abs(diff).max(axis=0) / spread
+    assert max(np.abs(m[k] - whole_m[k]).max() for k in whole_m) < 0.01
+    one_e, one_m = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)],
+                                    information, window=600, margin=100)
+    assert all(np.array_equal(one_e[f], whole_e[f]) for f in whole_e)
+    assert all(np.array_equal(one_m[k], whole_m[k]) for k in whole_m)
+
+
+def test_windowed_solve_working_memory_does_not_grow_with_the_run() -> None:
+    """Beyond its result (an error per frame, a motion per pair: ~0.5 kB a frame), the
+    windowed solve's working memory is one window's, at any length."""
+    working = []
+    for n in (240, 720):
+        observations, jacobians, information, _ = _chain(n)
+        tracemalloc.start()
+        try:
+            result = solve_in_windows(observations, lambda o, jac=jacobians: jac[(o.i, o.j)],
+                                      information, window=120, margin=20)
+            kept, peak = tracemalloc.get_traced_memory()
+            working.append(peak - kept)
+        finally:
+            tracemalloc.stop()
+        assert len(result[0]) == n
+    assert working[1] < 1.1 * working[0], working
 
 
 def _nbytes(obj: object, seen: set[int]) -> int:

@@ -112,6 +112,40 @@ def test_invert_band_found_where_drawn(centre: float) -> None:
     assert 50 < band.width_deg < 70
 
 
+def test_invert_on_a_long_mosaic_reads_a_bounded_sample_of_columns(monkeypatch) -> None:
+    """A long run's overview (~10^4 columns) is read at MAX_COLUMNS evenly spaced
+    columns: the band is the one the whole image gives, a band on only part of the run
+    is still refused, and the working memory does not grow with the length."""
+    import tracemalloc
+
+    from pipestitch.standards import invert
+
+    monkeypatch.setattr(invert, "MAX_COLUMNS", 400)
+    img = _wall(rows=360, cols=3000, seed=2)
+    theta = np.arange(img.shape[0]) * 1.0
+    img[np.abs(theta - 250) < 25] *= 0.6
+    cols = invert.invert_columns(img.shape[1])
+    assert cols.size == 400 and cols[0] == 0 and cols[-1] == 2999 and np.all(np.diff(cols) > 0)
+    sampled = detect_invert(img, 1.0)
+    monkeypatch.setattr(invert, "MAX_COLUMNS", 10_000)
+    whole = detect_invert(img, 1.0)
+    assert sampled is not None and whole is not None
+    assert abs(sampled.theta_deg - whole.theta_deg) < 0.5
+    assert abs(sampled.width_deg - whole.width_deg) <= 1.0
+    monkeypatch.setattr(invert, "MAX_COLUMNS", 400)
+    partial = img.copy()
+    partial[:, 1000:] = _wall(rows=360, cols=2000, seed=3)
+    assert detect_invert(partial, 1.0) is None       # in a third of the run only
+    peaks = []
+    for n in (3000, 12000):
+        wide = np.tile(img, (1, n // 3000))
+        tracemalloc.start()
+        detect_invert(wide, 1.0)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] < 1.2 * peaks[0]
+
+
 def test_no_band_no_invert() -> None:
     img = _wall()
     assert detect_invert(img, 0.5) is None

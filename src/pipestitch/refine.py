@@ -14,7 +14,9 @@ and two overlapping frames with different warps disagree locally. So:
 3. one sparse linear least-squares problem over all frames' pose errors (4 each) and
    a rigid nuisance shift per pair, with the ring's own information matrix as the
    prior of each frame, is solved with Huber reweighting (:func:`solve_pose_errors`;
-   its normal equations are summed pair by pair, so its memory is a few kB a frame).
+   its normal equations are summed pair by pair, so its memory is a few kB a frame);
+   a long run is solved in overlapping windows of frames (:func:`solve_in_windows`),
+   so that this memory does not grow with the run.
 
 Written by hand because no library fuses these two kinds of evidence; the pieces
 (phase correlation, sparse solve) are OpenCV's and SciPy's.
@@ -22,7 +24,7 @@ Written by hand because no library fuses these two kinds of evidence; the pieces
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -35,7 +37,8 @@ from pipestitch.geometry import PipeSection, Pose, rays_to_wall, theta_z_from_po
 from pipestitch.register import phase_shift
 from pipestitch.unwrap import StripGrid
 
-__all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "solve_pose_errors"]
+__all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows", "solve_in_windows",
+           "solve_pose_errors"]
 
 PATCH_PX = 64
 PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
@@ -103,8 +106,10 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
             nodes.append((r + (PATCH_PX - 1) / 2, c + (PATCH_PX - 1) / 2))
             shifts.append((dr - sy, dc - sx))
             responses.append(resp)
-    return PatchShifts(i, j, np.array(nodes, float).reshape(-1, 2),
-                       np.array(shifts, float).reshape(-1, 2), np.array(responses, float))
+    # float32: a run's patch shifts are all held until its refinement (1e-5 px here)
+    return PatchShifts(i, j, np.array(nodes, np.float32).reshape(-1, 2),
+                       np.array(shifts, np.float32).reshape(-1, 2),
+                       np.array(responses, np.float32))
 
 
 def _std(patch: np.ndarray) -> float:
@@ -186,9 +191,9 @@ def _pair_rows(observations: Sequence[PatchShifts],
     for k, o in enumerate(obs):
         unknowns = np.concatenate([[n_pose + 2 * k, n_pose + 2 * k + 1],
                                    col[o.j] + four, col[o.i] + four])
-        sigma = np.repeat(SHIFT_SIGMA_PX / np.sqrt(o.response), 2)
-        out.append(_PairRows(o.i, o.j, unknowns, *jacobians[(o.i, o.j)], o.shift.reshape(-1),
-                             sigma))
+        sigma = np.repeat(SHIFT_SIGMA_PX / np.sqrt(o.response.astype(np.float64)), 2)
+        out.append(_PairRows(o.i, o.j, unknowns, *jacobians[(o.i, o.j)],
+                             o.shift.reshape(-1).astype(np.float64), sigma))
     return out
 
 
@@ -284,6 +289,76 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
                    for p in pairs]
     errors = {f: x[col[f]:col[f] + 4] for f in frames}
     motions = {(p.i, p.j): x[p.unknowns[:2]] for p in pairs}
+    return errors, motions
+
+
+WINDOW_FRAMES = 600   # frames per solve of a long run (a 250-pair run is one solve)
+WINDOW_MARGIN = 100   # frames on each side of a window's kept core
+
+
+def refinement_windows(n_frames: int, window: int = WINDOW_FRAMES,
+                       margin: int = WINDOW_MARGIN) -> list[tuple[int, int, int, int]]:
+    """Overlapping windows of a run's frames: (lo, hi, core_lo, core_hi) positions.
+
+    The cores tile ``0 .. n_frames`` in order; each window reaches ``margin`` frames
+    beyond its core (where the run has them) and spans at most ``window`` frames. One
+    window when the run fits in one.
+    """
+    if window <= 2 * margin:
+        raise ValueError(f"refinement_windows: window {window} must exceed twice the "
+                         f"margin {margin}")
+    out, core_lo = [], 0
+    while core_lo < n_frames or not out:
+        lo = max(0, core_lo - margin)
+        hi = min(n_frames, lo + window)
+        core_hi = n_frames if hi == n_frames else hi - margin
+        out.append((lo, hi, core_lo, core_hi))
+        core_lo = core_hi
+    return out
+
+
+def solve_in_windows(observations: Sequence[PatchShifts],
+                     jacobians_of: Callable[[PatchShifts], tuple[np.ndarray, np.ndarray]],
+                     information: Mapping[int, np.ndarray | None], *,
+                     window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
+                     iterations: int = 4) -> tuple[dict[int, np.ndarray],
+                                                   dict[tuple[int, int], np.ndarray]]:
+    """:func:`solve_pose_errors` over overlapping windows of frames, so that the working
+    memory is that of one window however long the run is.
+
+    Each window solves its frames and the pairs between them; it keeps the errors of
+    its core's frames and the motions of the pairs whose later frame is in its core.
+    A frame's pose error is tied to its neighbours only through the patches of the few
+    links between them, each frame having its ring's prior, so ``margin`` frames of
+    context on each side leave a core's solution as the whole run's to far below its
+    uncertainty (tested). ``jacobians_of(observation)`` gives (G_i, G_j) as
+    :func:`solve_pose_errors` takes them; each pair's are computed once, and dropped
+    when no later window needs them.
+
+    Returns
+    -------
+    errors, motions
+        As :func:`solve_pose_errors`.
+    """
+    frames = sorted(information)
+    position = {f: k for k, f in enumerate(frames)}
+    obs = [o for o in observations if len(o.nodes) and o.i in position and o.j in position]
+    errors: dict[int, np.ndarray] = {}
+    motions: dict[tuple[int, int], np.ndarray] = {}
+    jac: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for lo, hi, core_lo, core_hi in refinement_windows(len(frames), window, margin):
+        inside = [o for o in obs if lo <= min(position[o.i], position[o.j])
+                  and max(position[o.i], position[o.j]) < hi]
+        for key in [k for k in jac if min(position[k[0]], position[k[1]]) < lo]:
+            del jac[key]   # no later window reaches back this far
+        for o in inside:
+            if (o.i, o.j) not in jac:
+                jac[(o.i, o.j)] = jacobians_of(o)
+        e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
+                                 iterations=iterations)
+        errors.update((f, e[f]) for f in frames[core_lo:core_hi])
+        motions.update((k, v) for k, v in m.items()
+                       if core_lo <= max(position[k[0]], position[k[1]]) < core_hi)
     return errors, motions
 
 

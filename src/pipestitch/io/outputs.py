@@ -14,7 +14,7 @@ import csv
 import io
 import json
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -82,10 +82,13 @@ def write_csv(path: Path, header: Iterable[str], rows: Iterable[Iterable[object]
     return atomic_write_text(path, buffer.getvalue())
 
 
-def read_mosaic(out: Path) -> tuple[np.ndarray, dict]:
+def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -> tuple[
+        np.ndarray, dict]:
     """OUT/mosaic.png as float (NaN where no data) and OUT/mosaic.json.
 
-    Raises DatasetError naming the file when either is missing or unreadable.
+    ``columns`` (the image width -> column indices) keeps only those columns, before the
+    conversion to float (which takes four times the PNG's pixels in bytes). Raises
+    DatasetError naming the file when either is missing or unreadable.
     """
     meta_path = Path(out) / "mosaic.json"
     try:
@@ -101,4 +104,4 @@ def read_mosaic(out: Path) -> tuple[np.ndarray, dict]:
     image = read_image(Path(out) / "mosaic.png")
     if image.ndim != 2:
         raise DatasetError(Path(out) / "mosaic.png", f"expected a grey image, got {image.shape}")
-    return mosaic_from_uint8(image), meta
+    return mosaic_from_uint8(image if columns is None else image[:, columns(image.shape[1])]), meta

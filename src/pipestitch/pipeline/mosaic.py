@@ -40,7 +40,7 @@ from pipestitch.pipeline.memory import release_free_memory
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pose_fit import RingPoints
-from pipestitch.refine import PatchShifts, node_jacobian, patch_shifts, solve_pose_errors
+from pipestitch.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
 from pipestitch.register import (
     Link,
     Positions,
@@ -352,18 +352,15 @@ def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraMode
     A link with patches is replaced by the pair's rigid motion from the refinement
     (free of the warp the old poses left in the strips); the others are kept.
     """
-    patches = pass1.patches
-    jac = {}
-    # float32: all links' Jacobians are held for the one solve (~6 kB a link, not 12)
-    for o in patches:
-        if len(o.nodes):
-            jac[(o.i, o.j)] = (
-                node_jacobian(camera, views[o.i].pose, views[o.i].section, own,
+    def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
+        # float32: a window's links' Jacobians are held for its solve
+        return (node_jacobian(camera, views[o.i].pose, views[o.i].section, own,
                               o.nodes + o.shift).astype(np.float32),
                 node_jacobian(camera, views[o.j].pose, views[o.j].section, own,
                               o.nodes).astype(np.float32))
-    errors, motions = solve_pose_errors(patches, jac,
-                                        {i: v.information for i, v in views.items()})
+
+    errors, motions = solve_in_windows(pass1.patches, jacobians,
+                                       {i: v.information for i, v in views.items()})
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
              if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln

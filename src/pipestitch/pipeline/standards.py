@@ -52,6 +52,7 @@ from pipestitch.standards import (
     write_observations_csv,
     write_pacp_csv,
 )
+from pipestitch.standards.invert import invert_columns
 from pipestitch.standards.observations import (
     ProfileSection,
     is_auto,
@@ -223,7 +224,9 @@ def code_run(out: str | Path, *, dataset: str | Path | None = None,
     if dataset is None and previous.get("dataset"):
         dataset = previous["dataset"]
     dataset = Path(dataset) if dataset is not None else None
-    image, meta = read_mosaic(out) if (out / "mosaic.json").is_file() else (None, {})
+    # only the columns the invert detection reads (a long run's overview is ~10^4 wide)
+    image, meta = (read_mosaic(out, columns=invert_columns) if (out / "mosaic.json").is_file()
+                   else (None, {}))
     reference = resolve_reference(out, dataset=dataset if dataset and dataset.is_dir() else None,
                                   crown_deg=crown_deg, image=image,
                                   deg_per_px=meta.get("deg_per_px"))

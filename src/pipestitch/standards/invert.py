@@ -17,13 +17,17 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["InvertBand", "detect_invert"]
+__all__ = ["MAX_COLUMNS", "InvertBand", "detect_invert", "invert_columns"]
 
 MIN_CONTRAST = 0.15        # relative to the wall's median, like the defect detector
 MIN_WIDTH_DEG = 20.0
 MAX_WIDTH_DEG = 200.0
 MIN_PERSISTENCE = 0.8      # share of columns in which the band shows
 SMOOTH_DEG = 3.0
+# The band is a property of every column along the run: its statistics are taken over
+# at most this many evenly spaced columns (a 4000-pair overview has ~10^4), so the
+# working memory is bounded (~20 MB) however long the run is.
+MAX_COLUMNS = 2048
 
 
 @dataclass(frozen=True)
@@ -56,7 +60,8 @@ def detect_invert(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
     Parameters
     ----------
     image : numpy.ndarray
-        Mosaic (rows: theta, columns: z), float, NaN where not seen.
+        Mosaic (rows: theta, columns: z), float, NaN where not seen. Only
+        :func:`invert_columns` of its columns are read.
     deg_per_px : float
         Degrees per row.
     """
@@ -66,7 +71,17 @@ def detect_invert(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
         return _detect(image, deg_per_px)
 
 
+def invert_columns(n_cols: int) -> np.ndarray:
+    """The columns :func:`detect_invert` reads of a mosaic ``n_cols`` wide: all, or
+    ``MAX_COLUMNS`` evenly spaced ones (first and last included)."""
+    if n_cols <= MAX_COLUMNS:
+        return np.arange(n_cols)
+    return np.unique(np.linspace(0, n_cols - 1, MAX_COLUMNS).round().astype(np.intp))
+
+
 def _detect(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
+    if image.shape[1] > MAX_COLUMNS:
+        image = image[:, invert_columns(image.shape[1])]
     valid = np.isfinite(image)
     usable_cols = valid.mean(axis=0) >= 0.5
     if usable_cols.sum() < 5:

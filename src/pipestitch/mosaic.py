@@ -57,6 +57,9 @@ def frame_grid(canvas: StripGrid, z_mm: float, roll_deg: float,
     return grid, j0
 
 
+PROFILE_FRAMES = 500
+
+
 def vignetting_profile(column_levels: list[np.ndarray]) -> np.ndarray:
     """Run-level brightness profile along a strip's z (per column), median 1.
 
@@ -64,8 +67,11 @@ def vignetting_profile(column_levels: list[np.ndarray]) -> np.ndarray:
     column of the frame's own window grid (NaN where no data). The median over frames
     leaves the lens' vignetting and any light falloff the shading model misses; the
     wall's own albedo averages out because every frame sees a different piece of wall.
+    A long run's median is taken over ``PROFILE_FRAMES`` evenly spaced frames (as many
+    as the median needs, and a working memory that does not grow with the run).
     """
-    stack = np.array(column_levels, dtype=float)
+    step = max(1, -(-len(column_levels) // PROFILE_FRAMES))
+    stack = np.array(column_levels[::step], dtype=np.float32)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # columns no frame saw: NaN
         prof = np.nanmedian(stack, axis=0) if stack.size else np.ones(0)

@@ -235,3 +235,26 @@ def test_frames_no_longer_carry_their_rings_once_the_views_hold_them() -> None:
     frames = [FramePose(0, PoseFit(True, "", ring=ring)), FramePose(1, PoseFit(False, "no ring"))]
     out = _without_rings(frames)
     assert out[0].fit.ring is None and out[0].fit.ok and out[1] is frames[1]
+
+
+def test_passes_hand_free_heap_back_every_n_frames(monkeypatch) -> None:
+    """Within a pass, the ordered worker map hands the heap's free pages back every
+    TRIM_EVERY results (and yields every result, in order, whatever the workers)."""
+    from pipestitch.pipeline import memory, pose
+    from pipestitch.pipeline.memory import every_n
+
+    calls: list[int] = []
+    seen: list[int] = []
+    assert list(every_n(iter(range(7)), 3, lambda: calls.append(len(seen)))) == list(range(7))
+    assert len(calls) == 2
+    calls.clear()
+    monkeypatch.setattr(pose, "TRIM_EVERY", 10)
+    monkeypatch.setattr(pose, "release_free_memory", lambda: calls.append(len(seen)))
+    for workers in (1, 2):
+        calls.clear()
+        seen.clear()
+        for value in pose.ordered_map(lambda i: i * i, range(35), workers):
+            seen.append(value)
+        assert seen == [i * i for i in range(35)]
+        assert calls == [10, 20, 30]
+    assert memory.release_free_memory() in (True, False)

@@ -33,6 +33,7 @@ from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.photometric import StripPair, contrast_strips, pair_costs
+from pipestitch.pipeline.memory import TRIM_EVERY, every_n, release_free_memory
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.threads import opencv_threads
 from pipestitch.pose_fit import PoseFit, fit_pose
@@ -154,19 +155,27 @@ def ordered_map(func: Callable[[int], T], indices: Iterable[int], workers: int) 
     """``func`` over ``indices`` on ``workers`` threads, results in order (lazily).
 
     At most ``2 * workers`` results are computed ahead of the consumer, so memory does
-    not grow with the run when the consumer is the slower side.
+    not grow with the run when the consumer is the slower side; every
+    ``TRIM_EVERY`` results the heap's free pages are handed back
+    (:func:`pipestitch.pipeline.memory.release_free_memory`), as each frame's buffers,
+    freed among the small results that outlive them, otherwise leave the heap's
+    resident size growing through a pass.
     """
     if workers <= 1:
-        yield from map(func, indices)
+        yield from every_n(map(func, indices), TRIM_EVERY, release_free_memory)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
-        for index in indices:
-            pending.append(pool.submit(func, index))
-            if len(pending) >= 2 * workers:
+
+        def results() -> Iterator[T]:
+            for index in indices:
+                pending.append(pool.submit(func, index))
+                if len(pending) >= 2 * workers:
+                    yield pending.popleft().result()
+            while pending:
                 yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
+
+        yield from every_n(results(), TRIM_EVERY, release_free_memory)
 
 
 def resolve_frames(frames_in: Iterable[FramePose],

@@ -47,18 +47,23 @@ def peak_rss_mb() -> float:
 
 
 def _status_mb(key: str) -> float:
-    """VmRSS / VmHWM (current / peak resident memory) of this process from /proc, MB."""
-    with open("/proc/self/status", encoding="ascii") as handle:
-        for line in handle:
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
+    """VmRSS / VmHWM (current / peak resident memory) of this process from /proc, MB
+    (without /proc: the peak from getrusage for both)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return peak_rss_mb()
 
 
 def reset_peak_rss() -> float:
-    """Reset this process's peak resident memory to the current one (Linux: writing 5
-    to /proc/self/clear_refs resets VmHWM); returns the current one, MB. So a child
-    measures what its work adds, not the transient peak of its imports."""
+    """Reset this process's peak resident memory to the current one; returns it, MB.
+
+    Linux: writing 5 to /proc/self/clear_refs resets VmHWM. So a child measures what
+    its work adds, not the transient peak of its imports."""
     try:
         with open("/proc/self/clear_refs", "w", encoding="ascii") as handle:
             handle.write("5")

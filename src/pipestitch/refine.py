@@ -303,6 +303,19 @@ def refinement_windows(n_frames: int, window: int = WINDOW_FRAMES,
     The cores tile ``0 .. n_frames`` in order; each window reaches ``margin`` frames
     beyond its core (where the run has them) and spans at most ``window`` frames. One
     window when the run fits in one.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the run.
+    window, margin : int
+        Frames a window spans at most, and of context on each side of its core
+        (``window`` > 2 ``margin``).
+
+    Returns
+    -------
+    list of (int, int, int, int)
+        Each window's span ``lo .. hi`` and kept core ``core_lo .. core_hi``.
     """
     if window <= 2 * margin:
         raise ValueError(f"refinement_windows: window {window} must exceed twice the "
@@ -323,11 +336,14 @@ def solve_in_windows(observations: Sequence[PatchShifts],
                      window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
                      iterations: int = 4) -> tuple[dict[int, np.ndarray],
                                                    dict[tuple[int, int], np.ndarray]]:
-    """:func:`solve_pose_errors` over overlapping windows of frames, so that the working
-    memory is that of one window however long the run is.
+    """:func:`solve_pose_errors` over overlapping windows of frames (bounded memory).
+
+    The working memory is that of one window however long the run is.
 
     Each window solves its frames and the pairs between them; it keeps the errors of
-    its core's frames and the motions of the pairs whose later frame is in its core.
+    its core's frames and the motions of the pairs whose later frame is in its core (a
+    pair reaching back past the window's margin widens the window to its earlier
+    frame, so every pair is solved).
     A frame's pose error is tied to its neighbours only through the patches of the few
     links between them, each frame having its ring's prior, so ``margin`` frames of
     context on each side leave a core's solution as the whole run's to far below its
@@ -347,6 +363,10 @@ def solve_in_windows(observations: Sequence[PatchShifts],
     motions: dict[tuple[int, int], np.ndarray] = {}
     jac: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     for lo, hi, core_lo, core_hi in refinement_windows(len(frames), window, margin):
+        # a pair reaching back beyond the margin (frames between it unread) widens
+        # the window to its earlier frame, so that every pair is solved once
+        lo = min([lo] + [min(position[o.i], position[o.j]) for o in obs
+                         if core_lo <= max(position[o.i], position[o.j]) < core_hi])
         inside = [o for o in obs if lo <= min(position[o.i], position[o.j])
                   and max(position[o.i], position[o.j]) < hi]
         for key in [k for k in jac if min(position[k[0]], position[k[1]]) < lo]:

@@ -34,7 +34,8 @@ class RayKernel(NamedTuple):
 
     ``kind`` names the model (:data:`OCAM`, :data:`OPENCV_FISHEYE`); ``a`` … ``d`` and
     ``index`` are its loop's parameter arrays in that loop's order (float64, and int64
-    for ``index``; unused ones empty). Models offer it as ``ray_kernel``; a model
+    for ``index``; unused ones empty; a scalar parameter is a one-element array, as
+    OCam's largest image radius in ``c``). Models offer it as ``ray_kernel``; a model
     without one is unprojected through ``unproject`` only.
     """
 

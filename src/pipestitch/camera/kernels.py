@@ -10,6 +10,12 @@ kernels as arguments without losing its on-disk cache or paying a Python-level c
 :class:`~pipestitch.camera.base.RayKernel` (which model, its parameter arrays) that
 :func:`rays_of` turns into rays inside compiled code. A model without one simply has
 no ``ray_kernel``; callers then use ``unproject``.
+
+Development note: numba's on-disk cache of a kernel is invalidated by edits to its own
+file only, not to the files of the compiled functions it calls. After editing a
+model's ``ray_loop``, delete the ``__pycache__`` folders of ``camera`` and of
+``pipestitch`` (``_pose_kernels.fit_pixels`` calls it through :func:`rays_of`), or
+the cached callers keep the old loop.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import numba
 import numpy as np
 
 from pipestitch.camera import ocam, opencv_fisheye
-from pipestitch.camera.base import OCAM
+from pipestitch.camera.base import OCAM, OPENCV_FISHEYE
 
 __all__ = ["rays_of"]
 
@@ -33,4 +39,6 @@ def rays_of(kind: int, pixels: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.n
     """
     if kind == OCAM:
         return ocam.ray_loop(pixels, a, b, c[0])
-    return opencv_fisheye.ray_loop(pixels, a, b, c, d, index)
+    if kind == OPENCV_FISHEYE:
+        return opencv_fisheye.ray_loop(pixels, a, b, c, d, index)
+    raise ValueError("rays_of: unknown RayKernel kind")

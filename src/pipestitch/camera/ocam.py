@@ -146,8 +146,7 @@ class OcamModel:
 
     @property
     def ray_kernel(self) -> RayKernel:
-        """:meth:`unproject`'s loop as compiled callers take it
-        (:func:`pipestitch.camera.kernels.rays_of`)."""
+        """:meth:`unproject`'s compiled loop as data (for ``camera.kernels.rays_of``)."""
         return self._ray_kernel
 
     # --- projection ----------------------------------------------------------------

@@ -98,8 +98,7 @@ class OpenCVFisheyeModel:
 
     @property
     def ray_kernel(self) -> RayKernel:
-        """:meth:`unproject`'s loop as compiled callers take it
-        (:func:`pipestitch.camera.kernels.rays_of`)."""
+        """:meth:`unproject`'s compiled loop as data (for ``camera.kernels.rays_of``)."""
         return self._ray_kernel
 
     def project(self, points: np.ndarray) -> np.ndarray:
@@ -118,8 +117,8 @@ class OpenCVFisheyeModel:
     def unproject(self, pixels: np.ndarray) -> np.ndarray:
         """Pixels (N, 2) as (col, row) -> unit rays (N, 3); NaN outside the valid range."""
         px = np.ascontiguousarray(as_points(pixels, 2, "pixels"))
-        return ray_loop(px, self._intrinsics, self._k_array, self._theta_table, self._thetad_table,
-                     self._thetad_start)
+        return ray_loop(px, self._intrinsics, self._k_array, self._theta_table,
+                        self._thetad_table, self._thetad_start)
 
     def scaled(self, factor: float) -> OpenCVFisheyeModel:
         """The same lens on a sensor resampled by ``factor`` (pixel centres kept)."""
@@ -155,8 +154,8 @@ def _distort_all(theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 @numba.njit(cache=True, nogil=True)
-def ray_loop(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray, theta_table: np.ndarray,
-          thetad_table: np.ndarray, start: np.ndarray) -> np.ndarray:
+def ray_loop(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray,
+             theta_table: np.ndarray, thetad_table: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Unit rays of pixels (col, row); NaN beyond the table's largest theta_d or NaN.
 
     ``intrinsics`` is (fx, fy, cx, cy, skew). theta_d(theta) is inverted exactly: the

@@ -87,8 +87,10 @@ def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -
     """OUT/mosaic.png as float (NaN where no data) and OUT/mosaic.json.
 
     ``columns`` (the image width -> column indices) keeps only those columns, before the
-    conversion to float (which takes four times the PNG's pixels in bytes). Raises
-    DatasetError naming the file when either is missing or unreadable.
+    conversion to float (which takes four times the PNG's pixels in bytes); the image
+    then no longer matches the metadata's column scale and origin, and is for per-column
+    statistics only. Raises DatasetError naming the file when either is missing or
+    unreadable.
     """
     meta_path = Path(out) / "mosaic.json"
     try:

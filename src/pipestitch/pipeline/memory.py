@@ -40,7 +40,23 @@ def _libc_function(name: str) -> ctypes._CFuncPtr | None:
 
 
 def every_n(items: Iterable[T], n: int, action: Callable[[], object]) -> Iterator[T]:
-    """The items, calling ``action()`` after every ``n``-th has been consumed."""
+    """The items, calling ``action()`` after every ``n``-th.
+
+    ``action`` runs when the item after the ``n``-th is asked for (a generator cannot
+    run code between handing an item out and being resumed), so not at all when the
+    consumer stops right after an ``n``-th item.
+
+    Parameters
+    ----------
+    items : iterable
+        What to pass through.
+    n : int
+        Items between two calls (>= 1).
+    action : callable
+        Called without arguments.
+    """
+    if n < 1:
+        raise ValueError(f"every_n: n must be >= 1, got {n}")
     for k, item in enumerate(items, start=1):
         yield item
         if k % n == 0:

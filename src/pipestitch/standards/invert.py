@@ -72,8 +72,10 @@ def detect_invert(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
 
 
 def invert_columns(n_cols: int) -> np.ndarray:
-    """The columns :func:`detect_invert` reads of a mosaic ``n_cols`` wide: all, or
-    ``MAX_COLUMNS`` evenly spaced ones (first and last included)."""
+    """The columns :func:`detect_invert` reads of a mosaic ``n_cols`` wide.
+
+    All of them, or ``MAX_COLUMNS`` evenly spaced ones (first and last included).
+    """
     if n_cols <= MAX_COLUMNS:
         return np.arange(n_cols)
     return np.unique(np.linspace(0, n_cols - 1, MAX_COLUMNS).round().astype(np.intp))

@@ -475,6 +475,7 @@ def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.nd
 # select_ring's and fit_frame's status
 FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION, LOW_COVERAGE, NO_RING = 0, 1, 2, 3, 4, 5
 SUMMARY_RMS, SUMMARY_OK, SUMMARY_SIGMA = 5, 6, 7   # columns of refine_frame's summary
+MIN_CANDIDATES = 12   # fewer ring candidates than this: no ring (status NO_RING)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -915,7 +916,7 @@ def fit_pixels(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, n_azim
     of the rays have one.
     """
     query, stride, found = ring_query(pixels, azimuth, rank, n_azimuths)
-    if pixels.shape[0] < 12 or found < min_coverage:
+    if pixels.shape[0] < MIN_CANDIDATES or found < min_coverage:
         return found, _no_fit(NO_RING, 0, n_free)
     rays = rays_of(kind, query, cam_a, cam_b, cam_c, cam_d, cam_index)
     return found, fit_frame(rays, azimuth, rank, threshold, reselect_threshold, uniforms,

@@ -381,7 +381,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
             return _k.fit_pixels(pixels, azimuth, rank, n_az, min_coverage, *kernel, *fit,
                                  uniforms, *rest, 720)
         query, stride, found = _k.ring_query(pixels, azimuth, rank, n_az)
-        if pixels.shape[0] < 12 or found < min_coverage:
+        if pixels.shape[0] < _k.MIN_CANDIDATES or found < min_coverage:
             return found, (_k.NO_RING,)
         rays = _as_points(camera.unproject(query))
         return found, _k.fit_frame(rays, azimuth, rank, *fit, uniforms, *rest, stride,

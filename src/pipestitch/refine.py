@@ -359,17 +359,18 @@ def solve_in_windows(observations: Sequence[PatchShifts],
     frames = sorted(information)
     position = {f: k for k, f in enumerate(frames)}
     obs = [o for o in observations if len(o.nodes) and o.i in position and o.j in position]
+    # each pair's (earlier, later) frame positions
+    span = {(o.i, o.j): (min(position[o.i], position[o.j]), max(position[o.i], position[o.j]))
+            for o in obs}
     errors: dict[int, np.ndarray] = {}
     motions: dict[tuple[int, int], np.ndarray] = {}
     jac: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     for lo, hi, core_lo, core_hi in refinement_windows(len(frames), window, margin):
         # a pair reaching back beyond the margin (frames between it unread) widens
         # the window to its earlier frame, so that every pair is solved once
-        lo = min([lo] + [min(position[o.i], position[o.j]) for o in obs
-                         if core_lo <= max(position[o.i], position[o.j]) < core_hi])
-        inside = [o for o in obs if lo <= min(position[o.i], position[o.j])
-                  and max(position[o.i], position[o.j]) < hi]
-        for key in [k for k in jac if min(position[k[0]], position[k[1]]) < lo]:
+        lo = min([lo] + [first for first, last in span.values() if core_lo <= last < core_hi])
+        inside = [o for o in obs if lo <= span[(o.i, o.j)][0] and span[(o.i, o.j)][1] < hi]
+        for key in [k for k in jac if span[k][0] < lo]:
             del jac[key]   # no later window reaches back this far
         for o in inside:
             if (o.i, o.j) not in jac:
@@ -377,8 +378,7 @@ def solve_in_windows(observations: Sequence[PatchShifts],
         e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
                                  iterations=iterations)
         errors.update((f, e[f]) for f in frames[core_lo:core_hi])
-        motions.update((k, v) for k, v in m.items()
-                       if core_lo <= max(position[k[0]], position[k[1]]) < core_hi)
+        motions.update((k, v) for k, v in m.items() if core_lo <= span[k][1] < core_hi)
     return errors, motions
 
 

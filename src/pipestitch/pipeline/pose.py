@@ -161,21 +161,22 @@ def ordered_map(func: Callable[[int], T], indices: Iterable[int], workers: int) 
     freed among the small results that outlive them, otherwise leave the heap's
     resident size growing through a pass.
     """
+    yield from every_n(_in_order(func, indices, workers), TRIM_EVERY, release_free_memory)
+
+
+def _in_order(func: Callable[[int], T], indices: Iterable[int], workers: int) -> Iterator[T]:
+    """:func:`ordered_map`'s results, before the hand-backs."""
     if workers <= 1:
-        yield from every_n(map(func, indices), TRIM_EVERY, release_free_memory)
+        yield from map(func, indices)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
-
-        def results() -> Iterator[T]:
-            for index in indices:
-                pending.append(pool.submit(func, index))
-                if len(pending) >= 2 * workers:
-                    yield pending.popleft().result()
-            while pending:
+        for index in indices:
+            pending.append(pool.submit(func, index))
+            if len(pending) >= 2 * workers:
                 yield pending.popleft().result()
-
-        yield from every_n(results(), TRIM_EVERY, release_free_memory)
+        while pending:
+            yield pending.popleft().result()
 
 
 def resolve_frames(frames_in: Iterable[FramePose],

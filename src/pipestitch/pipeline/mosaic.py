@@ -39,6 +39,7 @@ from pipestitch.occluder import occluder_mask
 from pipestitch.pipeline.memory import release_free_memory
 from pipestitch.pipeline.pose import ordered_map
 from pipestitch.pipeline.progress import StageTimer, track
+from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose_fit import RingPoints
 from pipestitch.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
 from pipestitch.register import (
@@ -141,7 +142,7 @@ class FrameView:
     alternative: FrameView | None = None
     information: np.ndarray | None = field(default=None, compare=False)
     refined: bool = False
-    ring: RingPoints | None = field(default=None, compare=False)
+    ring: RingPoints | StoredRing | None = field(default=None, compare=False)
     oval: bool = False                     # the pose step fitted an oval section
     measured: SectionFit | None = field(default=None, compare=False)
 

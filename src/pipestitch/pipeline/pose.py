@@ -35,8 +35,9 @@ from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.memory import TRIM_EVERY, every_n, release_free_memory
 from pipestitch.pipeline.progress import StageTimer, console, track
+from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pipeline.threads import opencv_threads
-from pipestitch.pose_fit import PoseFit, fit_pose
+from pipestitch.pose_fit import PoseFit, RingPoints, fit_pose
 from pipestitch.ring import detect_ring, prepare_laser_frame
 from pipestitch.section_fit import oval_if_circle_infeasible
 
@@ -59,7 +60,9 @@ class FramePose:
     """Pose result of one frame: a fit, or the error that prevented it.
 
     ``strips`` (the LED frame unwrapped with both hypotheses) lives only until the
-    next frame has been compared with it.
+    next frame has been compared with it. ``stored_ring``: the fit's ring points once
+    :func:`resolve_frames` has moved them into a :class:`RingStore` (the fit's
+    ``ring`` is then None).
     """
 
     index: int
@@ -67,6 +70,12 @@ class FramePose:
     error: str = ""
     strips: StripPair | None = None
     warning: str = ""
+    stored_ring: StoredRing | None = None
+
+    @property
+    def ring(self) -> RingPoints | StoredRing | None:
+        """The frame's ring points, wherever they are kept."""
+        return self.stored_ring if self.stored_ring is not None else self.fit.ring
 
 
 OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; `pipestitch run` "
@@ -179,12 +188,16 @@ def _in_order(func: Callable[[int], T], indices: Iterable[int], workers: int) ->
             yield pending.popleft().result()
 
 
-def resolve_frames(frames_in: Iterable[FramePose],
-                   body: BodyEnvelope) -> tuple[list[FramePose], list[Choice]]:
+def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope,
+                   rings: RingStore | None = None, *,
+                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
     """Compare consecutive frames photometrically as they come, then choose over the run.
 
     Strips are dropped as soon as the next frame has been compared with them, so
     memory does not grow with the run (beyond the frames the worker pool has read ahead).
+    With ``rings``, each frame's ring points move into that store as the frame comes
+    (:mod:`pipestitch.pipeline.ring_store`; their image pixels are dropped); with
+    ``drop_rings`` they are not kept at all.
     """
     frames: list[FramePose] = []
     pairwise: dict[int, np.ndarray] = {}
@@ -194,18 +207,23 @@ def resolve_frames(frames_in: Iterable[FramePose],
             if previous is not None and previous.strips and frame.strips:
                 pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
             previous = frame
+        if (rings is not None or drop_rings) and frame.fit.ring is not None:
+            frame = replace(frame, fit=replace(frame.fit, ring=None),
+                            stored_ring=None if drop_rings else rings.put(frame.fit.ring))
         frames.append(replace(frame, strips=None))
     unary = np.array([envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2) for f in frames])
     return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
 
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
-                   timer: StageTimer | None = None) -> tuple[list[FramePose], list[Choice]]:
-    """Fit every frame and choose between the mirror hypotheses over the run."""
+                   timer: StageTimer | None = None, rings: RingStore | None = None,
+                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
+    """Fit every frame and choose between the mirror hypotheses over the run (ring
+    points into ``rings`` when given, or dropped: :func:`resolve_frames`)."""
     settings = PoseSettings.from_config(dataset.config)
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
-    return resolve_frames(frames, settings.body)
+    return resolve_frames(frames, settings.body, rings, drop_rings=drop_rings)
 
 
 def _fmt(value: float, digits: int = 6) -> str:
@@ -280,8 +298,9 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
     dataset = open_dataset(root, video=video)
     with opencv_threads(1 if workers > 1 else 0):   # see pipeline/threads.py
+        # poses.csv reads no ring points: not kept (~11.5 kB a frame)
         frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                         workers=workers)
+                                         workers=workers, drop_rings=True)
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)

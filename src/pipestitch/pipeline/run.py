@@ -38,6 +38,7 @@ from pipestitch.pipeline.pose import (
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
+from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pipeline.standards import CodedRun, code_run
 from pipestitch.pipeline.threads import opencv_threads
 from pipestitch.pose_fit import Hypothesis, RingPoints
@@ -82,7 +83,7 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
     """The view of every frame with a pose (its ring points for the section refits)."""
     views = {}
     for frame, choice, h in _chosen(frames, choices):
-        ring = _compact_ring(frame.fit.ring)
+        ring = _compact_ring(frame.ring)
         alt = None
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
@@ -93,19 +94,20 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
     return views
 
 
-def _compact_ring(ring: RingPoints | None) -> RingPoints | None:
+def _compact_ring(ring: RingPoints | StoredRing | None) -> RingPoints | StoredRing | None:
     """The ring points the section refits read (``uv``), without their image pixels:
-    they are kept for the whole run (~6 kB a frame instead of ~12)."""
-    if ring is None:
-        return None
+    they are kept for the whole run (~6 kB a frame instead of ~12; a stored ring,
+    :mod:`pipestitch.pipeline.ring_store`, is a handle of a few dozen bytes)."""
+    if ring is None or isinstance(ring, StoredRing):
+        return ring
     return RingPoints(ring.uv, ring.pixels[:0].copy(), ring.plane)
 
 
 def _without_rings(frames: list[FramePose]) -> list[FramePose]:
     """Frames whose fits no longer carry their ring points (nothing after the views
     reads them)."""
-    return [replace(f, fit=replace(f.fit, ring=None)) if f.fit.ring is not None else f
-            for f in frames]
+    return [replace(f, fit=replace(f.fit, ring=None), stored_ring=None)
+            if f.ring is not None else f for f in frames]
 
 
 def _apply_switches(choices: list[Choice], switched: dict[int, bool]) -> list[Choice]:
@@ -241,9 +243,11 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
         # The frames are spread over the workers: OpenCV splitting each call again
         # costs more than it gains (pipeline/threads.py).
-        with opencv_threads(1 if settings.workers > 1 else 0):
+        # The ring points wait for the section refits in a temporary file, not in
+        # memory (pipeline/ring_store.py).
+        with opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings:
             return _run(dataset, Path(out), settings, show_progress, tolerance_pct,
-                        crown_deg)
+                        crown_deg, rings)
     finally:
         close = getattr(dataset, "close", None)   # a video's decoder
         if close is not None:
@@ -272,11 +276,11 @@ def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: M
 
 
 def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: bool,
-         tolerance_pct: float, crown_deg: float | None) -> RunSummary:
+         tolerance_pct: float, crown_deg: float | None, rings: RingStore) -> RunSummary:
     start = time.perf_counter()
     timer = StageTimer()
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                     workers=settings.workers, timer=timer)
+                                     workers=settings.workers, timer=timer, rings=rings)
     views = _views(frames, choices)
     frames = _without_rings(frames)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,111 @@
+"""The ring points of a long run, kept in a temporary file instead of in memory.
+
+After a frame's pose is fitted its ring inliers (:class:`pipestitch.pose_fit.RingPoints`,
+<= 720 points) are read again only by the section refits after each round of pose
+refinement (``pipeline.mosaic``). Kept in memory they are ~6 kB a frame for the whole
+run, allocated among the pose pass's frame buffers: at 4000 pairs 23 MB of live data
+and more of heap that cannot be handed back around them. :class:`RingStore` appends
+each frame's in-plane points (float32) to an unlinked temporary file and hands back a
+:class:`StoredRing`, a handle of a few dozen bytes that reads them when asked. What
+the file holds sits in the page cache, which the system may drop, not in the
+process's resident memory.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+from dataclasses import dataclass
+from types import TracebackType
+
+import numpy as np
+
+from pipestitch.pose_fit import LaserPlane, RingPoints
+
+__all__ = ["RingStore", "StoredRing"]
+
+_POINT = np.dtype("<f4")   # uv components are float32, as RingPoints holds them
+
+
+class RingStore:
+    """Append-only store of ring points in an unlinked temporary file.
+
+    Thread-safe: one lock serialises the file position for writes and reads. Use as a
+    context manager (or call :meth:`close`); the file disappears when it is closed.
+
+    Parameters
+    ----------
+    directory : str, optional
+        Where the temporary file is made (default: the system's temporary folder).
+    """
+
+    def __init__(self, directory: str | None = None) -> None:
+        self._file = tempfile.TemporaryFile(dir=directory)
+        self._lock = threading.Lock()
+        self._end = 0
+
+    def put(self, ring: RingPoints | None) -> StoredRing | None:
+        """Store a frame's in-plane points (its image pixels are not kept)."""
+        if ring is None:
+            return None
+        data = np.ascontiguousarray(ring.uv, dtype=_POINT).tobytes()
+        with self._lock:
+            offset = self._end
+            self._file.seek(offset)
+            self._file.write(data)
+            self._end += len(data)
+        return StoredRing(self, offset, len(data) // (2 * _POINT.itemsize), ring.plane)
+
+    def read(self, offset: int, n_points: int) -> np.ndarray:
+        """The (n_points, 2) float32 uv stored at ``offset``."""
+        size = n_points * 2 * _POINT.itemsize
+        with self._lock:
+            self._file.seek(offset)
+            data = self._file.read(size)
+        if len(data) != size:
+            raise OSError(f"ring store: expected {size} bytes at {offset}, read {len(data)}")
+        return np.frombuffer(data, dtype=_POINT).reshape(n_points, 2)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes stored so far."""
+        return self._end
+
+    def close(self) -> None:
+        """Close (and so delete) the file; handles can no longer be read."""
+        self._file.close()
+
+    def __enter__(self) -> RingStore:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self.close()
+
+
+@dataclass(frozen=True, slots=True)
+class StoredRing:
+    """A frame's ring points in a :class:`RingStore`: what the section refits read of
+    :class:`pipestitch.pose_fit.RingPoints` (``uv``, ``points_mm``, ``plane``), read
+    from the file on each access. ``pixels`` is empty: the image points are not kept.
+    """
+
+    store: RingStore
+    offset: int
+    n_points: int
+    plane: LaserPlane
+
+    @property
+    def uv(self) -> np.ndarray:
+        """(N, 2) in-plane coordinates, mm (float32, read-only)."""
+        return self.store.read(self.offset, self.n_points)
+
+    @property
+    def pixels(self) -> np.ndarray:
+        """Not kept: an empty (0, 2) array."""
+        return np.empty((0, 2), np.float32)
+
+    @property
+    def points_mm(self) -> np.ndarray:
+        """(N, 3) probe-frame points on the laser plane (float64)."""
+        return self.plane.to_probe(self.uv.astype(np.float64))

@@ -1,0 +1,82 @@
+"""The ring store: ring points moved out of memory into a temporary file and read back."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from pipestitch.io.dataset import open_dataset
+from pipestitch.pipeline.pose import estimate_poses
+from pipestitch.pipeline.ring_store import RingStore, StoredRing
+from pipestitch.pipeline.run import _compact_ring, _without_rings
+from pipestitch.pose_fit import LaserPlane, RingPoints
+
+
+def _ring(n: int, seed: int) -> RingPoints:
+    rng = np.random.default_rng(seed)
+    uv = rng.normal(0, 30, (n, 2)).astype(np.float32)
+    return RingPoints(uv, uv + 500, LaserPlane.of(16.0, None))
+
+
+def test_stored_points_read_back_exactly_and_give_the_same_probe_points() -> None:
+    with RingStore() as store:
+        rings = [_ring(n, n) for n in (720, 1, 357)]
+        handles = [store.put(r) for r in rings]
+        assert store.nbytes == sum(r.uv.nbytes for r in rings)
+        for ring, handle in zip(rings, handles, strict=True):
+            assert isinstance(handle, StoredRing) and handle.n_points == len(ring.uv)
+            np.testing.assert_array_equal(handle.uv, ring.uv)
+            np.testing.assert_array_equal(handle.points_mm, ring.points_mm)
+            assert handle.pixels.shape == (0, 2) and handle.plane is ring.plane
+        assert store.put(None) is None
+
+
+def test_puts_and_reads_from_several_threads_do_not_mix_up_frames() -> None:
+    with RingStore() as store:
+        handles: dict[int, StoredRing] = {}
+
+        def work(k: int) -> None:
+            for j in range(20):
+                handles[k * 100 + j] = store.put(_ring(50 + j, k * 100 + j))
+                handles[k * 100 + j].uv  # noqa: B018 (a read between writes)
+
+        threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for key, handle in handles.items():
+            np.testing.assert_array_equal(handle.uv, _ring(50 + key % 100, key).uv)
+
+
+def test_a_closed_store_cannot_be_read() -> None:
+    store = RingStore()
+    handle = store.put(_ring(10, 0))
+    store.close()
+    with pytest.raises(ValueError):
+        handle.uv  # noqa: B018
+
+
+def test_the_pose_pass_moves_every_ring_into_the_store_unchanged(tmp_path,
+                                                                 simulate_small) -> None:
+    """Same fits with and without the store; with it, no frame holds its ring in memory
+    and each stored ring reads back as the fit's own uv; the run then drops them."""
+    root = simulate_small(tmp_path / "ds", "--pairs", "3", "--seed", "2")
+    dataset = open_dataset(root)
+    kept, kept_choices = estimate_poses(dataset, show_progress=False, workers=1)
+    with RingStore() as store:
+        moved, choices = estimate_poses(dataset, show_progress=False, workers=1, rings=store)
+        assert [c.chosen for c in choices] == [c.chosen for c in kept_choices]
+        assert sum(f.fit.ok for f in moved) == 3
+        for a, b in zip(kept, moved, strict=True):
+            assert b.fit.ring is None and isinstance(b.stored_ring, StoredRing)
+            assert b.fit.hypotheses == a.fit.hypotheses
+            np.testing.assert_array_equal(b.ring.uv, a.fit.ring.uv)
+            assert _compact_ring(b.ring) is b.stored_ring
+        assert all(f.ring is None for f in _without_rings(moved))
+    dropped, _ = estimate_poses(dataset, show_progress=False, workers=1, drop_rings=True)
+    assert [f.ring for f in dropped] == [None] * 3
+    assert [f.fit.hypotheses for f in dropped] == [f.fit.hypotheses for f in kept]
+    np.testing.assert_array_equal(_compact_ring(kept[0].ring).uv, kept[0].fit.ring.uv)

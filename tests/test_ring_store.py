@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pipestitch.io.dataset import open_dataset
+from pipestitch.pipeline.mosaic import FrameView, _refit_section
 from pipestitch.pipeline.pose import estimate_poses
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pipeline.run import _compact_ring, _without_rings
@@ -36,27 +37,69 @@ def test_stored_points_read_back_exactly_and_give_the_same_probe_points() -> Non
 def test_puts_and_reads_from_several_threads_do_not_mix_up_frames() -> None:
     with RingStore() as store:
         handles: dict[int, StoredRing] = {}
+        errors: list[BaseException] = []
 
         def work(k: int) -> None:
-            for j in range(20):
-                handles[k * 100 + j] = store.put(_ring(50 + j, k * 100 + j))
-                handles[k * 100 + j].uv  # noqa: B018 (a read between writes)
+            try:
+                for j in range(20):
+                    handles[k * 100 + j] = store.put(_ring(50 + j, k * 100 + j))
+                    handles[k * 100 + j].uv  # noqa: B018 (a read between writes)
+            except BaseException as exc:
+                errors.append(exc)
 
         threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
         for t in threads:
             t.start()
         for t in threads:
             t.join()
+        assert errors == [] and len(handles) == 80
         for key, handle in handles.items():
             np.testing.assert_array_equal(handle.uv, _ring(50 + key % 100, key).uv)
 
 
-def test_a_closed_store_cannot_be_read() -> None:
+def test_stored_points_are_read_only_float32_and_probe_points_float64() -> None:
+    with RingStore() as store:
+        handle = store.put(_ring(30, 1))
+        assert handle.uv.dtype == np.float32 and not handle.uv.flags.writeable
+        assert handle.points_mm.dtype == np.float64 and handle.points_mm.shape == (30, 3)
+
+
+def test_a_closed_store_says_so_when_read() -> None:
     store = RingStore()
     handle = store.put(_ring(10, 0))
     store.close()
-    with pytest.raises(ValueError):
+    with pytest.raises(RuntimeError, match="closed"):
         handle.uv  # noqa: B018
+
+
+def test_without_a_usable_temporary_folder_the_points_stay_in_memory(tmp_path) -> None:
+    with RingStore(directory=str(tmp_path / "missing")) as store:
+        assert "TMPDIR" in store.problem
+        ring = _ring(40, 2)
+        kept = store.put(ring)
+        assert isinstance(kept, RingPoints) and kept.pixels.shape == (0, 2)
+        np.testing.assert_array_equal(kept.uv, ring.uv)
+
+
+def test_a_failing_write_keeps_the_earlier_handles_and_the_rest_in_memory() -> None:
+    with RingStore() as store:
+        first = store.put(_ring(20, 3))
+
+        class Full:
+            def __init__(self, f) -> None:
+                self._f = f
+
+            def write(self, data) -> None:
+                raise OSError(28, "No space left on device")
+
+            def __getattr__(self, name):
+                return getattr(self._f, name)
+
+        store._file = Full(store._file)
+        later = store.put(_ring(20, 4))
+        assert "No space left" in store.problem and isinstance(later, RingPoints)
+        np.testing.assert_array_equal(first.uv, _ring(20, 3).uv)
+        np.testing.assert_array_equal(later.uv, _ring(20, 4).uv)
 
 
 def test_the_pose_pass_moves_every_ring_into_the_store_unchanged(tmp_path,
@@ -76,7 +119,14 @@ def test_the_pose_pass_moves_every_ring_into_the_store_unchanged(tmp_path,
             np.testing.assert_array_equal(b.ring.uv, a.fit.ring.uv)
             assert _compact_ring(b.ring) is b.stored_ring
         assert all(f.ring is None for f in _without_rings(moved))
+        # the consumer, the section refit, gets the same section from either
+        for a, b in zip(kept, moved, strict=True):
+            h = a.fit.hypotheses[0]
+            refits = [_refit_section(FrameView(h.pose, h.pipe_section, refined=True, ring=r))
+                      for r in (_compact_ring(a.ring), b.ring)]
+            assert refits[0].measured is not None
+            assert refits[0].measured.section == refits[1].measured.section
+            assert refits[0].pose == refits[1].pose
     dropped, _ = estimate_poses(dataset, show_progress=False, workers=1, drop_rings=True)
     assert [f.ring for f in dropped] == [None] * 3
     assert [f.fit.hypotheses for f in dropped] == [f.fit.hypotheses for f in kept]
-    np.testing.assert_array_equal(_compact_ring(kept[0].ring).uv, kept[0].fit.ring.uv)

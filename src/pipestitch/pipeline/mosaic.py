@@ -392,9 +392,9 @@ def _refit_section(view: FrameView) -> FrameView:
     if view.ring is None or not view.refined:
         return view
     start = view.measured.section if view.measured is not None else view.section
+    points = view.ring.points_mm   # outside the try: a store that fails must say so
     try:
-        measured = fit_section(view.ring.points_mm, view.pose, view.section.mean_radius_mm,
-                               start=start)
+        measured = fit_section(points, view.pose, view.section.mean_radius_mm, start=start)
     except ValueError:   # no valid section (degenerate ring points): keep the view
         return view
     # Kept for the whole run: the per-point residuals (~6 kB a frame) are not read again.

@@ -18,7 +18,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
 
@@ -70,7 +70,7 @@ class FramePose:
     error: str = ""
     strips: StripPair | None = None
     warning: str = ""
-    stored_ring: StoredRing | None = None
+    stored_ring: StoredRing | RingPoints | None = field(default=None, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -197,7 +197,7 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope,
     memory does not grow with the run (beyond the frames the worker pool has read ahead).
     With ``rings``, each frame's ring points move into that store as the frame comes
     (:mod:`pipestitch.pipeline.ring_store`; their image pixels are dropped); with
-    ``drop_rings`` they are not kept at all.
+    ``drop_rings`` they are not kept at all (and ``rings`` is not used).
     """
     frames: list[FramePose] = []
     pairwise: dict[int, np.ndarray] = {}

@@ -8,7 +8,11 @@ and more of heap that cannot be handed back around them. :class:`RingStore` appe
 each frame's in-plane points (float32) to an unlinked temporary file and hands back a
 :class:`StoredRing`, a handle of a few dozen bytes that reads them when asked. What
 the file holds sits in the page cache, which the system may drop, not in the
-process's resident memory.
+process's resident memory (where the temporary folder is a tmpfs, they are shared
+memory: not in the resident size either, but not droppable). When no temporary file
+can be made or written (no writable folder, a full disk), the store keeps the points
+in memory from then on, as before, and says so once in ``problem``: the run goes on.
+A handle reads through its open store: it cannot be pickled to another process.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import tempfile
 import threading
 from dataclasses import dataclass
 from types import TracebackType
+from typing import BinaryIO
 
 import numpy as np
 
@@ -30,8 +35,9 @@ _POINT = np.dtype("<f4")   # uv components are float32, as RingPoints holds them
 class RingStore:
     """Append-only store of ring points in an unlinked temporary file.
 
-    Thread-safe: one lock serialises the file position for writes and reads. Use as a
-    context manager (or call :meth:`close`); the file disappears when it is closed.
+    Thread-safe: one lock serialises the file position for writes, reads and closing.
+    Use as a context manager (or call :meth:`close`); the file disappears when it is
+    closed. ``problem`` is "" unless the file failed and the points stay in memory.
 
     Parameters
     ----------
@@ -40,26 +46,56 @@ class RingStore:
     """
 
     def __init__(self, directory: str | None = None) -> None:
-        self._file = tempfile.TemporaryFile(dir=directory)
         self._lock = threading.Lock()
         self._end = 0
+        self._closed = False
+        self.problem = ""
+        try:
+            self._file: BinaryIO | None = tempfile.TemporaryFile(dir=directory)
+        except OSError as exc:
+            self._file = None
+            self._fail(exc)
 
-    def put(self, ring: RingPoints | None) -> StoredRing | None:
-        """Store a frame's in-plane points (its image pixels are not kept)."""
+    def _fail(self, exc: OSError) -> None:
+        self.problem = (f"ring points kept in memory: no temporary file ({exc}); "
+                        "set TMPDIR to a writable folder for long runs")
+
+    def put(self, ring: RingPoints | None) -> StoredRing | RingPoints | None:
+        """Store a frame's in-plane points (its image pixels are not kept).
+
+        Returns the handle, or the points themselves (without pixels) in memory when
+        the file is unusable (``problem``).
+        """
         if ring is None:
             return None
         data = np.ascontiguousarray(ring.uv, dtype=_POINT).tobytes()
         with self._lock:
-            offset = self._end
-            self._file.seek(offset)
-            self._file.write(data)
-            self._end += len(data)
-        return StoredRing(self, offset, len(data) // (2 * _POINT.itemsize), ring.plane)
+            if self._file is not None and not self.problem:
+                offset = self._end
+                try:
+                    self._file.seek(offset)
+                    self._file.write(data)
+                    self._file.flush()   # a full disk shows here, not at a later read
+                except OSError as exc:   # earlier handles stay readable
+                    self._fail(exc)
+                else:
+                    self._end += len(data)
+                    return StoredRing(self, offset, len(data) // (2 * _POINT.itemsize),
+                                      ring.plane)
+        return RingPoints(ring.uv, ring.pixels[:0].copy(), ring.plane)
 
     def read(self, offset: int, n_points: int) -> np.ndarray:
-        """The (n_points, 2) float32 uv stored at ``offset``."""
+        """The (n_points, 2) float32 uv stored at ``offset``.
+
+        Raises
+        ------
+        RuntimeError
+            When the store is closed.
+        """
         size = n_points * 2 * _POINT.itemsize
         with self._lock:
+            if self._closed or self._file is None:
+                raise RuntimeError("ring store: read after the store was closed")
             self._file.seek(offset)
             data = self._file.read(size)
         if len(data) != size:
@@ -73,7 +109,10 @@ class RingStore:
 
     def close(self) -> None:
         """Close (and so delete) the file; handles can no longer be read."""
-        self._file.close()
+        with self._lock:
+            self._closed = True
+            if self._file is not None:
+                self._file.close()
 
     def __enter__(self) -> RingStore:
         return self

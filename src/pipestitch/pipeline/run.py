@@ -96,7 +96,7 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
 
 def _compact_ring(ring: RingPoints | StoredRing | None) -> RingPoints | StoredRing | None:
     """The ring points the section refits read (``uv``), without their image pixels:
-    they are kept for the whole run (~6 kB a frame instead of ~12; a stored ring,
+    they are kept until the last refit (~6 kB a frame instead of ~12; a stored ring,
     :mod:`pipestitch.pipeline.ring_store`, is a handle of a few dozen bytes)."""
     if ring is None or isinstance(ring, StoredRing):
         return ring
@@ -279,8 +279,13 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
          tolerance_pct: float, crown_deg: float | None, rings: RingStore) -> RunSummary:
     start = time.perf_counter()
     timer = StageTimer()
+    # only the section refits of the photometric refinement read the ring points again
+    refits = dataset.has_led and settings.mode == "ours" and settings.refine_iterations > 0
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                     workers=settings.workers, timer=timer, rings=rings)
+                                     workers=settings.workers, timer=timer, rings=rings,
+                                     drop_rings=not refits)
+    if rings.problem:
+        report_frame_messages([(-1, rings.problem)])
     views = _views(frames, choices)
     frames = _without_rings(frames)
     out.mkdir(parents=True, exist_ok=True)

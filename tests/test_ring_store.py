@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -35,24 +35,16 @@ def test_stored_points_read_back_exactly_and_give_the_same_probe_points() -> Non
 
 
 def test_puts_and_reads_from_several_threads_do_not_mix_up_frames() -> None:
-    with RingStore() as store:
-        handles: dict[int, StoredRing] = {}
-        errors: list[BaseException] = []
+    def work(k: int) -> dict[int, StoredRing]:
+        out = {}
+        for j in range(20):
+            out[k * 100 + j] = store.put(_ring(50 + j, k * 100 + j))
+            out[k * 100 + j].uv  # noqa: B018 (a read between writes)
+        return out
 
-        def work(k: int) -> None:
-            try:
-                for j in range(20):
-                    handles[k * 100 + j] = store.put(_ring(50 + j, k * 100 + j))
-                    handles[k * 100 + j].uv  # noqa: B018 (a read between writes)
-            except BaseException as exc:
-                errors.append(exc)
-
-        threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-        assert errors == [] and len(handles) == 80
+    with RingStore() as store, ThreadPoolExecutor(4) as pool:
+        handles = {key: h for part in pool.map(work, range(4)) for key, h in part.items()}
+        assert len(handles) == 80   # map re-raises a thread's exception here
         for key, handle in handles.items():
             np.testing.assert_array_equal(handle.uv, _ring(50 + key % 100, key).uv)
 

@@ -107,6 +107,10 @@ class RingPoints:
         """(N, 3) probe-frame points on the laser plane (float64)."""
         return self.plane.to_probe(self.uv.astype(np.float64))
 
+    def without_pixels(self) -> RingPoints:
+        """The same plane points without their image pixels (what later fits read)."""
+        return RingPoints(self.uv, self.pixels[:0].copy(), self.plane)
+
 
 @dataclass(frozen=True)
 class PoseFit:

@@ -115,6 +115,12 @@ class MosaicSettings:
     register_coarsening: int = 2
     final_coarsening: int = 1
 
+    @property
+    def refine_rounds(self) -> int:
+        """Rounds of photometric refinement a run makes (``ours`` only); after each,
+        the sections are refitted to the frames' ring points."""
+        return self.refine_iterations if self.mode == "ours" else 0
+
     def __post_init__(self) -> None:
         if self.mode not in UNWRAP_MODES:
             raise ValueError(f"mode: expected one of {UNWRAP_MODES}, got {self.mode!r}")
@@ -564,9 +570,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         raise StageError("no frame has both a pose and an LED frame")
     occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
     unwrapper = _Unwrapper(camera, settings, radius, occluded)
-    rounds = settings.refine_iterations if settings.mode == "ours" else 0
     reg = _registration_rounds(dataset, _views(usable, settings.mode, nominal), unwrapper,
-                               (coarse, fine), rounds, timer, show_progress, skipped)
+                               (coarse, fine), settings.refine_rounds, timer, show_progress,
+                               skipped)
     views, links = reg.views, reg.links
     with timer("register"):
         positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,

@@ -82,7 +82,7 @@ class RingStore:
                     self._end += len(data)
                     return StoredRing(self, offset, len(data) // (2 * _POINT.itemsize),
                                       ring.plane)
-        return RingPoints(ring.uv, ring.pixels[:0].copy(), ring.plane)
+        return ring.without_pixels()
 
     def read(self, offset: int, n_points: int) -> np.ndarray:
         """The (n_points, 2) float32 uv stored at ``offset``.

@@ -100,7 +100,7 @@ def _compact_ring(ring: RingPoints | StoredRing | None) -> RingPoints | StoredRi
     :mod:`pipestitch.pipeline.ring_store`, is a handle of a few dozen bytes)."""
     if ring is None or isinstance(ring, StoredRing):
         return ring
-    return RingPoints(ring.uv, ring.pixels[:0].copy(), ring.plane)
+    return ring.without_pixels()
 
 
 def _without_rings(frames: list[FramePose]) -> list[FramePose]:
@@ -280,7 +280,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     start = time.perf_counter()
     timer = StageTimer()
     # only the section refits of the photometric refinement read the ring points again
-    refits = dataset.has_led and settings.mode == "ours" and settings.refine_iterations > 0
+    refits = dataset.has_led and settings.refine_rounds > 0
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer, rings=rings,
                                      drop_rings=not refits)

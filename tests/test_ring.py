@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.ring import detect_ring, prepare_laser_frame
+from pipestitch.ring import detect_ring, prepare_laser_frame, ring_band_px
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 
 SECTION = PipeSection.circle(65.0)
@@ -96,3 +96,43 @@ def test_integer_frames_are_cast_then_scaled_exactly() -> None:
             grey = prepare_laser_frame(frame, channel=2 if frame.ndim == 3 else None)
             assert grey.dtype == np.float32
             assert np.array_equal(grey, expected.astype(np.float32) * scale)
+
+
+@pytest.mark.parametrize("size", ["half", "full"])
+def test_search_band_holds_every_ring_the_probe_can_see(size: str) -> None:
+    """The band PoseSettings searches (plane 11.25-130 mm from the axis for the 45 mm
+    body in a nominal 65 mm pipe) holds the true ring of the probe touching the wall
+    on any side, tilted as far as the body allows, in pipes from 50 to 130 mm."""
+    cam = default_camera(size)
+    lo, hi = ring_band_px(cam, 16.0, min_wall_mm=45.0 / 4, max_wall_mm=4 * 32.5)
+    centre = cam.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    for diameter in (50.0, 65.0, 130.0):
+        reach = diameter / 2 - 22.5          # the body touches the wall
+        for side in np.deg2rad([0.0, 135.0, 250.0]):
+            for tilt in (-8.0, 0.0, 8.0):
+                pose = Pose.from_degrees(tilt, -tilt / 2, reach * np.cos(side),
+                                         reach * np.sin(side), 0.0, 0.0)
+                px = cam.project(laser_ring(pose, PipeSection.circle(diameter), 16.0))
+                radius = np.linalg.norm(px - centre, axis=1)
+                radius = radius[np.isfinite(radius)]
+                assert radius.size and lo <= radius.min() and radius.max() <= hi, (
+                    diameter, side, tilt)
+    # and the band leaves out a good part of the ray (the point of it)
+    assert lo > 0.25 * hi
+
+
+def test_search_band_finds_what_the_whole_ray_finds() -> None:
+    r = renderer("half")
+    laser = r.render_laser(POSE, np.random.default_rng(1))
+    whole = detect_ring(laser, r.camera)
+    band = detect_ring(laser, r.camera,
+                       band_px=ring_band_px(r.camera, 16.0, min_wall_mm=11.25, max_wall_mm=130))
+    on_ring = distance_to_true_ring(r.camera, POSE, band.best()) < 1.0
+    assert on_ring.mean() > 0.99 and band.coverage == pytest.approx(whole.coverage, abs=0.005)
+    # the same sub-pixel points on the rays both found (the noise level differs a little:
+    # it is estimated over the band, so candidates right at the threshold may differ)
+    a = dict(zip(whole.azimuth[whole.rank == 0], whole.best(), strict=True))
+    b = dict(zip(band.azimuth[band.rank == 0], band.best(), strict=True))
+    common = sorted(set(a) & set(b))
+    assert len(common) > 0.98 * len(a)
+    assert np.max(np.abs(np.array([a[k] - b[k] for k in common]))) < 1e-3

@@ -12,7 +12,15 @@ from pipestitch.pose_fit import ConicModel, Hypothesis, PoseFit, pose_from_conic
 from pipestitch.ring import prepare_laser_frame
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 from pipestitch.simulate.textures import Defect, WallGrid, make_wall
-from pipestitch.unwrap import StripGrid, unwrap
+from pipestitch.unwrap import (
+    StripGrid,
+    default_mm_per_px,
+    seen_window_mm,
+    strip_window_mm,
+    unwrap,
+    unwrap_maps,
+    unwrap_with_quality,
+)
 
 R = 32.5
 
@@ -69,3 +77,30 @@ def test_photometric_costs_prefer_the_true_pair(renderer: Renderer) -> None:
     costs = pair_costs(*strips)
     assert costs[0, 0] == 0.0
     assert costs[1, 1] > 5 and costs[0, 1] > 5 and costs[1, 0] > 5
+
+
+def test_seen_window_keeps_every_resolved_node_and_cuts_the_rest() -> None:
+    """Strips over the centred camera's widened window, unwrapped node by node (step 1)
+    for tilted and offset frames: every node they keep lies inside the run's seen
+    window, and the seen window is markedly shorter (the cost of every strip)."""
+    cam = default_camera("half")
+    section = PipeSection.circle(2 * R)
+    mm = default_mm_per_px(cam, R)
+    window = strip_window_mm(cam, R, mm)
+    poses = [Pose(), Pose.from_degrees(6.0, -3.0, 5.0, -4.0, 0.0, 0.0),
+             Pose.from_degrees(-4.0, 7.0, -8.0, 2.0, 0.0, 0.0)]
+    seen = seen_window_mm(cam, [(p, section) for p in poses], R, mm, window)
+    assert window[0] <= seen[0] < seen[1] <= window[1]
+    assert seen[1] - seen[0] < 0.85 * (window[1] - window[0])
+    grid = StripGrid.window(R, mm, *window)
+    frame = np.ones((cam.height, cam.width), np.float32)
+    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+    for pose in poses:
+        strip = unwrap_with_quality(frame, unwrap_maps(cam, pose, section, grid, step=1,
+                                                       with_quality=True))
+        kept = z[(strip.weight > 0).any(axis=0)]
+        assert kept.size and seen[0] <= kept.min() and kept.max() <= seen[1]
+    # nothing resolved at all: the window is kept as it is
+    far = Pose(0.0, 0.0, 0.0, 0.0)
+    assert seen_window_mm(cam, [(far, section)], R, 50.0, window,
+                          min_resolution=1e9) == window

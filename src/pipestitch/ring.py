@@ -25,7 +25,8 @@ import numpy as np
 from pipestitch._strip_kernels import divide_by_reflectance, ridge_peaks
 from pipestitch.camera import CameraModel
 
-__all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame"]
+__all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame",
+           "ring_band_px"]
 
 
 @dataclass(frozen=True)
@@ -107,9 +108,11 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarr
 
 
 @functools.lru_cache(maxsize=8)
-def _polar_grid(camera: CameraModel, n_azimuths: int,
-                step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sampling maps of rays from the image of the optical axis out to the lens edge.
+def _polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
+                band_px: tuple[float, float] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sampling maps of rays from the image of the optical axis out to the lens edge
+    (or over the image radii ``band_px`` only).
 
     The same for every frame of a run: cached (read-only arrays).
     """
@@ -120,7 +123,9 @@ def _polar_grid(camera: CameraModel, n_azimuths: int,
                           np.full_like(phi, np.cos(edge_theta))], axis=1)
     edge = camera.project(edge_rays)
     r_max = float(np.nanmax(np.linalg.norm(edge - centre, axis=1)))
-    radii = np.arange(2.0, r_max, step_px)
+    r_lo, r_hi = (2.0, r_max) if band_px is None else (max(2.0, band_px[0]),
+                                                        min(r_max, band_px[1]))
+    radii = np.arange(r_lo, max(r_hi, r_lo + step_px), step_px)
     map_x = (centre[0] + np.cos(phi)[:, None] * radii[None, :]).astype(np.float32)
     map_y = (centre[1] + np.sin(phi)[:, None] * radii[None, :]).astype(np.float32)
     for arr in (map_x, map_y, radii, centre):
@@ -128,8 +133,40 @@ def _polar_grid(camera: CameraModel, n_azimuths: int,
     return map_x, map_y, radii, centre
 
 
+def ring_band_px(camera: CameraModel, plane_distance_mm: float,
+                 plane_normal: np.ndarray | None = None, *, min_wall_mm: float,
+                 max_wall_mm: float) -> tuple[float, float]:
+    """Image radii (about the image of the optical axis) between which the ring can lie.
+
+    The ring is where the laser plane {n·p = d} meets the wall, so it lies on the rays
+    whose plane point is ``min_wall_mm`` to ``max_wall_mm`` from the probe axis; the
+    band is those rays' image radii over every azimuth. Physical bounds (the probe
+    body, a pipe the probe could be in) keep :func:`detect_ring` off the image
+    centre (the mirror assembly) and the lens edge, where no ring can be.
+    """
+    normal = np.array([0.0, 0.0, 1.0]) if plane_normal is None else np.asarray(plane_normal,
+                                                                                float)
+    theta = np.linspace(0.0, camera.max_incidence_rad, 721)[1:]
+    phi = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    rays = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+    along = rays @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(along > 1e-9, plane_distance_mm / along, np.inf)
+    wall = t * np.sin(th)                  # the plane point's distance from the probe axis
+    ok = (wall >= min_wall_mm) & (wall <= max_wall_mm)
+    if not ok.any():
+        raise ValueError(f"no ray meets the laser plane {min_wall_mm:g}-{max_wall_mm:g} mm "
+                         f"from the probe axis")
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    px = camera.project(rays[ok])
+    radius = np.linalg.norm(px - centre, axis=1)
+    radius = radius[np.isfinite(radius)]
+    return float(radius.min()), float(radius.max())
+
+
 def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray | None = None,
-                n_azimuths: int = 1440,
+                n_azimuths: int = 1440, band_px: tuple[float, float] | None = None,
                 line_sigma_px: float | None = None, min_snr: float = 8.0,
                 max_candidates: int = 3, min_relative: float = 0.2) -> RingDetection:
     """Find laser-ring candidates in a laser frame.
@@ -147,6 +184,10 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         LED frame, which sees the same wall, removes that bias.
     n_azimuths : int
         Number of polar rays.
+    band_px : (float, float), optional
+        Search only between these image radii about the image of the optical axis
+        (:func:`ring_band_px`), widened by the ridge filter's reach; default: from the
+        centre out to the lens edge.
     line_sigma_px : float, optional
         Expected Gaussian width of the laser line; default scales with the image.
     min_snr : float
@@ -168,7 +209,12 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
                          f"got {grey.shape[1]}x{grey.shape[0]}")
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
     step = 0.5
-    map_x, map_y, radii, centre = _polar_grid(camera, n_azimuths, step)
+    if band_px is not None:
+        # Widened by the wide ridge Gaussian's kernel (16 sigma), so that the ridge of a
+        # ring inside the band is what the whole ray would give; whole pixels (cache key).
+        reach = 16 * sigma + 2
+        band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
+    map_x, map_y, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     if reflectance is not None:
         polar = _flatten_reflectance(polar, reflectance, channel, map_x, map_y, camera)

@@ -18,6 +18,7 @@ probe.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -34,8 +35,8 @@ from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose
 
 __all__ = ["Strip", "StripGrid", "UnwrapMaps", "column_levels", "default_mm_per_px",
-           "local_contrast", "polar_unwrap_maps", "strip_window_mm", "to_grey", "unwrap",
-           "unwrap_maps", "unwrap_with_quality"]
+           "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
+           "to_grey", "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,26 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
     with_quality : bool
         Also return the quality weight (an :class:`UnwrapMaps`).
     """
+    fields = _node_fields(camera, pose, section, grid, step, with_quality)[0]
+    # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
+    # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
+    # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
+    # nodes whose interpolated validity is not ~1 are masked (-1, quality 0).
+    out = upsample_masked(np.stack(fields).astype(np.float32), step, grid.n_rows, grid.n_cols,
+                          0.999)
+    if not with_quality:
+        return out[0], out[1]
+    return UnwrapMaps(*out)
+
+
+def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
+                 step: int, with_quality: bool) -> tuple[list[np.ndarray], np.ndarray]:
+    """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
+    nodes' column z.
+
+    Pixel column and row (0 where invisible), validity (1/0) and, ``with_quality``, the
+    quality and the shading of :class:`UnwrapMaps`, each (node rows, node columns).
+    """
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
     ring, z, probe = _grid_points(grid, section, local, step)
@@ -156,15 +177,7 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
         cosine = np.clip(cosine, 0, 1)
         resolution = _resolution(px[..., 0], px[..., 1]) / step
         fields += [resolution * cosine, cosine * (section.mean_radius_mm / distance) ** 2]
-    # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
-    # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
-    # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
-    # nodes whose interpolated validity is not ~1 are masked (-1, quality 0).
-    out = upsample_masked(np.stack(fields).astype(np.float32), step, grid.n_rows, grid.n_cols,
-                          0.999)
-    if not with_quality:
-        return out[0], out[1]
-    return UnwrapMaps(*out)
+    return fields, z
 
 
 def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray,
@@ -309,6 +322,41 @@ def strip_window_mm(camera: CameraModel, radius_mm: float, mm_per_px: float, *,
     margin = radius_mm / 3
     return float(z[good].min() - margin), float(z[good].max() + margin)
 
+
+
+def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]],
+                   radius_mm: float, mm_per_px: float, window_mm: tuple[float, float], *,
+                   min_resolution: float = 0.5, occluded: np.ndarray | None = None,
+                   step: int = 16, margin_mm: float = 2.0) -> tuple[float, float]:
+    """The part of ``window_mm`` that some frame of a run actually resolves.
+
+    :func:`strip_window_mm` is a centred camera's window widened for any tilt and
+    offset; at fine scales much of it is masked in every frame (too few source pixels
+    per output pixel). Here the window shrinks to the axial range where at least one
+    of ``views`` (each frame's pose and section) has a node inside the image, not
+    ``occluded`` and at ``min_resolution`` or better (what :func:`unwrap_with_quality`
+    masks by), checked every ``step``-th node of the ``mm_per_px`` grid and
+    widened by one such step and ``margin_mm`` (the poses the refinement will still
+    correct). The unwrapping, registration and stitching costs all scale with the
+    window's length; nothing they would keep is cut. ``window_mm`` itself when no view
+    resolves anything.
+    """
+    grid = StripGrid.window(radius_mm, mm_per_px, *window_mm)
+    lo, hi = np.inf, -np.inf
+    for pose, section in views:
+        (x, y, valid, quality, _), z = _node_fields(camera, pose, section, grid, step, True)
+        col, row = np.rint(x).astype(int), np.rint(y).astype(int)
+        good = ((valid > 0) & (quality >= min_resolution) & (col >= 0) & (col < camera.width)
+                & (row >= 0) & (row < camera.height))
+        if occluded is not None:
+            good[good] = ~occluded[row[good], col[good]]
+        seen = np.flatnonzero(good.any(axis=0))
+        if seen.size:
+            lo, hi = min(lo, z[seen[0]]), max(hi, z[seen[-1]])
+    if not np.isfinite(lo):
+        return window_mm
+    pad = step * mm_per_px + margin_mm
+    return max(window_mm[0], float(lo) - pad), min(window_mm[1], float(hi) + pad)
 
 def default_mm_per_px(camera: CameraModel, radius_mm: float) -> float:
     """Output scale: the axial resolution of a centred camera half a radius ahead.

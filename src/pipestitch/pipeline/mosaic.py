@@ -60,6 +60,7 @@ from pipestitch.unwrap import (
     column_levels,
     default_mm_per_px,
     polar_unwrap_maps,
+    seen_window_mm,
     strip_window_mm,
     to_grey,
     unwrap_maps,
@@ -532,6 +533,27 @@ def _views(poses: Mapping[int, FrameView], mode: str,
     return {i: FrameView(Pose(), PipeSection(nominal_radius_mm)) for i in poses}
 
 
+def _windows(camera: CameraModel, views: Mapping[int, FrameView], radius_mm: float,
+             mm_per_px: float, settings: MosaicSettings,
+             occluded: np.ndarray) -> dict[int, tuple[float, float]]:
+    """Axial window of the strips at each coarsening the run uses (1: the canvas').
+
+    The centred camera's window at the canvas' scale (:func:`strip_window_mm`), cut to
+    what the run's frames resolve outside the ``occluded`` pixels at each scale
+    (:func:`seen_window_mm`; both hypotheses of an ambiguous frame). The polar
+    baseline keeps the centred window: its maps ignore the poses.
+    """
+    window = strip_window_mm(camera, radius_mm, mm_per_px, min_resolution=settings.min_resolution)
+    scales = {1, settings.final_coarsening, settings.register_coarsening}
+    if settings.mode == "polar":
+        return dict.fromkeys(scales, window)
+    seen = [(w.pose, w.section) for v in views.values() for w in (v, v.alternative)
+            if w is not None]
+    return {k: seen_window_mm(camera, seen, radius_mm, mm_per_px * k, window,
+                              min_resolution=settings.min_resolution, occluded=occluded)
+            for k in scales}
+
+
 def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                  settings: MosaicSettings, *, timer: StageTimer | None = None,
                  show_progress: bool = True, sink: MosaicSink | None = None) -> MosaicResult:
@@ -559,20 +581,23 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     radii = [v.section.mean_radius_mm for v in poses.values()]
     radius = float(np.median(radii)) if radii and settings.mode == "ours" else nominal
     mm = settings.mm_per_px or default_mm_per_px(camera, radius)
-    window = strip_window_mm(camera, radius, mm, min_resolution=settings.min_resolution)
-    # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
-    fine = StripGrid.window(radius, mm * settings.final_coarsening, *window, fft_sizes=True)
-    coarse = StripGrid.window(radius, mm * settings.register_coarsening, *window,
-                              fft_sizes=True)
     skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
     usable = {i: p for i, p in poses.items() if i not in skipped}
     if not usable:
         raise StageError("no frame has both a pose and an LED frame")
+    views = _views(usable, settings.mode, nominal)
     occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
+    with timer("unwrap"):
+        windows = _windows(camera, views, radius, mm, settings, occluded)
+    window = windows[1]
+    # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
+    fine = StripGrid.window(radius, mm * settings.final_coarsening,
+                            *windows[settings.final_coarsening], fft_sizes=True)
+    coarse = StripGrid.window(radius, mm * settings.register_coarsening,
+                              *windows[settings.register_coarsening], fft_sizes=True)
     unwrapper = _Unwrapper(camera, settings, radius, occluded)
-    reg = _registration_rounds(dataset, _views(usable, settings.mode, nominal), unwrapper,
-                               (coarse, fine), settings.refine_rounds, timer, show_progress,
-                               skipped)
+    reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
+                               timer, show_progress, skipped)
     views, links = reg.views, reg.links
     with timer("register"):
         positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,

@@ -38,7 +38,7 @@ from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pipeline.threads import opencv_threads
 from pipestitch.pose_fit import PoseFit, RingPoints, fit_pose
-from pipestitch.ring import detect_ring, prepare_laser_frame
+from pipestitch.ring import detect_ring, prepare_laser_frame, ring_band_px
 from pipestitch.section_fit import oval_if_circle_infeasible
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
@@ -105,20 +105,30 @@ class PoseSettings:
     nominal_radius_mm: float
     body: BodyEnvelope
     plane_normal: np.ndarray | None = None   # laser-plane normal (probe.toml; SPEC: +z)
+    ring_band_px: tuple[float, float] | None = None   # where detect_ring searches
 
     @classmethod
     def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
-        """Settings of a dataset's probe.toml."""
-        return cls(cfg.camera_model(), cfg.laser.plane_distance_mm,
-                   cfg.pipe.inner_diameter_mm / 2,
-                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm),
-                   np.asarray(cfg.laser.plane_normal(), float))
+        """Settings of a dataset's probe.toml.
+
+        The ring is searched where the laser plane is between half the probe body's
+        radius and twice the nominal pipe diameter from the probe axis: the wall can
+        be neither inside the body nor further than the far side of a pipe twice the
+        nominal size (wide margins for a wrong nominal, ovality and tilt).
+        """
+        camera, normal = cfg.camera_model(), np.asarray(cfg.laser.plane_normal(), float)
+        radius = cfg.pipe.inner_diameter_mm / 2
+        band = ring_band_px(camera, cfg.laser.plane_distance_mm, normal,
+                            min_wall_mm=cfg.probe.diameter_mm / 4, max_wall_mm=4 * radius)
+        return cls(camera, cfg.laser.plane_distance_mm, radius,
+                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm), normal, band)
 
 
 def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
               settings: PoseSettings) -> FramePose:
     """Ring, both hypotheses and (when possible) photometric strips of one frame pair."""
-    detection = detect_ring(laser, settings.camera, reflectance=led)
+    detection = detect_ring(laser, settings.camera, reflectance=led,
+                            band_px=settings.ring_band_px)
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)

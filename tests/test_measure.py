@@ -101,3 +101,32 @@ def test_block_measurement_refuses_a_gap() -> None:
     finder.push(0, np.ones((360, 50), np.float32))
     with pytest.raises(ValueError, match="column 50"):
         finder.push(60, np.ones((360, 50), np.float32))
+
+
+def test_fill_holes_is_scipys() -> None:
+    from scipy import ndimage
+
+    from pipestitch.measure.defects import _fill_holes
+
+    rng = np.random.default_rng(3)
+    for density in (0.3, 0.5, 0.7):
+        mask = ndimage.binary_opening(rng.random((120, 170)) < density)
+        assert np.array_equal(_fill_holes(mask), ndimage.binary_fill_holes(mask))
+    ring = np.zeros((9, 9), bool)
+    ring[2:7, 2:7], ring[3:6, 3:6] = True, False
+    assert _fill_holes(ring)[4, 4] and not _fill_holes(ring)[0, 0]
+
+
+@pytest.mark.parametrize("size", [3, 15])
+def test_median_filter_is_scipys_to_half_a_level(size: int) -> None:
+    from scipy import ndimage
+
+    from pipestitch.measure.defects import _median_filter
+
+    rng = np.random.default_rng(4)
+    image = (rng.random((90, 130)) * 180 + 20).astype(np.float32)
+    ours = _median_filter(image, size)
+    inner = (slice(size, -size),) * 2     # away from the borders (the caller pads)
+    truth = ndimage.median_filter(image, size=size)
+    tolerance = 0 if size <= 5 else image.max() / 510 + 1e-4
+    assert np.max(np.abs(ours[inner] - truth[inner])) <= tolerance

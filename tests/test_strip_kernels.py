@@ -20,6 +20,7 @@ from pipestitch._strip_kernels import (
     mask_strip,
     quantile_over_frames,
     residual_moments,
+    shifted_residual_moments,
     ridge_peaks,
     upsample_masked,
 )
@@ -139,6 +140,25 @@ def test_residual_moments_read_a_whole_pixel_shift_as_the_warp_gives_it(
     np.testing.assert_allclose(residual_moments(img, back, weight, 0, 0),
                                [np.sum(err * gx), np.sum(err * gy)], rtol=1e-5)
 
+
+
+@pytest.mark.parametrize(("dx", "dy"), [(0.3, -0.7), (2.25, 1.5), (-20.2, 30.6), (44.5, -10.25),
+                                        (3.0, -2.0)])
+@pytest.mark.parametrize("weighted", [True, False])
+def test_shifted_residual_moments_are_the_cubic_warp_s(dx: float, dy: float,
+                                                       weighted: bool) -> None:
+    """The fused kernel equals cv2.warpAffine (INTER_CUBIC, wrapping) + residual_moments,
+    sub-pixel and whole-pixel shifts, positive and negative, beyond half the size."""
+    img = cv2.GaussianBlur(RNG.normal(size=(31, 45)).astype(np.float32), (0, 0), 1.2)
+    moved = cv2.GaussianBlur(RNG.normal(size=img.shape).astype(np.float32), (0, 0), 1.2)
+    weight = (RNG.random(img.shape).astype(np.float32) if weighted
+              else np.zeros((0, 0), np.float32))
+    back = cv2.warpAffine(moved, np.float32([[1, 0, dx], [0, 1, dy]]), (45, 31),
+                          flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_WRAP)
+    np.testing.assert_allclose(shifted_residual_moments(img, moved, weight, dx, dy),
+                               residual_moments(img, back, weight, 0, 0), rtol=2e-5,
+                               atol=1e-6)
 
 def test_strip_mask_uses_the_nearest_pixel_as_cv2_remap_does() -> None:
     occluded = RNG.random((20, 30)) < 0.3

@@ -26,6 +26,7 @@ from pipestitch._strip_kernels import (
     cross_power_ccs,
     gradient_moments,
     residual_moments,
+    shifted_residual_moments,
     weighted_peak,
 )
 from pipestitch.unwrap import Strip, StripGrid, local_contrast
@@ -115,10 +116,7 @@ def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx
             # so the kernel reads ``second`` shifted instead of a warped copy.
             bx, by = residual_moments(first, second, weight, int(dy), int(dx))
         else:
-            back = cv2.warpAffine(second, np.float32([[1, 0, dx], [0, 1, dy]]), (n_cols, n_rows),
-                                  flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-                                  borderMode=cv2.BORDER_WRAP)
-            bx, by = residual_moments(first, back, weight, 0, 0)
+            bx, by = shifted_residual_moments(first, second, weight, dx, dy)
         bx, by = -bx, -by
         step_x, step_y = (a22 * bx - a12 * by) / det, (a11 * by - a12 * bx) / det
         if abs(step_x) > 1 or abs(step_y) > 1:

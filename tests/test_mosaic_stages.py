@@ -16,7 +16,7 @@ from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.mosaic import Canvas, Overview, _feather, frame_grid, vignetting_profile
 from pipestitch.occluder import occluder_mask
-from pipestitch.refine import node_jacobian, patch_shifts
+from pipestitch.refine import PATCHES_AROUND, node_jacobian, patch_shifts
 from pipestitch.register import (
     Link,
     MotionPrior,
@@ -267,6 +267,13 @@ def test_patch_shifts_measure_local_motion() -> None:
     valid = np.ones_like(first, bool)
     found = patch_shifts(first, valid, second, valid, (3.0, 20.0), 0, 1)
     assert len(found.nodes) > 10
+    assert np.allclose(found.shift, [3.0, 20.25], atol=0.05)
+    # a strip of many rows (a full-size sensor's) gets at most PATCHES_AROUND around
+    tall = np.vstack([first] * 8)
+    found = patch_shifts(tall, np.ones_like(tall, bool), np.vstack([second] * 8),
+                         np.ones_like(tall, bool), (3.0, 20.0), 0, 1)
+    rows = np.unique(found.nodes[:, 0])
+    assert np.all(np.diff(rows) == tall.shape[0] // PATCHES_AROUND) and len(rows) > 20
     assert np.allclose(found.shift, [3.0, 20.25], atol=0.05)
 
 

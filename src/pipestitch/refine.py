@@ -42,6 +42,10 @@ __all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows",
 
 PATCH_PX = 64
 PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
+# The grid of patches is at most this many around the pipe (wider steps on strips of
+# more rows): the warp a pose error makes is smooth over the strip, so a full-size
+# strip's 4x more patches measure it little better, at 4x the cost.
+PATCHES_AROUND = 24
 MIN_RESPONSE = 0.1
 MIN_CONTRAST = 0.01          # patches flatter than this (std of local contrast) are skipped
 SHIFT_SIGMA_PX = 0.15        # 1-sigma of a patch shift at response 1
@@ -80,16 +84,20 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
         Boolean validity of their nodes.
     motion_px : (float, float)
         Rigid motion (rows, cols) from i to j: strip_j(n) ~ strip_i(n + motion).
+
+    Patches of ``PATCH_PX`` every ``PATCH_STEP_PX``, or every ``1 / PATCHES_AROUND``
+    of the rows when that is wider.
     """
     n_rows, n_cols = second.shape
+    step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
     dr, dc = round(motion_px[0]), round(motion_px[1])
     win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
     nodes, shifts, responses = [], [], []
-    for c in range(0, n_cols - PATCH_PX + 1, PATCH_STEP_PX):
+    for c in range(0, n_cols - PATCH_PX + 1, step):
         c1 = c + dc
         if c1 < 0 or c1 + PATCH_PX > n_cols:
             continue
-        for r in range(0, n_rows, PATCH_STEP_PX):
+        for r in range(0, n_rows, step):
             rows_j = np.arange(r, r + PATCH_PX) % n_rows
             rows_i = (rows_j + dr) % n_rows
             if not (second_valid[rows_j, c:c + PATCH_PX].all()

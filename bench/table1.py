@@ -38,7 +38,7 @@ from scipy.optimize import differential_evolution
 
 from pipestitch.ambiguity import envelope_costs, resolve_run
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
-from pipestitch.pipeline.pose import PoseSettings, fit_frame, resolve_frames
+from pipestitch.pipeline.pose import PoseSettings, fit_frame, resolve_frames, ring_search_band
 from pipestitch.pose_fit import ConicModel, fit_pose, plane_points, pose_from_conic
 from pipestitch.ring import detect_ring
 from pipestitch.simulate.render import Optics
@@ -125,12 +125,13 @@ def evaluate(name: str, n: int, n_base: int, size: str, noise_free: bool) -> dic
     run = build_run(scenario, seed=1, size=size, n_pairs=n)
     cam, radius = run.camera, scenario.pipe_diameter_mm / 2
     body = BodyEnvelope()
+    band = ring_search_band(cam, D, radius, body)   # as `pipestitch pose` searches
     out = {k: [] for k in ("ours", "ours_alt", "base", "truth", "mirror", "t_ours", "t_ring",
                            "t_base", "t_unproject", "feasible_mirror", "cpu_ours", "cpu_base")}
     for i, pose in enumerate(run.poses):
         laser = run.render_laser(i)
         t0 = time.perf_counter()
-        det = detect_ring(laser, cam)
+        det = detect_ring(laser, cam, band_px=band)
         t1, c1 = time.perf_counter(), time.process_time()
         fit = fit_pose(det, cam, D, nominal_radius_mm=radius)
         t2 = time.perf_counter()
@@ -226,8 +227,11 @@ def trajectories(names: list[str], n: int, size: str) -> None:
           f"{'silent wrong':>12}   mean |err| up to the mirror (a, b deg; dx, dy mm)")
     for name in names:
         run = build_run(SCENARIOS[name], seed=2, size=size, n_pairs=n)
-        settings = PoseSettings(run.camera, D, SCENARIOS[name].pipe_diameter_mm / 2,
-                                BodyEnvelope())
+        radius = SCENARIOS[name].pipe_diameter_mm / 2
+        # the ring searched where `pipestitch pose` and `run` search it
+        settings = PoseSettings(run.camera, D, radius, BodyEnvelope(),
+                                ring_band_px=ring_search_band(run.camera, D, radius,
+                                                              BodyEnvelope()))
         frames, choices = resolve_frames(
             (fit_frame(i, *run.render(i), settings) for i in range(len(run.poses))),
             settings.body)

@@ -20,8 +20,8 @@ from pipestitch._strip_kernels import (
     mask_strip,
     quantile_over_frames,
     residual_moments,
-    shifted_residual_moments,
     ridge_peaks,
+    shifted_residual_moments,
     upsample_masked,
 )
 from pipestitch.unwrap import local_contrast

@@ -32,7 +32,7 @@ from pipestitch.pose_fit import Hypothesis, PoseFit
 __all__ = ["Choice", "envelope_costs", "hypothesis_distance", "resolve_run"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Choice:
     """Decision for one frame.
 

@@ -54,7 +54,7 @@ PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Hypothesis:
     """One pose solution of a frame.
 
@@ -112,7 +112,7 @@ class RingPoints:
         return RingPoints(self.uv, self.pixels[:0].copy(), self.plane)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PoseFit:
     """Result of fitting one laser frame: both hypotheses or a reason why not.
 

@@ -38,7 +38,7 @@ MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at 
 PRIOR_FLOOR = 0.1       # weight of the motion prior far from the expected motion
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Link:
     """Measured motion from frame ``i`` to frame ``j``: z_j - z_i and roll_j - roll_i."""
 

@@ -32,7 +32,7 @@ from pipestitch.pose_fit import Hypothesis, PoseFit, plane_to_world, ring_rms_px
 __all__ = ["SectionFit", "fit_section", "oval_if_circle_infeasible", "oval_residuals"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SectionFit:
     """Result of :func:`fit_section`.
 

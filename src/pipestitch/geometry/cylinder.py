@@ -14,7 +14,7 @@ import numpy as np
 __all__ = ["PipeSection", "theta_z_from_points"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PipeSection:
     """Elliptical pipe cross-section (circle when ``a_mm == b_mm``).
 

@@ -17,7 +17,7 @@ from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
 __all__ = ["Pose"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Pose:
     """Probe pose in the pipe. Angles in radians, lengths in mm.
 

@@ -130,7 +130,7 @@ class MosaicSettings:
             raise ValueError(f"mm_per_px: expected a positive number, got {self.mm_per_px}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class FrameView:
     """The pose and pipe section a frame is unwrapped with.
 

@@ -42,8 +42,8 @@ from pipestitch.ring import detect_ring, prepare_laser_frame, ring_band_px
 from pipestitch.section_fit import oval_if_circle_infeasible
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
-           "ordered_map", "report_frame_messages", "resolve_frames", "run_pose",
-           "write_poses_csv"]
+           "ordered_map", "report_frame_messages", "resolve_frames", "ring_search_band",
+           "run_pose", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -55,7 +55,7 @@ EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model"
                  "warning", "ovality_std")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class FramePose:
     """Pose result of one frame: a fit, or the error that prevented it.
 
@@ -109,19 +109,26 @@ class PoseSettings:
 
     @classmethod
     def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
-        """Settings of a dataset's probe.toml.
-
-        The ring is searched where the laser plane is between half the probe body's
-        radius and twice the nominal pipe diameter from the probe axis: the wall can
-        be neither inside the body nor further than the far side of a pipe twice the
-        nominal size (wide margins for a wrong nominal, ovality and tilt).
-        """
+        """Settings of a dataset's probe.toml (the ring searched in :func:`ring_search_band`)."""
         camera, normal = cfg.camera_model(), np.asarray(cfg.laser.plane_normal(), float)
         radius = cfg.pipe.inner_diameter_mm / 2
-        band = ring_band_px(camera, cfg.laser.plane_distance_mm, normal,
-                            min_wall_mm=cfg.probe.diameter_mm / 4, max_wall_mm=4 * radius)
-        return cls(camera, cfg.laser.plane_distance_mm, radius,
-                   BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm), normal, band)
+        body = BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm)
+        band = ring_search_band(camera, cfg.laser.plane_distance_mm, radius, body, normal)
+        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band)
+
+
+def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
+                     body: BodyEnvelope, plane_normal: np.ndarray | None = None
+                     ) -> tuple[float, float]:
+    """Image radii where :func:`pipestitch.ring.detect_ring` looks for the ring of a run.
+
+    Where the laser plane is between half the probe body's radius and twice the
+    nominal pipe diameter from the probe axis: the wall can be neither inside the body
+    nor further than the far side of a pipe twice the nominal size (wide margins for a
+    wrong nominal, ovality and tilt). See :func:`pipestitch.ring.ring_band_px`.
+    """
+    return ring_band_px(camera, plane_distance_mm, plane_normal,
+                        min_wall_mm=body.diameter_mm / 4, max_wall_mm=4 * nominal_radius_mm)
 
 
 def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,

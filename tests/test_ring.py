@@ -136,3 +136,14 @@ def test_search_band_finds_what_the_whole_ray_finds() -> None:
     common = sorted(set(a) & set(b))
     assert len(common) > 0.98 * len(a)
     assert np.max(np.abs(np.array([a[k] - b[k] for k in common]))) < 1e-3
+
+
+def test_search_band_of_a_lens_that_cannot_see_the_wall_is_the_whole_ray() -> None:
+    from pipestitch.geometry import BodyEnvelope
+    from pipestitch.pipeline.pose import ring_search_band
+
+    cam = default_camera("half")
+    # a plane 1 km ahead: no sampled ray meets it within 2 diameters of the axis
+    with pytest.raises(ValueError, match="no ray meets"):
+        ring_band_px(cam, 1e6, min_wall_mm=11.25, max_wall_mm=130.0)
+    assert ring_search_band(cam, 1e6, 32.5, BodyEnvelope()) is None

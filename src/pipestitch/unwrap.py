@@ -323,7 +323,6 @@ def strip_window_mm(camera: CameraModel, radius_mm: float, mm_per_px: float, *,
     return float(z[good].min() - margin), float(z[good].max() + margin)
 
 
-
 def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]],
                    radius_mm: float, mm_per_px: float, window_mm: tuple[float, float], *,
                    min_resolution: float = 0.5, occluded: np.ndarray | None = None,
@@ -357,6 +356,7 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
         return window_mm
     pad = step * mm_per_px + margin_mm
     return max(window_mm[0], float(lo) - pad), min(window_mm[1], float(hi) + pad)
+
 
 def default_mm_per_px(camera: CameraModel, radius_mm: float) -> float:
     """Output scale: the axial resolution of a centred camera half a radius ahead.

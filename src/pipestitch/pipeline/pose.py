@@ -119,16 +119,21 @@ class PoseSettings:
 
 def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
                      body: BodyEnvelope, plane_normal: np.ndarray | None = None
-                     ) -> tuple[float, float]:
+                     ) -> tuple[float, float] | None:
     """Image radii where :func:`pipestitch.ring.detect_ring` looks for the ring of a run.
 
     Where the laser plane is between half the probe body's radius and twice the
     nominal pipe diameter from the probe axis: the wall can be neither inside the body
     nor further than the far side of a pipe twice the nominal size (wide margins for a
-    wrong nominal, ovality and tilt). See :func:`pipestitch.ring.ring_band_px`.
+    wrong nominal, ovality and tilt). See :func:`pipestitch.ring.ring_band_px`. None
+    (the whole of every ray) when the lens sees no such plane point.
     """
-    return ring_band_px(camera, plane_distance_mm, plane_normal,
-                        min_wall_mm=body.diameter_mm / 4, max_wall_mm=4 * nominal_radius_mm)
+    try:
+        return ring_band_px(camera, plane_distance_mm, plane_normal,
+                            min_wall_mm=body.diameter_mm / 4,
+                            max_wall_mm=4 * nominal_radius_mm)
+    except ValueError:
+        return None
 
 
 def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,

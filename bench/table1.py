@@ -227,11 +227,10 @@ def trajectories(names: list[str], n: int, size: str) -> None:
           f"{'silent wrong':>12}   mean |err| up to the mirror (a, b deg; dx, dy mm)")
     for name in names:
         run = build_run(SCENARIOS[name], seed=2, size=size, n_pairs=n)
-        radius = SCENARIOS[name].pipe_diameter_mm / 2
+        radius, body = SCENARIOS[name].pipe_diameter_mm / 2, BodyEnvelope()
         # the ring searched where `pipestitch pose` and `run` search it
-        settings = PoseSettings(run.camera, D, radius, BodyEnvelope(),
-                                ring_band_px=ring_search_band(run.camera, D, radius,
-                                                              BodyEnvelope()))
+        settings = PoseSettings(run.camera, D, radius, body,
+                                ring_band_px=ring_search_band(run.camera, D, radius, body))
         frames, choices = resolve_frames(
             (fit_frame(i, *run.render(i), settings) for i in range(len(run.poses))),
             settings.body)

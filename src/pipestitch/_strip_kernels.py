@@ -323,7 +323,7 @@ CUBIC_A = -0.75      # OpenCV's INTER_CUBIC (Keys) kernel parameter
 @numba.njit(cache=True, nogil=True)
 def _cubic_weights(f: float) -> np.ndarray:
     """Keys cubic weights (a = ``CUBIC_A``) of the taps at -1, 0, 1, 2 for a sample at
-    fraction ``f`` (0 <= f < 1) past tap 0: OpenCV's ``interpolateCubic``, unquantised."""
+    fraction ``f`` (0 <= f < 1) past tap 0: OpenCV's ``interpolateCubic``."""
     a = CUBIC_A
     w = np.empty(4)
     x = f + 1.0
@@ -342,10 +342,10 @@ def shifted_residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndar
 
     m(r, c) is ``moved`` at (column c + dx, row r + dy), bicubic with OpenCV's kernel
     and wrapping on both axes: ``cv2.warpAffine(moved, [[1, 0, dx], [0, 1, dy]],
-    INTER_CUBIC | WARP_INVERSE_MAP, BORDER_WRAP)`` then :func:`residual_moments`, in
-    one pass and with exact weights (OpenCV quantises them to 1/32 px, which costs
-    up to ~0.04 px in the Lucas-Kanade polish). The shift is the same everywhere, so
-    are the weights: rows are interpolated along the columns once, then combined.
+    INTER_CUBIC | WARP_INVERSE_MAP, BORDER_WRAP)`` then :func:`residual_moments`
+    (equal to float32 rounding, tested), in one pass without the warped copy. The
+    shift is the same everywhere, so are the weights: rows are interpolated along the
+    columns once, then combined.
     """
     n_rows, n_cols = img.shape
     ix, iy = int(np.floor(dx)), int(np.floor(dy))

@@ -139,7 +139,10 @@ def calibrate_camera(views: Sequence[BoardView], *, model: str, width: int, heig
         Fewest views a fit may use (fewer raises ValueError).
     reject_factor, reject_floor_px : float
         A view is rejected when its RMS exceeds ``max(reject_factor × median RMS,
-        reject_floor_px)`` (or is not finite); one view at a time, worst first.
+        reject_floor_px)`` (or is not finite); one view at a time, worst first. A view
+        rejected so is tried again against the final set of views, and kept if it then
+        fits: a view past the lens' range that the fit accepted can spoil another's RMS
+        before it is itself left out.
 
     Returns
     -------
@@ -159,12 +162,33 @@ def calibrate_camera(views: Sequence[BoardView], *, model: str, width: int, heig
             raise ValueError(f"{len(kept)} usable view(s), at least {min_views} needed")
         kept, camera, residuals = _fit_dropping_failures(kept, model, width, height, min_views,
                                                          rejected)
-        rms = np.array([r.rms_px for r in residuals])
-        limit = max(reject_factor * float(np.nanmedian(rms)), reject_floor_px)
-        bad = np.where(np.isfinite(rms), rms, np.inf)
-        worst = int(np.argmax(bad))
-        if bad[worst] <= limit or len(kept) <= min_views:
-            return CameraCalibration(camera, residuals, rejected)
-        rejected.append((kept[worst].name, f"reprojection RMS {bad[worst]:.2f} px > "
-                                           f"{limit:.2f} px"))
+        worst, rms, limit = _worst_view(residuals, reject_factor, reject_floor_px)
+        if rms <= limit or len(kept) <= min_views:
+            break
+        rejected.append((kept[worst].name, f"reprojection RMS {rms:.2f} px > {limit:.2f} px"))
         del kept[worst]
+    by_name = {v.name: v for v in views}
+    for name, reason in list(rejected):
+        if not reason.startswith("reprojection RMS"):
+            continue
+        trial = [*kept, by_name[name]]
+        try:
+            trial_camera, trial_residuals = _fit(trial, model, width, height)
+        except ValueError:
+            continue
+        _, rms, limit = _worst_view(trial_residuals, reject_factor, reject_floor_px)
+        if rms <= limit:   # the view was rejected only beside a view since left out
+            kept, camera, residuals = trial, trial_camera, trial_residuals
+            rejected.remove((name, reason))
+    return CameraCalibration(camera, residuals, rejected)
+
+
+def _worst_view(residuals: list[ViewResidual], reject_factor: float,
+                reject_floor_px: float) -> tuple[int, float, float]:
+    """(index, RMS) of the view with the largest reprojection RMS (inf if not finite),
+    and the rejection limit max(reject_factor × median RMS, reject_floor_px)."""
+    rms = np.array([r.rms_px for r in residuals])
+    limit = max(reject_factor * float(np.nanmedian(rms)), reject_floor_px)
+    bad = np.where(np.isfinite(rms), rms, np.inf)
+    worst = int(np.argmax(bad))
+    return worst, float(bad[worst]), limit

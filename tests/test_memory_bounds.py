@@ -9,6 +9,7 @@ import dataclasses
 import itertools
 import sys
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -277,3 +278,26 @@ def test_passes_hand_free_heap_back_every_n_frames(monkeypatch) -> None:
         assert calls == [10, 20, 30]
     with pytest.raises(ValueError, match="n must be"):
         list(every_n([1], 0, lambda: None))
+
+
+def test_a_pass_keeps_only_the_column_levels_the_profile_takes(
+        monkeypatch, tmp_path: Path, simulate_small) -> None:
+    """A registration pass keeps the column levels of the frames the vignetting profile
+    samples (every profile_step-th frame, float32), not every frame's: with at most 2
+    profile frames, a 6-pair run keeps 2 of each pass's 6."""
+    from pipestitch import mosaic
+    from pipestitch.pipeline import mosaic as pipeline_mosaic
+    from pipestitch.pipeline.run import run_dataset
+
+    monkeypatch.setattr(mosaic, "PROFILE_FRAMES", 2)
+    taken: list[list[np.ndarray]] = []
+
+    def spy(levels: list[np.ndarray]) -> np.ndarray:
+        taken.append(list(levels))
+        return mosaic.vignetting_profile(levels)
+
+    monkeypatch.setattr(pipeline_mosaic, "vignetting_profile", spy)
+    root = simulate_small(tmp_path / "ds", "--pairs", "6", "--seed", "3")
+    run_dataset(root, tmp_path / "out", show_progress=False, led_cache_mb=0)
+    assert taken and all(len(levels) == 2 for levels in taken)
+    assert all(lv.dtype == np.float32 for levels in taken for lv in levels)

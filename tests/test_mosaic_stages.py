@@ -392,6 +392,8 @@ def test_vignetting_profile_of_a_long_run_from_a_bounded_sample_of_frames(monkey
     assert len(levels) > 5 * mosaic.PROFILE_FRAMES
     assert np.sqrt(np.mean((sampled - expected) ** 2)) < 0.005   # ~0.3 % a column
     step = -(-len(levels) // mosaic.PROFILE_FRAMES)
+    assert mosaic.profile_step(len(levels)) == step   # what a pass keeps of a run's levels
+    np.testing.assert_array_equal(vignetting_profile(levels[::step]), sampled)
     garbled = [lv if k % step == 0 else np.full_like(lv, 7.0) for k, lv in enumerate(levels)]
     np.testing.assert_array_equal(vignetting_profile(garbled), sampled)
     monkeypatch.setattr(mosaic, "PROFILE_FRAMES", len(levels))

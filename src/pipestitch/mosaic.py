@@ -60,6 +60,12 @@ def frame_grid(canvas: StripGrid, z_mm: float, roll_deg: float,
 PROFILE_FRAMES = 500
 
 
+def profile_step(n_frames: int) -> int:
+    """Every how many frames :func:`vignetting_profile` takes one: ≤ ``PROFILE_FRAMES``
+    frames of a run of ``n_frames``, evenly spaced (a pass keeps only their levels)."""
+    return max(1, -(-n_frames // PROFILE_FRAMES))
+
+
 def vignetting_profile(column_levels: list[np.ndarray]) -> np.ndarray:
     """Run-level brightness profile along a strip's z (per column), median 1.
 
@@ -70,7 +76,7 @@ def vignetting_profile(column_levels: list[np.ndarray]) -> np.ndarray:
     A long run's median is taken over ``PROFILE_FRAMES`` evenly spaced frames (as many
     as the median needs, and a working memory that does not grow with the run).
     """
-    step = max(1, -(-len(column_levels) // PROFILE_FRAMES))
+    step = profile_step(len(column_levels))
     stack = np.array(column_levels[::step], dtype=np.float32)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # columns no frame saw: NaN

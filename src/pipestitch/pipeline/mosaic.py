@@ -32,6 +32,7 @@ from pipestitch.mosaic import (
     ShadedStrip,
     canvas_grid,
     frame_grid,
+    profile_step,
     shade,
     vignetting_profile,
 )
@@ -293,7 +294,8 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: StripGrid, timer: StageTimer, show_progress: bool,
               skipped: dict[int, str], *, patches: bool) -> _Pass1:
-    """Pass 1: own-window strips, links to the next frames, vignetting levels.
+    """Pass 1: own-window strips, links to the next frames, vignetting levels (of the
+    frames :func:`pipestitch.mosaic.profile_step` samples).
 
     For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
     one whose strip correlates better with the previous frames is kept (``views`` is
@@ -319,6 +321,9 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     out = _Pass1()
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
+    # the column levels of the frames the vignetting profile will take, not all (a
+    # skipped frame only thins them: still evenly spaced, at most PROFILE_FRAMES)
+    level_step = profile_step(len(order))
     workers = unwrapper.settings.workers
     # The links are found in order here (each frame's motion prior and hypothesis
     # choice depend on the links before it); their patch shifts, which nothing else
@@ -347,7 +352,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             while len(pending) > 2 * max(1, workers):
                 out.patches.append(pending.popleft().result())
             recent.append((reg.index, cand))
-            out.levels.append(cand.level)
+            if len(out.done) % level_step == 0:   # float32, as the profile takes them
+                out.levels.append(cand.level.astype(np.float32))
             out.done.append(reg.index)
         out.patches.extend(f.result() for f in pending)
     return out

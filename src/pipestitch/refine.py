@@ -55,7 +55,7 @@ EPS = np.array([2e-4, 2e-4, 2e-3, 2e-3])  # finite-difference steps (rad, rad, m
 PRIOR_SIGMA = np.array([np.deg2rad(5.0), np.deg2rad(5.0), 5.0, 5.0])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PatchShifts:
     """Residual local shifts between strip i and strip j (in j's strip coordinates).
 

@@ -215,11 +215,16 @@ def _nbytes(obj: object, seen: set[int]) -> int:
 
 
 @pytest.fixture(scope="module")
-def summary(tmp_path_factory: pytest.TempPathFactory, simulate_small):
+def small_run(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    """A 6-pair half-size dataset, simulated once for this module."""
+    return simulate_small(tmp_path_factory.mktemp("mem") / "ds", "--pairs", "6", "--seed", "3")
+
+
+@pytest.fixture(scope="module")
+def summary(tmp_path_factory: pytest.TempPathFactory, small_run: Path):
     from pipestitch.pipeline.run import run_dataset
 
-    root = simulate_small(tmp_path_factory.mktemp("mem") / "ds", "--pairs", "6", "--seed", "3")
-    return run_dataset(root, tmp_path_factory.mktemp("mem") / "out", show_progress=False,
+    return run_dataset(small_run, tmp_path_factory.mktemp("mem") / "out", show_progress=False,
                        led_cache_mb=0)
 
 
@@ -281,7 +286,7 @@ def test_passes_hand_free_heap_back_every_n_frames(monkeypatch) -> None:
 
 
 def test_a_pass_keeps_only_the_column_levels_the_profile_takes(
-        monkeypatch, tmp_path: Path, simulate_small) -> None:
+        monkeypatch, tmp_path: Path, small_run: Path) -> None:
     """A registration pass keeps the column levels of the frames the vignetting profile
     samples (every profile_step-th frame, float32), not every frame's: with at most 2
     profile frames, a 6-pair run keeps 2 of each pass's 6."""
@@ -297,7 +302,6 @@ def test_a_pass_keeps_only_the_column_levels_the_profile_takes(
         return mosaic.vignetting_profile(levels)
 
     monkeypatch.setattr(pipeline_mosaic, "vignetting_profile", spy)
-    root = simulate_small(tmp_path / "ds", "--pairs", "6", "--seed", "3")
-    run_dataset(root, tmp_path / "out", show_progress=False, led_cache_mb=0)
+    run_dataset(small_run, tmp_path / "out", show_progress=False, led_cache_mb=0)
     assert taken and all(len(levels) == 2 for levels in taken)
     assert all(lv.dtype == np.float32 for levels in taken for lv in levels)

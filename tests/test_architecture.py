@@ -26,6 +26,8 @@ FORBIDDEN = {
     "standards": {"io", "pipeline", "cli", "simulate", "report", "config"},
     "io": {"pipeline", "cli"},
     "pipeline": {"cli"},
+    "scratch": {"camera", "geometry", "ring", "unwrap", "simulate", "io", "pipeline", "cli",
+                "config"},
 }
 
 

@@ -14,8 +14,6 @@ from typer.testing import CliRunner
 from pipestitch.cli import app
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
-from pipestitch.pipeline.mosaic import MosaicSettings
-from pipestitch.pipeline.run import run_dataset
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -91,15 +89,17 @@ def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
     assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
 
 
-def test_coarser_final_registration_keeps_the_scale_and_the_geometry(
+def test_finer_registration_rounds_keep_the_scale_and_the_geometry(
         dataset: Path, output: Path, tmp_path: Path) -> None:
-    """final_coarsening 2: the placing round on 2x coarser strips; the canvas keeps the
-    mosaic's scale and the wall its geometry."""
-    out = tmp_path / "coarse"
-    summary = run_dataset(dataset, out, settings=MosaicSettings(final_coarsening=2),
-                          show_progress=False)
-    assert summary.n_placed == 6
+    """``--fine-registration``: two rounds, the placing one on the mosaic's own scale
+    (the default registers once on 2x coarser strips); the canvas keeps the mosaic's
+    scale and the wall its geometry."""
+    out = tmp_path / "fine"
+    result = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--quiet",
+                                 "--fine-registration"])
+    assert result.exit_code == 0, result.output
     meta, default = (json.loads((o / "mosaic.json").read_text()) for o in (out, output))
+    assert len(meta["frames_placed"]) == 6
     assert meta["mm_per_px_axial"] == default["mm_per_px_axial"]
     assert meta["n_rows"] == default["n_rows"]
     score = _wall_score(dataset, out)

@@ -203,6 +203,10 @@ def run(
         "from the nominal (probe.toml), in %.")] = 1.0,
     video: Annotated[Path | None, typer.Option(help=VIDEO_HELP)] = None,
     crown_deg: Annotated[float | None, typer.Option("--crown-deg", help=CROWN_HELP)] = None,
+    fine_registration: Annotated[bool, typer.Option(
+        "--fine-registration", help="Two registration rounds, the second on the mosaic's "
+        "own scale: the refined tilt to a few thousandths of a degree instead of a few "
+        "hundredths (the mosaic looks the same), at ~1.3x the time.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Process a run end to end: pose, centralised unwrap, registration, mosaic, report.
@@ -216,7 +220,8 @@ def run(
     Example: pipestitch run data/test_piece --out out/test_piece
     """
     try:
-        settings = MosaicSettings(mm_per_px=mm_per_px, mode=unwrap, workers=max(1, workers))
+        make = MosaicSettings.fine if fine_registration else MosaicSettings
+        settings = make(mm_per_px=mm_per_px, mode=unwrap, workers=max(1, workers))
         if not 0 <= tolerance_pct < 100:
             raise ValueError(f"--diameter-tolerance-pct: expected 0 to 100, got {tolerance_pct}")
     except ValueError as exc:

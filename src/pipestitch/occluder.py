@@ -15,6 +15,7 @@ that frame's dark wall features; the caller should sample frames spread along th
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -40,7 +41,8 @@ def _smooth(frame: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
-                  absolute: float = 0.08, margin_px: int | None = None) -> np.ndarray:
+                  absolute: float = 0.08, margin_px: int | None = None,
+                  workers: int = 1) -> np.ndarray:
     """Boolean mask of occluded pixels from grey LED frames of one run.
 
     Parameters
@@ -55,6 +57,8 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
         frames is outside the image circle or on the mirror's face.
     margin_px : int, optional
         Dilation of the mask (default 1/200 of the image height, at least 2 px).
+    workers : int
+        Threads the frames are spread over (the result is the same).
 
     Returns
     -------
@@ -63,12 +67,20 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     """
     if not frames:
         raise ValueError("occluder_mask: no frames")
-    stack = np.stack([np.asarray(f, np.float32) for f in frames])
-    height = stack.shape[1]
-    sigma = max(3.0, height / 40)
+    shape = np.shape(frames[0])
+    if any(np.shape(f) != shape for f in frames) or len(shape) != 2:
+        raise ValueError("occluder_mask: expected grey frames of one size")
+    stack = np.empty((len(frames), *shape), np.float32)
     ratios = np.empty_like(stack)
-    for k, frame in enumerate(stack):
-        ratios[k] = frame / np.maximum(_smooth(frame, sigma), 1e-6)
+    height = shape[0]
+    sigma = max(3.0, height / 40)
+
+    def fill(k: int) -> None:   # each frame's rows of the stacks: no copy of the list
+        stack[k] = frames[k]
+        np.divide(stack[k], np.maximum(_smooth(stack[k], sigma), 1e-6), out=ratios[k])
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        list(pool.map(fill, range(len(frames))))
     # numpy.quantile's "linear" virtual index (n·q + (1 - q) - 1), in its arithmetic.
     virtual = len(stack) * NEARLY_ALL + (1 - NEARLY_ALL) - 1
     ratio = quantile_over_frames(ratios, virtual, False)[0]

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipestitch import scratch
 from pipestitch._strip_kernels import divide_by_reflectance, ridge_peaks
 from pipestitch.camera import CameraModel
 
@@ -83,11 +84,13 @@ def laser_channel(img: np.ndarray) -> int | None:
     return int(np.argmax(contrast))
 
 
-def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarray:
+def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,
+                        out: np.ndarray | None = None) -> np.ndarray:
     """Grey float32 in [0, 1] that keeps the laser's contrast.
 
     8- and 16-bit frames are scaled by their dtype's range. Colour frames give
-    ``channel``, by default the laser's (:func:`laser_channel`).
+    ``channel``, by default the laser's (:func:`laser_channel`). ``out``: a float32
+    array of the frame's size to write into (see :mod:`pipestitch.scratch`).
     """
     arr = np.asarray(img)
     if arr.dtype.kind not in "uif":
@@ -100,7 +103,7 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None) -> np.ndarr
     elif arr.ndim != 2:
         raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
     # Cast and scale in one pass (the float32 arithmetic of a cast, then a product).
-    arr = np.multiply(arr, scale, dtype=np.float32)
+    arr = np.multiply(arr, scale, dtype=np.float32, out=out)
     # Only a float frame can hold NaN or infinities.
     if not integer and not np.all(np.isfinite(arr)):
         arr = np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
@@ -203,10 +206,12 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         Possibly empty (no ring in the frame): check ``coverage``.
     """
     channel = laser_channel(img)
-    grey = prepare_laser_frame(img, channel)
-    if grey.shape != (camera.height, camera.width):
+    if np.shape(img)[:2] != (camera.height, camera.width):
         raise ValueError(f"laser frame: expected {camera.width}x{camera.height}, "
-                         f"got {grey.shape[1]}x{grey.shape[0]}")
+                         f"got {np.shape(img)[1]}x{np.shape(img)[0]}")
+    # grey and the reflectance's temporaries do not outlive this call: scratch.buffer
+    grey = prepare_laser_frame(img, channel, out=scratch.buffer("ring.laser", np.shape(img)[:2],
+                                                                np.float32))
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
     step = 0.5
     if band_px is not None:
@@ -260,11 +265,15 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     so that only the local reflectance remains; where the wall is too dark to
     measure (holes, black paint) the laser carries no usable signal and is zeroed.
     """
-    led = prepare_laser_frame(reflectance, channel)  # the wall as the laser's channel sees it
-    if led.shape != (camera.height, camera.width):
+    shape = (camera.height, camera.width)
+    if np.shape(reflectance)[:2] != shape:
         raise ValueError(f"reflectance: expected {camera.width}x{camera.height}, "
-                         f"got {led.shape[1]}x{led.shape[0]}")
-    led = cv2.GaussianBlur(led, (0, 0), 0.5)
+                         f"got {np.shape(reflectance)[1]}x{np.shape(reflectance)[0]}")
+    # the wall as the laser's channel sees it
+    led = prepare_laser_frame(reflectance, channel,
+                              out=scratch.buffer("ring.led", shape, np.float32))
+    led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", shape,
+                                                                np.float32))
     local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     # A broad local mean (two passes of an 81-sample box, ~ a Gaussian of 33 samples).
     broad = cv2.blur(cv2.blur(local, (81, 1), borderType=cv2.BORDER_REPLICATE), (81, 1),

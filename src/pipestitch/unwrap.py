@@ -269,15 +269,19 @@ def column_levels(strip: Strip) -> np.ndarray:
     return column_medians(ratio.astype(np.float32), 0.1 * ratio.shape[0])
 
 
-def to_grey(img: np.ndarray) -> np.ndarray:
-    """An 8/16-bit or float, grey or BGR(A) frame as grey float32 (integer ranges to [0, 1])."""
+def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """An 8/16-bit or float, grey or BGR(A) frame as grey float32 (integer ranges to [0, 1]).
+
+    ``out``: a float32 array of the frame's size that a grey integer frame is written
+    into (see :mod:`pipestitch.scratch`); other frames get a new array.
+    """
     arr = np.asarray(img)
     integer = arr.dtype.kind in "ui"
     scale = 1.0 / np.iinfo(arr.dtype).max if integer else 1.0
     if integer and arr.ndim == 2:
         # One pass (cast and scale, the same float32 arithmetic): a frame is read
         # once per pass of the mosaic.
-        return np.multiply(arr, np.float32(scale), dtype=np.float32)
+        return np.multiply(arr, np.float32(scale), dtype=np.float32, out=out)
     arr = arr.astype(np.float32)
     if arr.ndim == 3:
         arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pipestitch._strip_kernels import scaled_uint8
 from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.images import read_image, write_image
 from pipestitch.jsonsafe import json_safe
 
-__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "mosaic_from_uint8",
+__all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "intensity_scale", "mosaic_from_uint8",
            "mosaic_to_uint8",
            "read_mosaic", "write_csv", "write_json", "write_mosaic_png"]
 
@@ -35,19 +36,23 @@ DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2
                   "partial")
 
 
+def intensity_scale(image: np.ndarray) -> float:
+    """The value :func:`mosaic_to_uint8` maps to 250: the 99.5th percentile of the data
+    (finite values), 1 without data."""
+    finite = np.isfinite(image)
+    scale = float(np.percentile(image[finite], 99.5)) if finite.any() else 1.0
+    return scale if scale > 0 else 1.0
+
+
 def mosaic_to_uint8(image: np.ndarray, scale: float | None = None) -> tuple[np.ndarray, float]:
     """Float mosaic (NaN = no data) -> uint8 with data in [1, 255] and no data 0.
 
-    Returns the image and the value mapped to 250 (``scale``; by default the 99.5th
-    percentile of the data), which mosaic.json records as ``intensity_scale``.
+    Returns the image and the value mapped to 250 (``scale``; by default
+    :func:`intensity_scale`), which mosaic.json records as ``intensity_scale``. The
+    arithmetic is float32's (the mosaic's own type; other images are converted).
     """
-    finite = np.isfinite(image)
-    if scale is None:
-        scale = float(np.percentile(image[finite], 99.5)) if finite.any() else 1.0
-    scale = scale if scale > 0 else 1.0
-    out = np.zeros(image.shape, np.uint8)
-    out[finite] = np.clip(np.rint(image[finite] / scale * 250), 1, 255).astype(np.uint8)
-    return out, scale
+    scale = intensity_scale(image) if scale is None else (scale if scale > 0 else 1.0)
+    return scaled_uint8(np.asarray(image, np.float32), scale), scale
 
 
 def mosaic_from_uint8(image_u8: np.ndarray) -> np.ndarray:

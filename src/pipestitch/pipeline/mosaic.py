@@ -23,6 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pipestitch import scratch
 from pipestitch.camera import CameraModel
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose
@@ -97,14 +98,18 @@ class MosaicSettings:
     reference_frames : int
         LED frames sampled along the run to find the occluders.
     refine_iterations : int
-        Rounds of photometric pose refinement (``ours`` only; 0 to use the ring's poses
-        as they are). Each round costs one more unwrapping pass.
+        Registration rounds with photometric pose refinement (``ours`` only; 0 to use
+        the ring's poses as they are). Each round costs one more unwrapping pass; one
+        round (the default) brings the tilt to a few hundredths of a degree, a second
+        to a few thousandths, which the mosaic does not show (``bench/mosaic.py``).
     register_coarsening : int
         All refinement rounds but the last work on strips this many times coarser than
         the mosaic (4x fewer pixels for 2).
     final_coarsening : int
         The same for the last round, whose links place the frames (1: the mosaic's
-        scale).
+        scale). Default 2: the placing round on 4x fewer pixels than the mosaic's;
+        the frames are still placed to a few hundredths of a millimetre and the stitch
+        unwraps onto the canvas at its full scale.
     """
 
     mm_per_px: float | None = None
@@ -113,9 +118,16 @@ class MosaicSettings:
     step: int = 4
     min_resolution: float = 0.5
     reference_frames: int = 11
-    refine_iterations: int = 2
+    refine_iterations: int = 1
     register_coarsening: int = 2
-    final_coarsening: int = 1
+    final_coarsening: int = 2
+
+    @classmethod
+    def fine(cls, **kwargs: object) -> MosaicSettings:
+        """Two refinement rounds, the placing one on the mosaic's own scale (``pipestitch
+        run --fine-registration``): the tilt to a few thousandths of a degree, at ~1.3x
+        the run's time."""
+        return cls(**{"refine_iterations": 2, "final_coarsening": 1, **kwargs})
 
     @property
     def refine_rounds(self) -> int:
@@ -198,25 +210,33 @@ class _Unwrapper:
                                    occluded=self.occluded)
 
 
-def _read_grey(dataset: Dataset, index: int, timer: StageTimer) -> np.ndarray:
+def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
+               scratch_buffer: bool = False) -> np.ndarray:
+    """The LED frame as grey float32; with ``scratch_buffer`` in this thread's buffer
+    (:mod:`pipestitch.scratch`), for a caller done with it before its next frame."""
     with timer("decode"):
-        return to_grey(dataset.read_led(index))
+        led = dataset.read_led(index)
+        out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
+               if scratch_buffer and led.ndim == 2 else None)
+        return to_grey(led, out=out)
 
 
 def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
-               timer: StageTimer) -> np.ndarray:
+               timer: StageTimer, workers: int) -> np.ndarray:
     """Occluder mask from up to ``count`` readable LED frames spread over ``frames``."""
     picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)})
-    greys = []
-    for i in picks:
+
+    def read(i: int) -> np.ndarray | None:
         try:
-            greys.append(_read_grey(dataset, i, timer))
+            return _read_grey(dataset, i, timer)
         except DatasetError:
-            continue  # reported when the frame itself is processed
+            return None   # reported when the frame itself is processed
+
+    greys = [g for g in ordered_map(read, picks, workers) if g is not None]
     if not greys:
         raise StageError("no LED frame could be read")
     with timer("occluders"):
-        return occluder_mask(greys)
+        return occluder_mask(greys, workers=workers)
 
 
 @dataclass(frozen=True)
@@ -305,7 +325,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     """
     def work(i: int) -> _Registered:
         try:
-            grey = _read_grey(dataset, i, timer)
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
         except DatasetError as exc:
             return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
         options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
@@ -437,12 +457,18 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
                          show_progress: bool, skipped: dict[int, str]) -> _Registration:
     """Registration passes with photometric refinement between them.
 
-    Early rounds on the coarse grid (4x cheaper), the last on the mosaic's scale. Each
-    pass's patch shifts are released once the refinement has used them, and only the
-    last pass's column levels are kept, reduced to the vignetting profile at once.
+    Early rounds on ``grids[0]``, the last (whose links place the frames) on
+    ``grids[1]``. One more round follows on ``grids[1]`` when the last one moved some
+    frame's tilt by more than ``LINEAR_TILT_DEG`` (the refinement is linearised about
+    the poses it starts from: an oval pipe's frames, whose tilt the ring leaves at 0,
+    come out a few hundredths of a degree off per degree of correction) or found frames
+    oval that it registered as circles (their strips had the wrong section). Each pass's
+    patch shifts are released once the refinement has used them, and only the last
+    pass's column levels are kept, reduced to the vignetting profile at once.
     """
     camera, switched = unwrapper.camera, {}
-    for k in range(max(1, rounds)):
+    total, k = max(1, rounds), 0
+    while k < total:
         own = grids[0] if k < rounds - 1 else grids[1]
         release_free_memory()   # each pass starts from what is live (pipeline/memory.py)
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
@@ -450,14 +476,33 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         switched.update(pass1.switched)
         links, done, levels = pass1.links, pass1.done, pass1.levels
         if pass1.patches:
+            before = views
             with timer("refine"):
                 views, links = _refine_views(views, pass1, camera, own)
                 views = {i: _refit_section(v) for i, v in views.items()}
+            if k == rounds - 1 and _another_round(before, views):
+                total += 1
         del pass1   # its patches: before the next pass gathers its own
+        k += 1
     # The ring points served the section refits: the stitch and the outputs do not
     # read them (~6 kB a frame, 24 MB at 4000 pairs).
     views = {i: _without_ring(v) for i, v in views.items()}
     return _Registration(views, links, done, switched, vignetting_profile(levels), own)
+
+
+LINEAR_TILT_DEG = 1.0   # a round that corrects a tilt by more is followed by another
+
+
+def _another_round(before: Mapping[int, FrameView], after: Mapping[int, FrameView]) -> bool:
+    """Whether a refinement round left poses worth one more (see _registration_rounds)."""
+    for i, v in after.items():
+        b = before.get(i)
+        if b is None:
+            continue
+        moved = max(abs(v.pose.alpha - b.pose.alpha), abs(v.pose.beta - b.pose.beta))
+        if np.rad2deg(moved) > LINEAR_TILT_DEG or (v.oval and not b.oval):
+            return True
+    return False
 
 
 def _without_ring(view: FrameView) -> FrameView:
@@ -502,7 +547,7 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
     def work(i: int) -> tuple[int, ShadedStrip | None, int, str]:
         grid, col = frame_grid(canvas.grid, positions.z_mm[i], positions.roll_deg[i], window)
         try:
-            grey = _read_grey(dataset, i, timer)
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
         except DatasetError as exc:  # readable in pass 1: changed on disk since
             return i, None, col, f"{exc.path.name}: {exc.problem}"
         with timer("unwrap"):
@@ -592,7 +637,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if not usable:
         raise StageError("no frame has both a pose and an LED frame")
     views = _views(usable, settings.mode, nominal)
-    occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer)
+    occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer,
+                          settings.workers)
     with timer("unwrap"):
         windows = _windows(camera, views, radius, mm, settings, occluded)
     window = windows[1]

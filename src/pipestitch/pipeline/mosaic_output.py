@@ -15,16 +15,24 @@ once to
 
 The 8-bit scale (the 99.5th percentile mapped to 250) is set from the first
 ``SCALE_COLS`` columns (all of a shorter mosaic), which are held until then.
+
+The writing (pyramid and overview) and the defect measurement each run on a thread
+of their own, in block order (at most ``AHEAD`` blocks wait for them): the stitch,
+which releases the blocks, goes on blending meanwhile instead of waiting for the
+encoders, and a mosaic shorter than ``SCALE_COLS``, all written and measured when the
+stitch ends, keeps both cores busy.
 """
 
 from __future__ import annotations
 
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pipestitch.io.outputs import mosaic_from_uint8, mosaic_to_uint8
+from pipestitch.io.outputs import intensity_scale, mosaic_from_uint8, mosaic_to_uint8
 from pipestitch.io.tiles import PyramidWriter
 from pipestitch.measure.blocks import BlockDefects
 from pipestitch.measure.defects import Defect, MosaicGeometry
@@ -39,6 +47,7 @@ PYRAMID = "mosaic.ome.tif"
 TILES = "tiles"
 SCALE_COLS = 4096
 OVERVIEW_PIXELS = 16_000_000
+AHEAD = 8     # blocks (8-bit, ~1.5 MB at full size) waiting for the writing and the measurement
 
 
 @dataclass(frozen=True)
@@ -68,6 +77,9 @@ class StreamedMosaic:
         self.scale: float | None = None
         self._held: list[tuple[int, np.ndarray]] = []
         self._pyramid: PyramidWriter | None = None
+        self._writing = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mosaic-writer")
+        self._measuring = ThreadPoolExecutor(max_workers=1, thread_name_prefix="defects")
+        self._pending: deque[Future[None]] = deque()
 
     def start(self, grid: StripGrid, radius_mm: float) -> None:
         """Open the outputs for a canvas ``grid`` (see MosaicSink)."""
@@ -89,7 +101,8 @@ class StreamedMosaic:
 
     def _release_held(self) -> None:
         data = np.concatenate([b for _, b in self._held], axis=1) if self._held else None
-        self.scale = mosaic_to_uint8(data)[1] if data is not None else 1.0
+        self.scale = intensity_scale(data) if data is not None else 1.0
+        del data
         held, self._held = self._held, []
         for col0, block in held:
             self._emit(col0, block)
@@ -97,27 +110,51 @@ class StreamedMosaic:
     def _emit(self, col0: int, image: np.ndarray) -> None:
         with self.timer("write"):
             block, _ = mosaic_to_uint8(image, self.scale)
+        self._pending.append(self._writing.submit(self._write, col0, block))
+        self._pending.append(self._measuring.submit(self._measure, col0, block))
+        while len(self._pending) > 2 * AHEAD:
+            self._pending.popleft().result()   # in order; raises what the thread raised
+
+    def _write(self, col0: int, block: np.ndarray) -> None:
+        with self.timer("write"):
             assert self._pyramid is not None
             self._pyramid.push(col0, block)
             self._overview.push(block)
+
+    def _measure(self, col0: int, block: np.ndarray) -> None:
         with self.timer("measure"):
             self._defects.push(col0, mosaic_from_uint8(block))
+
+    def _defects_found(self) -> list[Defect]:
+        with self.timer("measure"):
+            return self._defects.finish()
+
+    def _closed(self) -> np.ndarray:
+        with self.timer("write"):
+            assert self._pyramid is not None
+            self._pyramid.close()
+            return self._overview.finish()
 
     def finish(self) -> WrittenMosaic:
         """Write the last columns and close the pyramid; the overview and the defects."""
         if self.scale is None:
             self._release_held()
         assert self._pyramid is not None and self.scale is not None
-        with self.timer("write"):
-            self._pyramid.close()
-            overview = self._overview.finish()
-        with self.timer("measure"):
-            defects = self._defects.finish()
-        return WrittenMosaic(self.grid, overview, self._overview.grid, self._overview.factor,
-                             self.scale, defects, self.radius_mm)
+        # each thread closes after its queued blocks (in order), the two side by side
+        overview = self._writing.submit(self._closed)
+        defects = self._measuring.submit(self._defects_found)
+        while self._pending:   # the blocks first: their errors are the cause
+            self._pending.popleft().result()
+        return WrittenMosaic(self.grid, overview.result(), self._overview.grid,
+                             self._overview.factor, self.scale, defects.result(),
+                             self.radius_mm)
 
     def abort(self) -> None:
-        """Drop everything written so far (idempotent)."""
+        """Drop everything written so far and stop the measurement (idempotent)."""
+        for pending in self._pending:
+            pending.cancel()
+        self._writing.shutdown(wait=True)
+        self._measuring.shutdown(wait=True)
         if self._pyramid is not None:
             self._pyramid.abort()
 

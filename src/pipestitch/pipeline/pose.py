@@ -25,6 +25,7 @@ from typing import TypeVar
 import numpy as np
 from rich.markup import escape
 
+from pipestitch import scratch
 from pipestitch.ambiguity import Choice, envelope_costs, resolve_run
 from pipestitch.camera import CameraModel
 from pipestitch.config import ProbeConfig
@@ -93,7 +94,9 @@ def _photometric_strips(led: np.ndarray, fit: PoseFit, camera: CameraModel) -> S
     sigma_deg = np.rad2deg(np.hypot(h.std.get("alpha", 0.0), h.std.get("beta", 0.0)))
     if tilt_deg < max(PHOTOMETRIC_MIN_TILT_DEG, 5 * sigma_deg):
         return None
-    return contrast_strips(prepare_laser_frame(led), camera, fit)
+    # the strips are new arrays: the grey LED frame is a temporary (pipestitch.scratch)
+    grey = prepare_laser_frame(led, out=scratch.buffer("pose.led", np.shape(led)[:2], np.float32))
+    return contrast_strips(grey, camera, fit)
 
 
 @dataclass(frozen=True)
@@ -198,7 +201,10 @@ def ordered_map(func: Callable[[int], T], indices: Iterable[int], workers: int) 
 def _in_order(func: Callable[[int], T], indices: Iterable[int], workers: int) -> Iterator[T]:
     """:func:`ordered_map`'s results, before the hand-backs."""
     if workers <= 1:
-        yield from map(func, indices)
+        try:
+            yield from map(func, indices)
+        finally:   # the frame buffers this (main) thread took (pipestitch.scratch)
+            scratch.release()
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()

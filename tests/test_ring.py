@@ -73,6 +73,11 @@ def test_bad_input_is_rejected_clearly() -> None:
     with pytest.raises(ValueError, match="expected 1224x1024"):
         detect_ring(np.zeros((10, 10), np.uint8), cam)
     with pytest.raises(ValueError, match="2-D or 3-D"):
+        detect_ring(np.zeros(10, np.uint8), cam)
+    with pytest.raises(ValueError, match="reflectance: expected 1224x1024"):
+        detect_ring(np.zeros((cam.height, cam.width), np.uint8), cam,
+                    reflectance=np.zeros((10, 10), np.uint8))
+    with pytest.raises(ValueError, match="2-D or 3-D"):
         prepare_laser_frame(np.zeros((2, 2, 2, 2), np.uint8))
 
 
@@ -147,3 +152,27 @@ def test_search_band_of_a_lens_that_cannot_see_the_wall_is_the_whole_ray() -> No
     with pytest.raises(ValueError, match="no ray meets"):
         ring_band_px(cam, 1e6, min_wall_mm=11.25, max_wall_mm=130.0)
     assert ring_search_band(cam, 1e6, 32.5, BodyEnvelope()) is None
+
+
+@pytest.mark.parametrize("band", [(187.0, 440.0), None])
+def test_the_part_of_the_frame_the_rays_read_gives_the_whole_frames_samples(band) -> None:
+    """detect_ring converts and blurs only the part of the frames its polar maps read
+    (``_polar_crop``); sampled there, it gives exactly what the whole frame gives."""
+    import cv2
+
+    from pipestitch.ring import _polar_crop, _polar_grid
+
+    cam = default_camera("half")
+    frame = np.random.default_rng(3).random((cam.height, cam.width)).astype(np.float32)
+    map_x, map_y, _, _ = _polar_grid(cam, 360, 0.5, band)
+    (rows, cols), part_x, part_y = _polar_crop(cam, 360, 0.5, band)
+    if band is not None:   # the band is a part: something is saved
+        assert (rows.stop - rows.start) * (cols.stop - cols.start) < 0.8 * frame.size
+    for image in (frame, cv2.GaussianBlur(frame, (0, 0), 0.5)):
+        part = frame[rows, cols] if image is frame else cv2.GaussianBlur(frame[rows, cols],
+                                                                         (0, 0), 0.5)
+        whole = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT)
+        np.testing.assert_array_equal(
+            cv2.remap(part, part_x, part_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
+            whole)

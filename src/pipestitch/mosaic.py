@@ -117,8 +117,11 @@ class ShadedStrip:
 def shade(strip: Strip, level: np.ndarray) -> ShadedStrip:
     """Divide out the LED shading and the vignetting ``level`` (per strip column) and
     weigh every node by its quality times the feather (see :class:`Canvas`)."""
-    albedo, valid = shaded_albedo(strip.values, strip.shading,
-                                  np.ascontiguousarray(level, np.float64), strip.weight)
+    level = np.ascontiguousarray(np.broadcast_to(level, strip.values.shape[1:]), np.float64)
+    if strip.shading.shape != strip.values.shape or strip.weight.shape != strip.values.shape:
+        raise ValueError(f"shade: shading {strip.shading.shape} and weight "
+                         f"{strip.weight.shape} must be the values' {strip.values.shape}")
+    albedo, valid = shaded_albedo(strip.values, strip.shading, level, strip.weight)
     return ShadedStrip(albedo, feathered_weight(strip.weight, _feather(valid), valid))
 
 
@@ -170,9 +173,11 @@ class Canvas:
         width = shaded.albedo.shape[1]
         self._reach(column + width)
         cols = slice(column - self.first, column - self.first + width)
-        if cols.stop > self.total.shape[1] or shaded.weight.shape != shaded.albedo.shape:
-            raise ValueError(f"strip of {width} columns at {column} is past the canvas' "
-                             f"{self.grid.n_cols} columns or its weight does not match it")
+        if (cols.stop > self.total.shape[1] or shaded.weight.shape != shaded.albedo.shape
+                or shaded.albedo.shape[0] != self.grid.n_rows):
+            raise ValueError(f"strip of {shaded.albedo.shape} at column {column}: the canvas "
+                             f"has {self.grid.n_rows} rows and {self.grid.n_cols} columns "
+                             f"(and the weight must match the strip)")
         gain = self._gain(shaded.albedo, shaded.weight, cols)
         accumulate_strip(self.total, self.weights, cols.start, shaded.albedo, shaded.weight,
                          gain)

@@ -136,6 +136,40 @@ def _polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
     return map_x, map_y, radii, centre
 
 
+# The crop reaches this far beyond the samples: bilinear reads the next pixel, and the
+# LED frame's 0.5 px blur (a 5-tap kernel) must not see the crop's edge there.
+CROP_PAD_PX = 4
+
+
+@functools.lru_cache(maxsize=8)
+def _polar_crop(camera: CameraModel, n_azimuths: int, step_px: float,
+                band_px: tuple[float, float] | None = None,
+                ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+    """The part of the frame the polar maps read ((rows, cols) slices) and the maps
+    relative to it.
+
+    Converting and blurring only that part gives the polar samples of the whole frame
+    exactly: the maps move by whole pixels (exact in float32 below 2**24, and so are the
+    interpolation weights), and every pixel read, and every pixel the blur of a pixel
+    read reaches, is inside the part unless it is outside the frame, where the constant
+    border applies as before. Cached (read-only arrays).
+    """
+    map_x, map_y, _, _ = _polar_grid(camera, n_azimuths, step_px, band_px)
+
+    def span(m: np.ndarray, size: int) -> tuple[int, int]:
+        lo, hi = float(np.nanmin(m)), float(np.nanmax(m))
+        return (max(0, min(size, int(np.floor(lo)) - CROP_PAD_PX)),
+                max(0, min(size, int(np.ceil(hi)) + CROP_PAD_PX + 1)))
+
+    (x0, x1), (y0, y1) = span(map_x, camera.width), span(map_y, camera.height)
+    if x1 - x0 < 2 or y1 - y0 < 2:   # the rays miss the frame: read it whole
+        x0, x1, y0, y1 = 0, camera.width, 0, camera.height
+    shifted = [(m - np.float32(o)).astype(np.float32) for m, o in ((map_x, x0), (map_y, y0))]
+    for arr in shifted:
+        arr.flags.writeable = False
+    return (slice(y0, y1), slice(x0, x1)), shifted[0], shifted[1]
+
+
 def ring_band_px(camera: CameraModel, plane_distance_mm: float,
                  plane_normal: np.ndarray | None = None, *, min_wall_mm: float,
                  max_wall_mm: float) -> tuple[float, float]:
@@ -205,13 +239,13 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     RingDetection
         Possibly empty (no ring in the frame): check ``coverage``.
     """
-    channel = laser_channel(img)
+    if np.ndim(img) not in (2, 3):
+        raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {np.shape(img)}")
     if np.shape(img)[:2] != (camera.height, camera.width):
         raise ValueError(f"laser frame: expected {camera.width}x{camera.height}, "
                          f"got {np.shape(img)[1]}x{np.shape(img)[0]}")
+    channel = laser_channel(img)
     # grey and the reflectance's temporaries do not outlive this call: scratch.buffer
-    grey = prepare_laser_frame(img, channel, out=scratch.buffer("ring.laser", np.shape(img)[:2],
-                                                                np.float32))
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
     step = 0.5
     if band_px is not None:
@@ -219,10 +253,14 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         # ring inside the band is what the whole ray would give; whole pixels (cache key).
         reach = 16 * sigma + 2
         band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
-    map_x, map_y, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
+    _, _, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
+    crop, map_x, map_y = _polar_crop(camera, n_azimuths, step, band_px)
+    part = np.asarray(img)[crop]
+    grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
+                                                                 np.float32))
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     if reflectance is not None:
-        polar = _flatten_reflectance(polar, reflectance, channel, map_x, map_y, camera)
+        polar = _flatten_reflectance(polar, reflectance, channel, crop, map_x, map_y, camera)
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
     narrow = _blur_along_rays(polar, sigma / step)
     wide = _blur_along_rays(polar, 4 * sigma / step)
@@ -257,7 +295,7 @@ def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,
-                         map_x: np.ndarray, map_y: np.ndarray,
+                         crop: tuple[slice, slice], map_x: np.ndarray, map_y: np.ndarray,
                          camera: CameraModel) -> np.ndarray:
     """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
 
@@ -266,13 +304,17 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     measure (holes, black paint) the laser carries no usable signal and is zeroed.
     """
     shape = (camera.height, camera.width)
+    if np.ndim(reflectance) not in (2, 3):
+        raise ValueError(f"reflectance: expected a 2-D or 3-D image, "
+                         f"got shape {np.shape(reflectance)}")
     if np.shape(reflectance)[:2] != shape:
         raise ValueError(f"reflectance: expected {camera.width}x{camera.height}, "
                          f"got {np.shape(reflectance)[1]}x{np.shape(reflectance)[0]}")
-    # the wall as the laser's channel sees it
-    led = prepare_laser_frame(reflectance, channel,
-                              out=scratch.buffer("ring.led", shape, np.float32))
-    led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", shape,
+    # the wall as the laser's channel sees it (over the crop the maps read)
+    part = np.asarray(reflectance)[crop]
+    led = prepare_laser_frame(part, channel,
+                              out=scratch.buffer("ring.led", part.shape[:2], np.float32))
+    led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", led.shape,
                                                                 np.float32))
     local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     # A broad local mean (two passes of an 81-sample box, ~ a Gaussian of 33 samples).

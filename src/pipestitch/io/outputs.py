@@ -51,8 +51,11 @@ def mosaic_to_uint8(image: np.ndarray, scale: float | None = None) -> tuple[np.n
     :func:`intensity_scale`), which mosaic.json records as ``intensity_scale``. The
     arithmetic is float32's (the mosaic's own type; other images are converted).
     """
+    image = np.asarray(image, np.float32)
+    if image.ndim != 2:
+        raise ValueError(f"mosaic_to_uint8: expected a 2-D mosaic, got shape {image.shape}")
     scale = intensity_scale(image) if scale is None else (scale if scale > 0 else 1.0)
-    return scaled_uint8(np.asarray(image, np.float32), scale), scale
+    return scaled_uint8(image, scale), scale
 
 
 def mosaic_from_uint8(image_u8: np.ndarray) -> np.ndarray:

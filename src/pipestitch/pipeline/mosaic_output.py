@@ -80,6 +80,7 @@ class StreamedMosaic:
         self._writing = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mosaic-writer")
         self._measuring = ThreadPoolExecutor(max_workers=1, thread_name_prefix="defects")
         self._pending: deque[Future[None]] = deque()
+        self._aborted = False
 
     def start(self, grid: StripGrid, radius_mm: float) -> None:
         """Open the outputs for a canvas ``grid`` (see MosaicSink)."""
@@ -129,7 +130,9 @@ class StreamedMosaic:
         with self.timer("measure"):
             return self._defects.finish()
 
-    def _closed(self) -> np.ndarray:
+    def _closed(self) -> np.ndarray | None:
+        if self._aborted:   # a block failed or the run was stopped: write nothing
+            return None
         with self.timer("write"):
             assert self._pyramid is not None
             self._pyramid.close()
@@ -145,16 +148,18 @@ class StreamedMosaic:
         defects = self._measuring.submit(self._defects_found)
         while self._pending:   # the blocks first: their errors are the cause
             self._pending.popleft().result()
-        return WrittenMosaic(self.grid, overview.result(), self._overview.grid,
+        closed = overview.result()
+        assert closed is not None
+        return WrittenMosaic(self.grid, closed, self._overview.grid,
                              self._overview.factor, self.scale, defects.result(),
                              self.radius_mm)
 
     def abort(self) -> None:
-        """Drop everything written so far and stop the measurement (idempotent)."""
-        for pending in self._pending:
-            pending.cancel()
-        self._writing.shutdown(wait=True)
-        self._measuring.shutdown(wait=True)
+        """Drop everything written so far (idempotent): queued blocks and the closing
+        writes are cancelled; a block being written or measured is waited for."""
+        self._aborted = True
+        self._writing.shutdown(wait=True, cancel_futures=True)
+        self._measuring.shutdown(wait=True, cancel_futures=True)
         if self._pyramid is not None:
             self._pyramid.abort()
 

@@ -239,13 +239,8 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     RingDetection
         Possibly empty (no ring in the frame): check ``coverage``.
     """
-    if np.ndim(img) not in (2, 3):
-        raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {np.shape(img)}")
-    if np.shape(img)[:2] != (camera.height, camera.width):
-        raise ValueError(f"laser frame: expected {camera.width}x{camera.height}, "
-                         f"got {np.shape(img)[1]}x{np.shape(img)[0]}")
+    _check_frame("laser frame", img, camera)
     channel = laser_channel(img)
-    # grey and the reflectance's temporaries do not outlive this call: scratch.buffer
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
     step = 0.5
     if band_px is not None:
@@ -256,6 +251,7 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     _, _, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
     crop, map_x, map_y = _polar_crop(camera, n_azimuths, step, band_px)
     part = np.asarray(img)[crop]
+    # grey and the reflectance's temporaries do not outlive this call: scratch buffers
     grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
                                                                  np.float32))
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
@@ -287,6 +283,17 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
                          snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
 
 
+def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:
+    """Raise ValueError, naming ``what``, unless ``img`` is a grey or colour image of the
+    camera's size."""
+    shape = np.shape(img)
+    if len(shape) not in (2, 3):
+        raise ValueError(f"{what}: expected a 2-D or 3-D image, got shape {shape}")
+    if shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"{what}: expected {camera.width}x{camera.height}, "
+                         f"got {shape[1]}x{shape[0]}")
+
+
 def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur along each ray (axis 1) only; OpenCV's separable filter is fast."""
     k = 2 * int(np.ceil(4 * sigma)) + 1
@@ -303,13 +310,7 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     so that only the local reflectance remains; where the wall is too dark to
     measure (holes, black paint) the laser carries no usable signal and is zeroed.
     """
-    shape = (camera.height, camera.width)
-    if np.ndim(reflectance) not in (2, 3):
-        raise ValueError(f"reflectance: expected a 2-D or 3-D image, "
-                         f"got shape {np.shape(reflectance)}")
-    if np.shape(reflectance)[:2] != shape:
-        raise ValueError(f"reflectance: expected {camera.width}x{camera.height}, "
-                         f"got {np.shape(reflectance)[1]}x{np.shape(reflectance)[0]}")
+    _check_frame("reflectance", reflectance, camera)
     # the wall as the laser's channel sees it (over the crop the maps read)
     part = np.asarray(reflectance)[crop]
     led = prepare_laser_frame(part, channel,

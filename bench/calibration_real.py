@@ -62,12 +62,12 @@ def _cases(quick: bool) -> list[tuple[str, str, Path, str, list[tuple[str, OcamM
         return cases
     cases += [
         ("backcam 748x480, Fisheye2 (5 images)", "*.jpg", back / "images_Fisheye2", "ocam",
-         [("Urban's MATLAB session of these images (16 images)",
+         [("the MATLAB calibration by Urban of these images (16 images)",
            _matlab_session(back / "CalibData_ALL2_Fisheye2.json")),
           ("OCamCalib calib_results.txt (imgBack session)",
            read_calib_results(back / "calib_results.txt"))]),
         ("Fisheye1 1032x778 (10 images)", "*.jpg", fish1 / "images", "ocam",
-         [("Urban's MATLAB session (15 images)", _matlab_session(
+         [("the MATLAB calibration by Urban (15 images)", _matlab_session(
              fish1 / "CalibData_ALL2_Fisheye1.json")),
           ("py-OCamCalib (12 images)", _pyocamcalib(
               fish1 / "pyocamcalib" / "calibration_fisheye_1_18052022_154907.json"))]),

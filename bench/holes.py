@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch.io.dataset import read_csv_columns
-from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.simulate import simulate_dataset
+from pipestitch.pipeline.simulating import simulate_dataset
+from pipestitch.pipeline.stitching import MosaicSettings
 from pipestitch.simulate.scenarios import SCENARIOS
 
 MATCH_MM = 3.0

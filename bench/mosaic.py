@@ -37,9 +37,9 @@ import tifffile
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
 from pipestitch.io.outputs import mosaic_from_uint8
-from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.run import RunSummary, run_dataset
-from pipestitch.pipeline.simulate import simulate_dataset
+from pipestitch.pipeline.simulating import simulate_dataset
+from pipestitch.pipeline.stitching import MosaicSettings
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 from pipestitch.simulate.scenarios import SCENARIOS
 

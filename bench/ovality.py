@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch.io.dataset import open_dataset, read_csv_columns
-from pipestitch.pipeline.pose import run_pose
+from pipestitch.pipeline.posing import run_pose
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.simulate import simulate_dataset
-from pipestitch.pose_fit import ConicModel, plane_points
-from pipestitch.ring import detect_ring
+from pipestitch.pipeline.simulating import simulate_dataset
+from pipestitch.pose.fit import ConicModel, plane_points
+from pipestitch.pose.ring import detect_ring
 from pipestitch.simulate.scenarios import SCENARIOS
 
 

@@ -87,11 +87,11 @@ def child(*args: str) -> dict:
 # function): the pose stage, the registration passes and their refinement, the
 # stitch, the outputs.
 PASSES = (("pipestitch.pipeline.run", "", "estimate_poses"),
-          ("pipestitch.pipeline.mosaic", "", "_occluders"),
-          ("pipestitch.pipeline.mosaic", "", "_register"),
-          ("pipestitch.pipeline.mosaic", "", "_refine_views"),
-          ("pipestitch.pipeline.mosaic", "", "_stitch"),
-          ("pipestitch.pipeline.mosaic_output", "StreamedMosaic", "finish"),
+          ("pipestitch.pipeline.stitching", "", "_occluders"),
+          ("pipestitch.pipeline.stitching", "", "_register"),
+          ("pipestitch.pipeline.stitching", "", "_refine_views"),
+          ("pipestitch.pipeline.stitching", "", "_stitch"),
+          ("pipestitch.pipeline.stitched_output", "StreamedMosaic", "finish"),
           ("pipestitch.pipeline.run", "", "_write_mosaic"),
           ("pipestitch.pipeline.run", "", "_coded"),
           ("pipestitch.pipeline.run", "", "render_report"))
@@ -136,8 +136,8 @@ class PassMemory:
 
 def child_run(root: str, out: str, video: str | None, threads: int,
               led_cache_mb: float | None) -> dict:
-    from pipestitch.pipeline.mosaic import MosaicSettings
     from pipestitch.pipeline.run import run_dataset
+    from pipestitch.pipeline.stitching import MosaicSettings
 
     passes = PassMemory()
     start = time.perf_counter()
@@ -197,7 +197,7 @@ def child_batch(roots: list[str], out: str, mode: str, workers: int) -> dict:
 
 def simulate(root: Path, pairs: int, size: str, seed: int) -> Path:
     if not (root / "probe.toml").is_file():
-        subprocess.run([sys.executable, "-m", "pipestitch.cli", "simulate", "--scenario",
+        subprocess.run([sys.executable, "-m", "pipestitch.cli.app", "simulate", "--scenario",
                         "default", "--size", size, "--pairs", str(pairs), "--seed", str(seed),
                         "--out", str(root), "--quiet", "--workers", "2"], check=True,
                        capture_output=True)

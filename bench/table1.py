@@ -12,7 +12,7 @@ the *same* extracted ring points:
   Implemented with ``scipy.optimize.differential_evolution`` configured like MATLAB's
   ``ga`` defaults for 4 variables: population 52 (~50), at most 400 generations
   (100 × nvars), no hybrid polish; infeasible poses are penalised.
-* ours: closed form + robust least squares (``pipestitch.pose_fit.fit_pose``), both
+* ours: closed form + robust least squares (``pipestitch.pose.fit.fit_pose``), both
   hypotheses, chosen per frame by the probe envelope only (no run to lean on). Its
   compiled kernels are built (or loaded from numba's cache) by one warm-up call before
   the loop, timed and printed on its own, not in the per-pose times. The per-pose time
@@ -36,11 +36,11 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from pipestitch.ambiguity import envelope_costs, resolve_run
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
-from pipestitch.pipeline.pose import PoseSettings, fit_frame, resolve_frames, ring_search_band
-from pipestitch.pose_fit import ConicModel, fit_pose, plane_points, pose_from_conic
-from pipestitch.ring import detect_ring
+from pipestitch.pipeline.posing import PoseSettings, fit_frame, resolve_frames, ring_search_band
+from pipestitch.pose.ambiguity import envelope_costs, resolve_run
+from pipestitch.pose.fit import ConicModel, fit_pose, plane_points, pose_from_conic
+from pipestitch.pose.ring import detect_ring
 from pipestitch.simulate.render import Optics
 from pipestitch.simulate.scenarios import PLANE_DISTANCE_MM, SCENARIOS, build_run
 

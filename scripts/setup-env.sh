@@ -1,5 +1,6 @@
 # Sourced by ./run-tests and ./run-demo: create .venv with Python >= 3.11 and install
-# pipestitch (editable, with test extras) when pyproject.toml changed since last time.
+# pipestitch (editable, with test extras, versions from constraints.txt) when
+# pyproject.toml or constraints.txt changed since the last install.
 PY=""
 for cand in python3.11 python3.12 python3.13 python3 python; do
   if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
@@ -15,10 +16,10 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.pipestitch-installed
-want=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
+want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "installing pipestitch and its dependencies into .venv ..." >&2
   .venv/bin/python -m pip install --quiet --upgrade pip >&2
-  .venv/bin/python -m pip install --quiet -e '.[test]' >&2
+  .venv/bin/python -m pip install --quiet -c constraints.txt -e '.[test]' >&2
   echo "$want" > "$stamp"
 fi

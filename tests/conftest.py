@@ -23,7 +23,7 @@ def shared_data() -> Path:
 def _simulate_small(root: Path, *args: str) -> Path:
     from typer.testing import CliRunner
 
-    from pipestitch.cli import app
+    from pipestitch.cli.app import app
 
     result = CliRunner().invoke(app, ["simulate", "--out", str(root), "--size", "half",
                                       "--quiet", *args])

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow   # each smoke run is a benchmark script as a subprocess
+
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 

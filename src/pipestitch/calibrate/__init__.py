@@ -4,8 +4,11 @@ Pure algorithms on arrays (no file reading): :mod:`checkerboard` finds boards,
 :mod:`ocam_fit` and :mod:`fisheye_fit` fit the two camera models,
 :mod:`camera_fit` rejects bad views and reports residuals, :mod:`compare` measures
 how far two models disagree, :mod:`laser_plane` fits the laser plane's normal and
-distance. Files and the command line are in ``pipeline/calibrate.py`` and
-``cli_calibrate.py``.
+distance. Files and the command line are in :mod:`pipestitch.pipeline.calibrating` and
+:mod:`pipestitch.cli.calibrate_command`.
+
+May import ``camera``, ``geometry``, ``errors``; must not import ``io``, ``pipeline``,
+``cli``, ``simulate`` or ``report``.
 """
 
 from __future__ import annotations

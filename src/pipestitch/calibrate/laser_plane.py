@@ -26,7 +26,7 @@ What is observable (see docs/calibration.md for the argument):
   needed. The mirror hypothesis of each frame fits equally for any plane, so the
   start's choice between mirrors does not change (n, d).
 
-What this module does not do: detect the ring (:mod:`pipestitch.ring`) or pick
+What this module does not do: detect the ring (:mod:`pipestitch.pose.ring`) or pick
 the frames.
 """
 
@@ -146,7 +146,7 @@ def calibrate_laser_plane(rays: Sequence[np.ndarray], start_poses: Sequence[Pose
     rays : sequence of numpy.ndarray, shape (N_k, 3)
         Probe-frame rays of each frame's ring pixels (camera ``unproject``).
     start_poses : sequence of Pose
-        A starting pose per frame (e.g. from :func:`pipestitch.pose_fit.fit_pose`
+        A starting pose per frame (e.g. from :func:`pipestitch.pose.fit.fit_pose`
         with the nominal plane; either mirror hypothesis).
     radius_mm : float
         Inner radius of the (straight, circular) calibration pipe.

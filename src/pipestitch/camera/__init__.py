@@ -2,6 +2,8 @@
 
 Both models are valid over the whole field of view of a ~185° fisheye; see
 ``base.py`` for the shared conventions.
+
+May import nothing else of pipestitch: it is the bottom layer with ``geometry``.
 """
 
 from __future__ import annotations

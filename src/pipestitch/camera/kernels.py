@@ -14,7 +14,7 @@ no ``ray_kernel``; callers then use ``unproject``.
 Development note: numba's on-disk cache of a kernel is invalidated by edits to its own
 file only, not to the files of the compiled functions it calls. After editing a
 model's ``ray_loop``, delete the ``__pycache__`` folders of ``camera`` and of
-``pipestitch`` (``_pose_kernels.fit_pixels`` calls it through :func:`rays_of`), or
+``pipestitch`` (``pose._fit_kernels.fit_pixels`` calls it through :func:`rays_of`), or
 the cached callers keep the old loop.
 """
 

@@ -1,4 +1,8 @@
-"""Probe geometry: pose, rotations, pipe sections and intersections (pure maths)."""
+"""Probe geometry: pose, rotations, pipe sections, intersections, clock positions
+(pure, vectorised maths; no I/O).
+
+May import ``camera``. Must not import any stage, ``io``, ``pipeline`` or ``cli``.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +14,7 @@ from pipestitch.geometry.intersect import (
     ray_wall_distance,
     rays_to_wall,
 )
-from pipestitch.geometry.pose import Pose
+from pipestitch.geometry.probe_pose import Pose
 from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
 
 __all__ = [

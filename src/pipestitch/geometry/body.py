@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipestitch.geometry.cylinder import PipeSection
-from pipestitch.geometry.pose import Pose
+from pipestitch.geometry.probe_pose import Pose
 
 __all__ = ["BodyEnvelope"]
 

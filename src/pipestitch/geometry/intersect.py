@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipestitch.geometry.cylinder import PipeSection
-from pipestitch.geometry.pose import Pose
+from pipestitch.geometry.probe_pose import Pose
 
 __all__ = ["laser_ring", "plane_basis", "ray_wall_distance", "rays_to_wall"]
 

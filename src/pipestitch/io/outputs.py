@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipestitch._strip_kernels import scaled_uint8
 from pipestitch.errors import DatasetError
+from pipestitch.io._image_kernels import scaled_uint8
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.images import read_image, write_image
 from pipestitch.jsonsafe import json_safe

@@ -23,6 +23,7 @@ import math
 import os
 import shutil
 import tempfile
+import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,7 @@ import tifffile
 from pipestitch.io.atomic import atomic_path, atomic_write_text
 
 __all__ = ["DZI_NAME", "PyramidInfo", "PyramidWriter", "level_shapes", "read_column_blocks",
+           "read_dzi",
            "read_overview", "write_pyramid"]
 
 DZI_NAME = "mosaic.dzi"
@@ -49,6 +51,8 @@ class PyramidInfo:
     tiff_levels: tuple[tuple[int, int], ...]  # (rows, cols) of each TIFF level
     tile: int
     dzi_path: Path | None  # tiles_dir / mosaic.dzi when a tile folder was written
+
+_DZI_NS = "{http://schemas.microsoft.com/deepzoom/2008}"
 
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
@@ -345,3 +349,25 @@ def _replace_dir(src: Path, dest: Path) -> Path:
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
     return dest
+
+
+def read_dzi(dzi_path: str | Path) -> dict[str, object]:
+    """A Deep Zoom ``.dzi`` file as OpenSeadragon's inline tile source.
+
+    Raises
+    ------
+    ValueError
+        Naming the file when it is not a Deep Zoom description.
+    """
+    dzi_path = Path(dzi_path)
+    try:
+        root = ET.fromstring(dzi_path.read_text(encoding="utf-8"))
+        size = root.find(f"{_DZI_NS}Size")
+        width, height = int(size.get("Width")), int(size.get("Height"))
+        fmt, tile = root.get("Format"), int(root.get("TileSize"))
+        overlap = int(root.get("Overlap", "0"))
+    except (OSError, ET.ParseError, AttributeError, TypeError, ValueError) as exc:
+        raise ValueError(f"{dzi_path}: not a Deep Zoom description ({exc})") from exc
+    return {"Image": {"xmlns": "http://schemas.microsoft.com/deepzoom/2008",
+                      "Format": fmt, "Overlap": str(overlap), "TileSize": str(tile),
+                      "Size": {"Width": str(width), "Height": str(height)}}}

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 from skimage import measure
 
-from pipestitch.standards.clock import clock_hhmm
+from pipestitch.geometry.clock import clock_hhmm
 
 __all__ = ["Defect", "MosaicGeometry", "clock_position", "find_defects"]
 

@@ -22,8 +22,8 @@ from pathlib import Path
 
 from pipestitch.errors import DatasetError, PipestitchError
 from pipestitch.io.outputs import write_csv
-from pipestitch.pipeline.mosaic import MosaicSettings
 from pipestitch.pipeline.run import run_dataset
+from pipestitch.pipeline.stitching import MosaicSettings
 
 __all__ = ["BatchResult", "output_names", "run_batch", "run_one", "write_batch_summary"]
 

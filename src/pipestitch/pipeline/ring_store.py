@@ -1,6 +1,6 @@
 """The ring points of a long run, kept in a temporary file instead of in memory.
 
-After a frame's pose is fitted its ring inliers (:class:`pipestitch.pose_fit.RingPoints`,
+After a frame's pose is fitted its ring inliers (:class:`pipestitch.pose.fit.RingPoints`,
 <= 720 points) are read again only by the section refits after each round of pose
 refinement (``pipeline.mosaic``). Kept in memory they are ~6 kB a frame for the whole
 run, allocated among the pose pass's frame buffers: at 4000 pairs 23 MB of live data
@@ -25,7 +25,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from pipestitch.pose_fit import LaserPlane, RingPoints
+from pipestitch.pose.fit import LaserPlane, RingPoints
 
 __all__ = ["RingStore", "StoredRing"]
 
@@ -125,7 +125,7 @@ class RingStore:
 @dataclass(frozen=True, slots=True)
 class StoredRing:
     """A frame's ring points in a :class:`RingStore`: what the section refits read of
-    :class:`pipestitch.pose_fit.RingPoints` (``uv``, ``points_mm``, ``plane``), read
+    :class:`pipestitch.pose.fit.RingPoints` (``uv``, ``points_mm``, ``plane``), read
     from the file on each access. ``pixels`` is empty: the image points are not kept.
     """
 

@@ -19,19 +19,19 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch import __version__
-from pipestitch.ambiguity import Choice
+from pipestitch._runtime.memory import release_free_memory
+from pipestitch._runtime.threads import opencv_threads
 from pipestitch.errors import PipestitchError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
+from pipestitch.mosaic.unwrap import StripGrid
+from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
-from pipestitch.pipeline.measure import write_defects_csv
-from pipestitch.pipeline.memory import release_free_memory
-from pipestitch.pipeline.mosaic import FrameView, MosaicResult, MosaicSettings, build_mosaic
-from pipestitch.pipeline.mosaic_output import PYRAMID, TILES, StreamedMosaic, WrittenMosaic
-from pipestitch.pipeline.pose import (
+from pipestitch.pipeline.measuring import write_defects_csv
+from pipestitch.pipeline.posing import (
     FramePose,
     estimate_poses,
     report_frame_messages,
@@ -39,12 +39,17 @@ from pipestitch.pipeline.pose import (
 )
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
-from pipestitch.pipeline.standards import CodedRun, code_run
-from pipestitch.pipeline.threads import opencv_threads
-from pipestitch.pose_fit import Hypothesis, RingPoints
+from pipestitch.pipeline.stitched_output import (
+    PYRAMID,
+    TILES,
+    StreamedMosaic,
+    WrittenMosaic,
+    write_viewer,
+)
+from pipestitch.pipeline.stitching import FrameView, MosaicResult, MosaicSettings, build_mosaic
+from pipestitch.pose.ambiguity import Choice
+from pipestitch.pose.fit import Hypothesis, RingPoints
 from pipestitch.report.html import FrameRow, ReportData, render_report
-from pipestitch.report.viewer import write_viewer
-from pipestitch.unwrap import StripGrid
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -242,7 +247,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     try:
         read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
         # The frames are spread over the workers: OpenCV splitting each call again
-        # costs more than it gains (pipeline/threads.py).
+        # costs more than it gains (_runtime/threads.py).
         # The ring points wait for the section refits in a temporary file, not in
         # memory (pipeline/ring_store.py).
         with opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings:
@@ -289,7 +294,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     views = _views(frames, choices)
     frames = _without_rings(frames)
     out.mkdir(parents=True, exist_ok=True)
-    release_free_memory()   # each pass starts from what is live (pipeline/memory.py)
+    release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
     result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
                                                    show_progress, out)
     release_free_memory()
@@ -356,7 +361,7 @@ def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic
     """mosaic.png (the overview), mosaic.json and viewer.html.
 
     The full-resolution ``mosaic.ome.tif`` and the viewer's Deep Zoom ``tiles/`` were
-    written while the mosaic was stitched (pipeline/mosaic_output.py). Outputs of an
+    written while the mosaic was stitched (pipeline/stitched_output.py). Outputs of an
     earlier run into the same folder that this run does not produce are removed, so
     `pipestitch measure` never reads a stale mosaic.
     """

@@ -1,6 +1,6 @@
 """Static pan-and-zoom viewer of the full-resolution mosaic, from its Deep Zoom tiles.
 
-:func:`write_viewer` writes ``viewer.html``: OpenSeadragon (BSD-3-Clause, vendored
+:func:`render_viewer` makes ``viewer.html``: OpenSeadragon (BSD-3-Clause, vendored
 unchanged in ``report/static/openseadragon``, inlined into the page) showing the tile
 folder written by :func:`pipestitch.io.tiles.write_pyramid`. It works from ``file://``
 with no server: the Deep Zoom description is inlined (no XML request, which browsers
@@ -16,39 +16,11 @@ from __future__ import annotations
 
 import html
 import json
-import os
-import xml.etree.ElementTree as ET
 from importlib import resources
-from pathlib import Path
 
-from pipestitch.io.atomic import atomic_write_text
-
-__all__ = ["VIEWER_NAME", "read_dzi", "write_viewer"]
+__all__ = ["VIEWER_NAME", "render_viewer"]
 
 VIEWER_NAME = "viewer.html"
-_DZI_NS = "{http://schemas.microsoft.com/deepzoom/2008}"
-
-
-def read_dzi(dzi_path: str | Path) -> dict[str, object]:
-    """A Deep Zoom ``.dzi`` file as OpenSeadragon's inline tile source.
-
-    Raises
-    ------
-    ValueError
-        Naming the file when it is not a Deep Zoom description.
-    """
-    dzi_path = Path(dzi_path)
-    try:
-        root = ET.fromstring(dzi_path.read_text(encoding="utf-8"))
-        size = root.find(f"{_DZI_NS}Size")
-        width, height = int(size.get("Width")), int(size.get("Height"))
-        fmt, tile = root.get("Format"), int(root.get("TileSize"))
-        overlap = int(root.get("Overlap", "0"))
-    except (OSError, ET.ParseError, AttributeError, TypeError, ValueError) as exc:
-        raise ValueError(f"{dzi_path}: not a Deep Zoom description ({exc})") from exc
-    return {"Image": {"xmlns": "http://schemas.microsoft.com/deepzoom/2008",
-                      "Format": fmt, "Overlap": str(overlap), "TileSize": str(tile),
-                      "Size": {"Width": str(width), "Height": str(height)}}}
 
 
 def _openseadragon_js() -> str:
@@ -56,17 +28,16 @@ def _openseadragon_js() -> str:
     return (path / "openseadragon.min.js").read_text(encoding="utf-8")
 
 
-def write_viewer(out_dir: str | Path, tiles_dir: str | Path, *, title: str = "pipestitch mosaic",
-                 z0_mm: float = 0.0, mm_per_px: float | None = None,
-                 deg_per_px: float | None = None) -> Path:
-    """Write ``out_dir/viewer.html`` showing the Deep Zoom tiles in ``tiles_dir``.
+def render_viewer(source: dict[str, object], *, title: str = "pipestitch mosaic",
+                  z0_mm: float = 0.0, mm_per_px: float | None = None,
+                  deg_per_px: float | None = None) -> str:
+    """The text of ``viewer.html`` showing the Deep Zoom tile source ``source``.
 
     Parameters
     ----------
-    out_dir : Path
-        Folder of the page (the tiles are referred to relative to it).
-    tiles_dir : Path
-        Folder holding ``mosaic.dzi`` and ``mosaic_files/`` (io.tiles.write_pyramid).
+    source : dict
+        OpenSeadragon's inline tile source (:func:`pipestitch.io.tiles.read_dzi`) with
+        ``source["Image"]["Url"]`` set to the tile folder relative to the page.
     title : str
         Page title.
     z0_mm, mm_per_px, deg_per_px : float, optional
@@ -74,23 +45,13 @@ def write_viewer(out_dir: str | Path, tiles_dir: str | Path, *, title: str = "pi
 
     Returns
     -------
-    Path
-        The written page.
-
-    Raises
-    ------
-    ValueError
-        If ``tiles_dir`` holds no readable ``mosaic.dzi``.
+    str
+        The page (HTML).
     """
-    out_dir, tiles_dir = Path(out_dir), Path(tiles_dir)
-    source = read_dzi(tiles_dir / "mosaic.dzi")
-    relative = Path(os.path.relpath(tiles_dir.resolve(), out_dir.resolve()))
-    source["Image"]["Url"] = (relative / "mosaic_files").as_posix() + "/"
     axes = ({"z0_mm": z0_mm, "mm_per_px": mm_per_px, "deg_per_px": deg_per_px}
             if mm_per_px is not None and deg_per_px is not None else None)
-    page = _PAGE.format(title=html.escape(title), osd=_openseadragon_js(),
+    return _PAGE.format(title=html.escape(title), osd=_openseadragon_js(),
                         source=json.dumps(source), axes=json.dumps(axes))
-    return atomic_write_text(out_dir / VIEWER_NAME, page)
 
 
 # Hand-written page around the library: a full-window view, zoom buttons (the stock

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from skimage.metrics import structural_similarity
 
-from pipestitch.register import phase_shift
+from pipestitch.mosaic.register import phase_shift
 
 __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
 

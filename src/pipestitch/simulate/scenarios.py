@@ -3,7 +3,7 @@
 A :class:`Scenario` fixes the pipe, wall texture, defects, trajectory, optics and
 odometer; :func:`build_run` turns it (with a seed and a sensor size) into a
 :class:`SyntheticRun`: camera, poses, wall texture, renderer and truth tables.
-Writing a dataset to disk is the pipeline's job (``pipeline/simulate.py``).
+Writing a dataset to disk is the pipeline's job (``pipeline/simulating.py``).
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """Inspection standards: clock positions with a roll reference, named ovality and
 deflection definitions, coded observations and their exchange formats.
 
-Pure (no file access): the pipeline stage ``pipeline/standards.py`` reads a run folder
-and writes what these functions return. See docs/standards.md.
+Pure (no file access): :mod:`pipestitch.pipeline.coding` reads a run folder and writes
+what these functions return. See docs/standards.md. May import ``geometry``,
+``jsonsafe``, ``errors``; must not import ``io``, ``pipeline``, ``cli`` or ``config``.
 """
 
-from pipestitch.standards.clock import (
-    RollReference,
-    clock_hhmm,
-    clock_hour,
-    crown_from_imu,
-    crown_from_invert,
-    relative_reference,
-    user_reference,
-)
 from pipestitch.standards.en13508 import parse_en13508, write_en13508
 from pipestitch.standards.invert import InvertBand, detect_invert
 from pipestitch.standards.jsonfmt import parse_json, write_json_text
@@ -28,6 +20,15 @@ from pipestitch.standards.observations import (
 )
 from pipestitch.standards.ovality import DEFINITIONS, SectionFigures, section_figures
 from pipestitch.standards.pacp import parse_pacp_csv, write_pacp_csv
+from pipestitch.standards.roll_reference import (
+    RollReference,
+    clock_hhmm,
+    clock_hour,
+    crown_from_imu,
+    crown_from_invert,
+    relative_reference,
+    user_reference,
+)
 
 __all__ = ["CONTINUOUS_MIN_M", "DEFINITIONS", "InvertBand", "Observation", "RollReference",
            "SectionFigures", "Survey", "clock_hhmm", "clock_hour", "crown_from_imu",

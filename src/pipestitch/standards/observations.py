@@ -23,8 +23,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
 from typing import Protocol
 
-from pipestitch.standards.clock import RollReference, clock_hour
 from pipestitch.standards.ovality import SectionFigures
+from pipestitch.standards.roll_reference import RollReference, clock_hour
 
 __all__ = ["AUTO_PREFIX", "CONTINUOUS_MIN_M", "OBSERVATION_COLUMNS", "Observation",
            "ProfileSection", "Survey", "is_auto", "observations_from_defects",

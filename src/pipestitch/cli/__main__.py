@@ -1,0 +1,5 @@
+"""``python -m pipestitch.cli``: the same as the ``pipestitch`` command."""
+
+from pipestitch.cli.app import main
+
+main()

@@ -1,0 +1,55 @@
+"""``pipestitch export``: the coded observations of a run in an exchange format.
+
+Registered on the main app by cli.py (``register``), which passes its error handler so
+bad input still exits 2 with a one-line message.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from pipestitch.pipeline.coding import EXPORTS, export_run
+from pipestitch.pipeline.progress import console
+
+__all__ = ["CROWN_HELP", "register"]
+
+CROWN_HELP = ("Mosaic theta (deg) of the crown, 12 o'clock: overrides imu.csv and a "
+              "detected invert (default: imu.csv, else a sediment band / water line, else "
+              "relative: the first frame's image up).")
+
+
+def export(
+    out: Annotated[Path, typer.Argument(help="Output folder of `pipestitch run`.")],
+    fmt: Annotated[str, typer.Option("--format", "-f", help="en13508 (EN 13508-2 text "
+                                     "exchange file), pacp-csv or json.")] = "en13508",
+    dest: Annotated[Path | None, typer.Option("--out", "-o", help="File to write (default: "
+                                              "OUT/observations.txt, _pacp.csv or .json).")
+                    ] = None,
+    crown_deg: Annotated[float | None, typer.Option("--crown-deg", help=CROWN_HELP)] = None,
+    dataset: Annotated[Path | None, typer.Option(help="Dataset folder (for imu.csv and "
+                                                 "probe.toml) if `run` did not record it.")
+                       ] = None,
+) -> None:
+    """Export the run's coded observations (OUT/observations.csv, which you may edit).
+
+    With --crown-deg or --dataset the run is re-coded first: rows whose ref starts with
+    "auto:" are regenerated, every other row of observations.csv is kept.
+
+    Example: pipestitch export out/test_piece --format pacp-csv --out survey.csv
+    """
+    if fmt not in EXPORTS:
+        console.print(f"[bold red]error:[/] --format: expected one of {', '.join(EXPORTS)}, "
+                      f"got {escape(repr(fmt))}")
+        raise typer.Exit(2)
+    path = export_run(out, fmt, dest=dest, crown_deg=crown_deg, dataset=dataset)
+    typer.echo(f"wrote {path}")
+
+
+def register(app: typer.Typer, handle_errors: Callable) -> None:
+    """Add the ``export`` command to ``app``."""
+    app.command(name="export")(handle_errors(export))

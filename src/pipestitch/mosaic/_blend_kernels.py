@@ -1,0 +1,65 @@
+"""Compiled inner loops of blending (numba): shaded albedo, feathered weights and the
+accumulation of a strip into the canvas.
+
+Why hand-written: each is a fused pass over a whole strip that numpy would run as
+several temporary arrays.
+
+Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
+(``nogil``) so the worker threads run them side by side; the tests compare every
+kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
+the numpy code it replaces was float32, in the same order, so results are bitwise the
+same; sums are accumulated in float64.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+F32 = np.float32
+
+
+@numba.njit(cache=True, nogil=True)
+def shaded_albedo(values: np.ndarray, shading: np.ndarray, level: np.ndarray,
+                  weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``values / max(shading · level[col], 1e-6)`` (float64 arithmetic, as numpy's
+    promotion of the float32 strip by the float64 level) stored as float32, 0 where
+    there is no data, and the validity (uint8: the albedo is finite and ``weight`` > 0).
+    """
+    n_rows, n_cols = values.shape
+    albedo = np.empty((n_rows, n_cols), np.float32)
+    valid = np.empty((n_rows, n_cols), np.uint8)
+    for i in range(n_rows):
+        for j in range(n_cols):
+            v = values[i, j] / max(np.float64(shading[i, j]) * level[j], 1e-6)
+            if np.isfinite(v) and weight[i, j] > 0:
+                albedo[i, j] = F32(v)
+                valid[i, j] = 1
+            else:
+                albedo[i, j] = F32(0)
+                valid[i, j] = 0
+    return albedo, valid
+
+
+@numba.njit(cache=True, nogil=True)
+def feathered_weight(weight: np.ndarray, feather: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``weight · feather`` (float32) where ``valid``, else 0."""
+    out = np.empty(weight.shape, np.float32)
+    for i in range(weight.shape[0]):
+        for j in range(weight.shape[1]):
+            out[i, j] = weight[i, j] * feather[i, j] if valid[i, j] else F32(0)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def accumulate_strip(total: np.ndarray, weights: np.ndarray, col0: int, albedo: np.ndarray,
+                     weight: np.ndarray, gain: float) -> None:
+    """``total[:, col0:] += albedo · gain · weight`` and ``weights[:, col0:] += weight``
+    in place over the strip's columns (float32 sums of float64 products)."""
+    for i in range(albedo.shape[0]):
+        for j in range(albedo.shape[1]):
+            w = weight[i, j]
+            if w != 0:
+                total[i, col0 + j] = F32(np.float64(total[i, col0 + j])
+                                         + np.float64(albedo[i, j]) * gain * np.float64(w))
+                weights[i, col0 + j] += w

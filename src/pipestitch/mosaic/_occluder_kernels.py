@@ -1,0 +1,60 @@
+"""Compiled quantile over a stack of frames (numba), for the occluder mask.
+
+Why hand-written: numpy's quantile over a frame stack sorts with one partition per
+pixel; this sorts a row of pixels' values at once (an odd-even transposition sort,
+branch-free and contiguous over the row).
+
+Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
+(``nogil``) so the worker threads run them side by side; the tests compare every
+kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
+the numpy code it replaces was float32, in the same order, so results are bitwise the
+same; sums are accumulated in float64.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+F32 = np.float32
+
+
+@numba.njit(cache=True, nogil=True)
+def quantile_over_frames(stack: np.ndarray, virtual: float,
+                         median: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of an (n, H, W) float32 stack: its quantile and its median over frames.
+
+    ``virtual`` is numpy's "linear" virtual index of the quantile, (n - 1)·q computed
+    as ``numpy.quantile`` does; the interpolation between the two order statistics
+    around it and the median (middle value, or the float32 mean of the two middle
+    ones) follow ``numpy.quantile`` and ``numpy.median`` on float32 exactly. The
+    median is computed only when asked (an empty array otherwise). Values must be
+    finite.
+    """
+    n, height, width = stack.shape
+    lo = min(max(int(np.floor(virtual)), 0), n - 1)
+    hi = min(lo + 1, n - 1)
+    gamma = virtual - np.floor(virtual)
+    g, g1 = F32(gamma), F32(1 - gamma)
+    quant = np.empty((height, width), np.float32)
+    med = np.empty((height, width) if median else (0, 0), np.float32)
+    buf = np.empty((n, width), np.float32)
+    for i in range(height):
+        buf[:, :] = stack[:, i, :]
+        # Odd-even transposition sort of every pixel's n values at once: branch-free
+        # and contiguous over the pixels of a row (an insertion sort per pixel is
+        # several times slower on its mispredicted branches).
+        for p in range(n):
+            for k in range(p % 2, n - 1, 2):
+                a, b = buf[k], buf[k + 1]
+                for j in range(width):
+                    x, y = a[j], b[j]
+                    a[j] = min(x, y)
+                    b[j] = max(x, y)
+        for j in range(width):
+            diff = buf[hi, j] - buf[lo, j]
+            quant[i, j] = buf[hi, j] - diff * g1 if gamma >= 0.5 else buf[lo, j] + diff * g
+            if median:
+                mid = n // 2
+                med[i, j] = buf[mid, j] if n % 2 else F32(buf[mid - 1, j] + buf[mid, j]) / F32(2)
+    return quant, med

@@ -1,0 +1,224 @@
+"""Compiled inner loops of registration (numba): packed cross-power spectra, the
+weighted correlation peak and the Lucas-Kanade polish of a sub-pixel shift.
+
+Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectra,
+and the polish reads a cubic-shifted patch in one pass instead of warping a copy
+(the same weights as ``cv2.warpAffine``'s cubic, to float32 rounding).
+
+Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
+(``nogil``) so the worker threads run them side by side; the tests compare every
+kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
+the numpy code it replaces was float32, in the same order, so results are bitwise the
+same; sums are accumulated in float64.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+F32 = np.float32
+
+
+@numba.njit(cache=True, nogil=True)
+def _unit(re: float, im: float) -> tuple[float, float]:
+    """(re, im) / max(|re + i·im|, 1e-12) in float32."""
+    mag = max(F32(np.hypot(re, im)), F32(1e-12))
+    return F32(re / mag), F32(im / mag)
+
+
+@numba.njit(cache=True, nogil=True)
+def _unit_cross(b_re: float, b_im: float, a_re: float, a_im: float) -> tuple[float, float]:
+    """b·conj(a) / |b·conj(a)| (0 for a zero product), float32."""
+    re = F32(b_re * a_re + b_im * a_im)
+    im = F32(b_im * a_re - b_re * a_im)
+    return _unit(re, im)
+
+
+@numba.njit(cache=True, nogil=True)
+def cross_power_ccs(spec_b: np.ndarray, spec_a: np.ndarray) -> np.ndarray:
+    """Normalised cross-power spectrum b·conj(a) / |b·conj(a)| of two packed real spectra.
+
+    Packed (CCS) layout of ``cv2.dft`` of a real image without
+    ``DFT_COMPLEX_OUTPUT``: columns (2k-1, 2k) hold the real and imaginary parts of
+    frequency k of every row; column 0, and the last column when the width is even,
+    pack the purely real columns of the spectrum the same way down the rows (row 0
+    real, rows (2m-1, 2m) a pair, the last row real when the height is even). The
+    result is in the same layout, for ``cv2.idft(..., DFT_REAL_OUTPUT)``; the same as
+    ``cv2.mulSpectrums(b, a, 0, conjB=True)`` then a division by the modulus.
+    """
+    n_rows, n_cols = spec_b.shape
+    out = np.empty_like(spec_b)
+    for r in range(n_rows):
+        b, a, o = spec_b[r], spec_a[r], out[r]
+        for c in range(1, n_cols - 1, 2):
+            o[c], o[c + 1] = _unit_cross(b[c], b[c + 1], a[c], a[c + 1])
+    for special in range(2 if n_cols % 2 == 0 and n_cols > 1 else 1):
+        c = 0 if special == 0 else n_cols - 1
+        out[0, c] = _unit(F32(spec_b[0, c] * spec_a[0, c]), F32(0))[0]
+        for r in range(1, n_rows - 1, 2):
+            out[r, c], out[r + 1, c] = _unit_cross(spec_b[r, c], spec_b[r + 1, c],
+                                                   spec_a[r, c], spec_a[r + 1, c])
+        if n_rows % 2 == 0 and n_rows > 1:
+            last = n_rows - 1
+            out[last, c] = _unit(F32(spec_b[last, c] * spec_a[last, c]), F32(0))[0]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def weighted_peak(surface: np.ndarray, g_rows: np.ndarray, g_cols: np.ndarray,
+                  floor: float) -> tuple[int, int]:
+    """Row and column of the maximum of max(surface, 0)·(floor + (1 - floor)·g_rows·g_colsᵀ).
+
+    float32 as the numpy expression it replaces; the first maximum in row-major order.
+    Profile values below 1e-10 are flushed to 0 first: their products then add less
+    than half an ulp to ``floor`` (the same weight), and denormal arithmetic is slow.
+    """
+    lo, hi = F32(floor), F32(1 - floor)
+    g_c = np.where(g_cols < F32(1e-10), F32(0), g_cols)
+    best, best_r, best_c = F32(-1), 0, 0
+    for r in range(surface.shape[0]):
+        gr = g_rows[r] if g_rows[r] >= F32(1e-10) else F32(0)
+        for c in range(surface.shape[1]):
+            v = max(surface[r, c], F32(0)) * (lo + hi * (gr * g_c[c]))
+            if v > best:
+                best, best_r, best_c = v, r, c
+    return best_r, best_c
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_gradients(img: np.ndarray, r: int, gx: np.ndarray, gy: np.ndarray) -> None:
+    """Row ``r`` of ``numpy.gradient(img)`` (d/dcol into gx, d/drow into gy), float32."""
+    n_rows, n_cols = img.shape
+    cur = img[r]
+    if n_cols > 1:
+        gx[0] = cur[1] - cur[0]
+        gx[n_cols - 1] = cur[n_cols - 1] - cur[n_cols - 2]
+    else:
+        gx[0] = F32(0)
+    for c in range(1, n_cols - 1):
+        gx[c] = (cur[c + 1] - cur[c - 1]) / F32(2)
+    if n_rows == 1:
+        gy[:] = F32(0)
+    elif r == 0:
+        for c in range(n_cols):
+            gy[c] = img[1, c] - cur[c]
+    elif r == n_rows - 1:
+        for c in range(n_cols):
+            gy[c] = cur[c] - img[r - 1, c]
+    else:
+        up, down = img[r - 1], img[r + 1]
+        for c in range(n_cols):
+            gy[c] = (down[c] - up[c]) / F32(2)
+
+
+@numba.njit(cache=True, nogil=True)
+def gradient_moments(img: np.ndarray, weight: np.ndarray) -> tuple[float, float, float]:
+    """Weighted sums of gx², gx·gy and gy² of ``img`` (float64 accumulation).
+
+    An empty ``weight`` weighs every pixel 1.
+    """
+    gx = np.empty(img.shape[1], np.float32)
+    gy = np.empty(img.shape[1], np.float32)
+    ones = np.ones(img.shape[1], np.float32)
+    a11 = a12 = a22 = 0.0
+    for r in range(img.shape[0]):
+        _row_gradients(img, r, gx, gy)
+        w = weight[r] if weight.size else ones
+        for c in range(img.shape[1]):
+            a11 += w[c] * gx[c] * gx[c]
+            a12 += w[c] * gx[c] * gy[c]
+            a22 += w[c] * gy[c] * gy[c]
+    return a11, a12, a22
+
+
+@numba.njit(cache=True, nogil=True)
+def residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndarray, shift_rows: int,
+                     shift_cols: int) -> tuple[float, float]:
+    """Weighted sums of (m - img)·gx and (m - img)·gy, gradients of ``img``.
+
+    ``m`` is ``moved`` rolled back by whole pixels, wrapping: m[r, c] =
+    moved[(r + shift_rows) % rows, (c + shift_cols) % cols]. An empty ``weight``
+    weighs every pixel 1.
+    """
+    n_rows, n_cols = img.shape
+    gx = np.empty(n_cols, np.float32)
+    gy = np.empty(n_cols, np.float32)
+    m = np.empty(n_cols, np.float32)
+    ones = np.ones(n_cols, np.float32)
+    sc = shift_cols % n_cols
+    bx = by = 0.0
+    for r in range(n_rows):
+        _row_gradients(img, r, gx, gy)
+        src = moved[(r + shift_rows) % n_rows]
+        m[:n_cols - sc] = src[sc:]
+        m[n_cols - sc:] = src[:sc]
+        w, cur = weight[r] if weight.size else ones, img[r]
+        for c in range(n_cols):
+            e = w[c] * (m[c] - cur[c])
+            bx += e * gx[c]
+            by += e * gy[c]
+    return bx, by
+
+
+CUBIC_A = -0.75      # OpenCV's INTER_CUBIC (Keys) kernel parameter
+
+
+@numba.njit(cache=True, nogil=True)
+def _cubic_weights(f: float) -> np.ndarray:
+    """Keys cubic weights (a = ``CUBIC_A``) of the taps at -1, 0, 1, 2 for a sample at
+    fraction ``f`` (0 <= f < 1) past tap 0: OpenCV's ``interpolateCubic``."""
+    a = CUBIC_A
+    w = np.empty(4)
+    x = f + 1.0
+    w[0] = ((a * x - 5.0 * a) * x + 8.0 * a) * x - 4.0 * a
+    w[1] = ((a + 2.0) * f - (a + 3.0)) * f * f + 1.0
+    x = 1.0 - f
+    w[2] = ((a + 2.0) * x - (a + 3.0)) * x * x + 1.0
+    w[3] = 1.0 - w[0] - w[1] - w[2]
+    return w
+
+
+@numba.njit(cache=True, nogil=True)
+def shifted_residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndarray,
+                             dx: float, dy: float) -> tuple[float, float]:
+    """:func:`residual_moments` against ``moved`` moved back by a sub-pixel shift.
+
+    m(r, c) is ``moved`` at (column c + dx, row r + dy), bicubic with OpenCV's kernel
+    and wrapping on both axes: ``cv2.warpAffine(moved, [[1, 0, dx], [0, 1, dy]],
+    INTER_CUBIC | WARP_INVERSE_MAP, BORDER_WRAP)`` then :func:`residual_moments`
+    (equal to float32 rounding, tested), in one pass without the warped copy. The
+    shift is the same everywhere, so are the weights: rows are interpolated along the
+    columns once, then combined.
+    """
+    n_rows, n_cols = img.shape
+    ix, iy = int(np.floor(dx)), int(np.floor(dy))
+    wx, wy = _cubic_weights(dx - ix), _cubic_weights(dy - iy)
+    # ``moved`` from row iy - 1 and column ix - 1 on, wrapped, 3 rows and columns more:
+    # then every tap is a plain offset (no modulo in the loops below).
+    cols = np.empty(n_cols + 3, np.int64)
+    for c in range(n_cols + 3):
+        cols[c] = ((c + ix - 1) % n_cols + n_cols) % n_cols
+    along = np.empty((n_rows + 3, n_cols), np.float32)
+    row = np.empty(n_cols + 3, np.float32)
+    for r in range(n_rows + 3):
+        src = moved[((r + iy - 1) % n_rows + n_rows) % n_rows]
+        for c in range(n_cols + 3):
+            row[c] = src[cols[c]]
+        for c in range(n_cols):
+            along[r, c] = (wx[0] * row[c] + wx[1] * row[c + 1] + wx[2] * row[c + 2]
+                           + wx[3] * row[c + 3])
+    gx = np.empty(n_cols, np.float32)
+    gy = np.empty(n_cols, np.float32)
+    ones = np.ones(n_cols, np.float32)
+    bx = by = 0.0
+    for r in range(n_rows):
+        _row_gradients(img, r, gx, gy)
+        a0, a1, a2, a3 = along[r], along[r + 1], along[r + 2], along[r + 3]
+        w, cur = weight[r] if weight.size else ones, img[r]
+        for c in range(n_cols):
+            m = wy[0] * a0[c] + wy[1] * a1[c] + wy[2] * a2[c] + wy[3] * a3[c]
+            e = w[c] * (m - cur[c])
+            bx += e * gx[c]
+            by += e * gy[c]
+    return bx, by

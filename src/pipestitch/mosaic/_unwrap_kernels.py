@@ -1,0 +1,168 @@
+"""Compiled inner loops of unwrapping (numba): upsampled maps, strip masks, local
+contrast, column levels.
+
+Why hand-written: every LED frame is unwrapped once or twice per run and each strip
+(about a million nodes at full size) then goes through a dozen whole-array passes; as
+numpy expressions each pass allocates and walks the array again and most of the time
+goes to memory traffic. OpenCV's resize/remap quantise interpolation weights to 1/32
+(see :func:`pipestitch.mosaic.unwrap.unwrap_maps`), so they cannot stand in.
+
+Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
+(``nogil``) so the worker threads run them side by side; the tests compare every
+kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
+the numpy code it replaces was float32, in the same order, so results are bitwise the
+same; sums are accumulated in float64.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+F32 = np.float32
+
+
+@numba.njit(cache=True, nogil=True)
+def _interp_line(src: np.ndarray, step: int, w_lo: np.ndarray, w_hi: np.ndarray,
+                 dst: np.ndarray) -> None:
+    """``dst[c·step + k] = src[c]·w_lo[k] + src[c + 1]·w_hi[k]`` (``src[c]`` for k = 0)."""
+    n, last = dst.shape[0], src.shape[0] - 1
+    for c in range(last + 1):
+        base = c * step
+        a = src[c]
+        if base < n:
+            dst[base] = a
+        if c == last:
+            break
+        b = src[c + 1]
+        for k in range(1, min(step, n - base)):
+            dst[base + k] = a * w_lo[k] + b * w_hi[k]
+
+
+@numba.njit(cache=True, nogil=True)
+def upsample_masked(nodes: np.ndarray, step: int, n_rows: int, n_cols: int,
+                    ok_above: float) -> np.ndarray:
+    """Bilinear upsampling of node fields, masked where the validity field is not ~1.
+
+    ``nodes`` (F, rows, cols) float32 every ``step`` nodes (the last row/column is
+    the last node); field 2 is the validity (1/0). Returns (F - 1, n_rows, n_cols)
+    float32: fields 0 and 1 (map x, y) with -1 and the fields after the validity with
+    0 where the interpolated validity is not above ``ok_above``. Rows first, then
+    columns, with the weights (k / step as float32) of the numpy original; a node
+    that falls on a grid node is copied (the original's ``a·1 + b·0``: the same for
+    finite values).
+    """
+    n_f, last_r = nodes.shape[0], nodes.shape[1] - 1
+    out = np.empty((n_f - 1, n_rows, n_cols), np.float32)
+    w_hi = np.empty(step, np.float32)
+    w_lo = np.empty(step, np.float32)
+    for k in range(step):
+        w_hi[k] = F32(k / step)
+        w_lo[k] = F32(1) - w_hi[k]
+    row = np.empty(nodes.shape[2], np.float32)
+    valid = np.empty(n_cols, np.float32)
+    ok_f = F32(ok_above)
+    for i in range(n_rows):
+        r0, k = min(i // step, last_r), i % step
+        for order in range(n_f):   # the validity first: it masks the others
+            f = 2 if order == 0 else (order - 1 if order <= 2 else order)
+            if k == 0 or r0 == last_r:
+                row[:] = nodes[f, r0]
+            else:
+                for c in range(row.shape[0]):
+                    row[c] = nodes[f, r0, c] * w_lo[k] + nodes[f, r0 + 1, c] * w_hi[k]
+            if f == 2:
+                _interp_line(row, step, w_lo, w_hi, valid)
+                continue
+            dst = out[f if f < 2 else f - 1, i]
+            _interp_line(row, step, w_lo, w_hi, dst)
+            fill = F32(-1) if f < 2 else F32(0)
+            for j in range(n_cols):
+                if not valid[j] > ok_f:
+                    dst[j] = fill
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def mask_strip(values: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, quality: np.ndarray,
+               min_quality: float, occluded: np.ndarray) -> np.ndarray:
+    """Mask a remapped strip in place and return its weight (``quality``, 0 where masked).
+
+    A node is masked (NaN) where ``map_x`` < 0 (invisible), the value is not finite
+    (outside the frame), ``quality`` < ``min_quality`` (float32 comparison) or the
+    frame pixel nearest to it (rounded half to even, as ``cv2.remap`` with
+    ``INTER_NEAREST`` does) is ``occluded`` or outside the frame; an empty
+    ``occluded`` skips that last test.
+    """
+    weight = np.empty(values.shape, np.float32)
+    q_min = F32(min_quality)
+    check = occluded.size > 0
+    height, width = occluded.shape
+    for i in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            bad = map_x[i, j] < 0 or not np.isfinite(values[i, j]) or quality[i, j] < q_min
+            if check and not bad:
+                col, row = int(np.rint(map_x[i, j])), int(np.rint(map_y[i, j]))
+                bad = not (0 <= col < width and 0 <= row < height) or occluded[row, col]
+            if bad:
+                values[i, j] = np.nan
+                weight[i, j] = F32(0)
+            else:
+                weight[i, j] = quality[i, j]
+    return weight
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_invalid(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` with non-finite nodes set to 0, and the validity (1/0), both float32."""
+    filled = np.empty(values.shape, np.float32)
+    valid = np.empty(values.shape, np.float32)
+    for i in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            ok = np.isfinite(values[i, j])
+            filled[i, j] = values[i, j] if ok else F32(0)
+            valid[i, j] = F32(1) if ok else F32(0)
+    return filled, valid
+
+
+@numba.njit(cache=True, nogil=True)
+def contrast_of(filled: np.ndarray, valid: np.ndarray, support: np.ndarray,
+                local: np.ndarray) -> np.ndarray:
+    """value / local mean - 1 where valid (0 elsewhere); ``local`` is divided by the
+    ``support`` (blurred validity) in place, making it the local mean. float32."""
+    out = np.empty(filled.shape, np.float32)
+    tiny = F32(1e-6)
+    for i in range(filled.shape[0]):
+        for j in range(filled.shape[1]):
+            local[i, j] = local[i, j] / max(support[i, j], tiny)
+            out[i, j] = filled[i, j] / max(local[i, j], tiny) - F32(1) if valid[i, j] else F32(0)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def column_medians(values: np.ndarray, min_count: float) -> np.ndarray:
+    """Median of the finite values of each column with more than ``min_count`` of them.
+
+    NaN elsewhere. float32 values; an even count averages the two middle values in
+    float32, as ``numpy.nanmedian`` does.
+    """
+    n_rows, n_cols = values.shape
+    out = np.full(n_cols, np.nan)
+    count = np.zeros(n_cols, np.int64)
+    columns = np.empty((n_cols, n_rows), np.float32)   # finite values, column by column
+    for i in range(n_rows):
+        for j in range(n_cols):
+            v = values[i, j]
+            if np.isfinite(v):
+                columns[j, count[j]] = v
+                count[j] += 1
+    for j in range(n_cols):
+        n = count[j]
+        if n > min_count:
+            mid = n // 2
+            part = np.partition(columns[j, :n], mid)
+            if n % 2:
+                out[j] = part[mid]
+            else:
+                out[j] = F32(part[:mid].max() + part[mid]) / F32(2)
+    return out

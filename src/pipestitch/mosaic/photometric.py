@@ -1,0 +1,112 @@
+"""Photometric evidence on the mirror ambiguity from consecutive LED frames.
+
+Unwrapped with the true poses, two LED frames a few millimetres apart show the same
+wall up to a global shift (the probe's advance and roll); unwrapped with a mirror
+pose the strip is warped non-rigidly (about 0.17 / 0.34 / 0.7 / 1.5 mm RMS at
+0.5 / 1 / 2 / 4° of tilt in a 65 mm pipe), so no shift makes them agree. For each of
+the four combinations of the two frames' hypotheses we unwrap a window of wall
+20-60 mm ahead (scaled with the radius) and ask how well a single global shift
+explains the pair: the peak of their phase correlation (``cv2.phaseCorrelate``,
+circular in theta) on the local contrast. The costs are likelihood ratios with a
+deliberately small effective sample size (residuals are correlated over blocks of
+pixels), capped so one pair of frames cannot outvote the rest of the run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipestitch.camera import CameraModel
+from pipestitch.geometry import PipeSection
+from pipestitch.mosaic.unwrap import StripGrid, unwrap
+from pipestitch.pose.fit import PoseFit
+
+__all__ = ["StripPair", "contrast_strips", "pair_costs"]
+
+BLOCK_PX = 8        # residuals are treated as independent per 8 x 8 block
+MAX_COST = 30.0     # cap on one pair's evidence (negative log-likelihood units)
+
+
+@dataclass(frozen=True)
+class StripPair:
+    """Local-contrast strips of one frame for its two hypotheses (NaN = no data)."""
+
+    strips: tuple[np.ndarray, ...]
+
+
+def _contrast(strip: np.ndarray) -> np.ndarray:
+    """Local contrast (value / local mean - 1); dark, masked or occluded nodes are NaN."""
+    valid = np.isfinite(strip)
+    filled = np.where(valid, strip, 0).astype(np.float32)
+    weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), 6.0)
+    local = cv2.GaussianBlur(filled, (0, 0), 6.0) / np.maximum(weight, 1e-6)
+    med = np.nanmedian(strip) if valid.any() else 0.0
+    contrast = filled / np.maximum(local, 1e-6) - 1
+    # Very dark nodes are the laser holder arm, the mirror assembly or holes: they do
+    # not move with the wall, so they are masked (with a margin) rather than compared.
+    dark = ~valid | (filled < 0.3 * local) | (local < 0.25 * med)
+    dark = cv2.dilate(dark.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    return np.where(dark | (weight < 0.5), np.nan, contrast).astype(np.float32)
+
+
+def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,
+                    mm_per_px: float = 0.35) -> StripPair:
+    """Unwrap ``led`` (grey float) with each hypothesis of ``fit`` over the comparison window.
+
+    The maps are projected exactly at every 4th node and interpolated between (ten
+    times faster; ~0.03 px from the exact maps at most, far below what a mirror pose
+    warps the strip by).
+    """
+    strips = []
+    for h in fit.hypotheses:
+        r = h.radius_mm
+        grid = StripGrid.window(r, mm_per_px, 0.6 * r, 1.8 * r)
+        strips.append(_contrast(unwrap(led, camera, h.pose, PipeSection(r), grid, step=4)))
+    return StripPair(tuple(strips))
+
+
+def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
+    """How badly one global shift explains b against a: 1 - phase-correlation peak.
+
+    The normalised peak of the cross-power spectrum measures exactly "the same wall up
+    to a translation", whatever the texture's contrast. A plain squared difference
+    (or NCC) after the shift is not used: on a feature-poor wall it is mostly sensor
+    noise, the same for every combination, and its random differences read as
+    evidence (measured: wrong decisions on brushed aluminium at 2-5° of tilt).
+
+    Returns
+    -------
+    misfit : float
+        1 - peak response, in [0, 1]; NaN without enough data.
+    count : int
+        Number of valid nodes the strips share.
+    """
+    va, vb = np.isfinite(a), np.isfinite(b)
+    if va.sum() < 100 or vb.sum() < 100 or a.shape != b.shape:
+        return np.nan, 0
+    fa, fb = np.where(va, a, 0).astype(np.float32), np.where(vb, b, 0).astype(np.float32)
+    win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
+    win = np.tile(win[a.shape[0] // 2:a.shape[0] // 2 + 1, :], (a.shape[0], 1))  # z only
+    _, response = cv2.phaseCorrelate(fb, fa, win)
+    return 1.0 - float(response), int(np.sum(va & vb))
+
+
+def pair_costs(first: StripPair, second: StripPair) -> np.ndarray:
+    """2 x 2 costs of (hypothesis i of the first frame, j of the second).
+
+    0 for the best-agreeing combination; others cost N_eff/2 · log(U_ij / U_min) with
+    U = 1 - phase-correlation peak (see :func:`_misfit`) and N_eff the overlap in 8 x 8
+    blocks, capped at ``MAX_COST``. All zero when the frames do not overlap.
+    """
+    misfit = np.full((2, 2), np.nan)
+    count = np.zeros((2, 2))
+    for i, a in enumerate(first.strips):
+        for j, b in enumerate(second.strips):
+            misfit[i, j], count[i, j] = _misfit(a, b)
+    if not np.all(np.isfinite(misfit)) or np.min(misfit) <= 0:
+        return np.zeros((2, 2))
+    n_eff = np.min(count) / BLOCK_PX**2
+    return np.minimum(0.5 * n_eff * np.log(misfit / np.min(misfit)), MAX_COST)

@@ -1,0 +1,396 @@
+"""Photometric pose refinement: the tilt the ring measures poorly, from the LED frames.
+
+The laser ring measures the tilt only to second order (the ellipse's axis ratio is
+1/cos(tilt)), so near zero tilt a few microns of ring error read as a degree. The
+LED frames measure it to first order: a frame unwrapped with a pose that is off by
+e is warped by G(n)·e (G: how a strip node moves on the wall per unit pose error),
+and two overlapping frames with different warps disagree locally. So:
+
+1. between every pair of registered strips, the residual local shift of 64 x 64
+   patches after the pair's rigid shift is measured by phase correlation
+   (:func:`patch_shifts`);
+2. G is computed for each frame at the patch centres by finite differences through
+   the camera model and the wall (:func:`node_jacobian`);
+3. one sparse linear least-squares problem over all frames' pose errors (4 each) and
+   a rigid nuisance shift per pair, with the ring's own information matrix as the
+   prior of each frame, is solved with Huber reweighting (:func:`solve_pose_errors`;
+   its normal equations are summed pair by pair, so its memory is a few kB a frame);
+   a long run is solved in overlapping windows of frames (:func:`solve_in_windows`),
+   so that this memory does not grow with the run.
+
+Written by hand because no library fuses these two kinds of evidence; the pieces
+(phase correlation, sparse solve) are OpenCV's and SciPy's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+from pipestitch.camera import CameraModel
+from pipestitch.geometry import PipeSection, Pose, rays_to_wall, theta_z_from_points
+from pipestitch.mosaic.register import phase_shift
+from pipestitch.mosaic.unwrap import StripGrid
+
+__all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows", "solve_in_windows",
+           "solve_pose_errors"]
+
+PATCH_PX = 64
+PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
+# The grid of patches is at most this many around the pipe (wider steps, around and
+# along, on strips of more rows): the warp a pose error makes is smooth over the
+# strip, so a full-size strip's 2-4x more patches measure it no better, at 2-4x the
+# cost (chart83 at full size: 12 around or 24, the same SSIM 0.90 and tilt error 0.007°).
+PATCHES_AROUND = 12
+MIN_RESPONSE = 0.1
+MIN_CONTRAST = 0.01          # patches flatter than this (std of local contrast) are skipped
+SHIFT_SIGMA_PX = 0.15        # 1-sigma of a patch shift at response 1
+EPS = np.array([2e-4, 2e-4, 2e-3, 2e-3])  # finite-difference steps (rad, rad, mm, mm)
+# Weak extra prior on every pose error (rad, rad, mm, mm): keeps frames that no
+# patch constrains where the ring put them.
+PRIOR_SIGMA = np.array([np.deg2rad(5.0), np.deg2rad(5.0), 5.0, 5.0])
+
+
+@dataclass(frozen=True, slots=True)
+class PatchShifts:
+    """Residual local shifts between strip i and strip j (in j's strip coordinates).
+
+    ``nodes`` (N, 2) are patch centres in strip j as (row, col); ``shift`` (N, 2) is
+    where that wall lies in strip i minus ``nodes`` (rows, cols), rigid part included;
+    ``response`` (N,) the phase-correlation peaks.
+    """
+
+    i: int
+    j: int
+    nodes: np.ndarray
+    shift: np.ndarray
+    response: np.ndarray
+
+
+def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
+                 second_valid: np.ndarray, motion_px: tuple[float, float], i: int,
+                 j: int) -> PatchShifts:
+    """Local shifts of textured patches of ``second`` (frame j) against ``first`` (frame i).
+
+    Parameters
+    ----------
+    first, second : numpy.ndarray
+        Local-contrast strips on the same grid (0 where invalid).
+    first_valid, second_valid : numpy.ndarray
+        Boolean validity of their nodes.
+    motion_px : (float, float)
+        Rigid motion (rows, cols) from i to j: strip_j(n) ~ strip_i(n + motion).
+
+    Patches of ``PATCH_PX`` every ``PATCH_STEP_PX``, or every ``1 / PATCHES_AROUND``
+    of the rows when that is wider.
+    """
+    n_rows, n_cols = second.shape
+    step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
+    dr, dc = round(motion_px[0]), round(motion_px[1])
+    win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
+    nodes, shifts, responses = [], [], []
+    for c in range(0, n_cols - PATCH_PX + 1, step):
+        c1 = c + dc
+        if c1 < 0 or c1 + PATCH_PX > n_cols:
+            continue
+        for r in range(0, n_rows, step):
+            rows_j = np.arange(r, r + PATCH_PX) % n_rows
+            rows_i = (rows_j + dr) % n_rows
+            if not (second_valid[rows_j, c:c + PATCH_PX].all()
+                    and first_valid[rows_i, c1:c1 + PATCH_PX].all()):
+                continue
+            b = second[rows_j, c:c + PATCH_PX]
+            a = first[rows_i, c1:c1 + PATCH_PX]
+            if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
+                continue
+            sx, sy, resp = phase_shift(a, b, win, iterations=2)
+            if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
+                continue
+            # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.
+            nodes.append((r + (PATCH_PX - 1) / 2, c + (PATCH_PX - 1) / 2))
+            shifts.append((dr - sy, dc - sx))
+            responses.append(resp)
+    # float32: a run's patch shifts are all held until its refinement (1e-5 px here)
+    return PatchShifts(i, j, np.array(nodes, np.float32).reshape(-1, 2),
+                       np.array(shifts, np.float32).reshape(-1, 2),
+                       np.array(responses, np.float32))
+
+
+def _std(patch: np.ndarray) -> float:
+    """Standard deviation of a patch (``cv2.meanStdDev``: a fifth of ``np.std``'s time)."""
+    return float(cv2.meanStdDev(patch)[1][0, 0])
+
+
+def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
+                  nodes: np.ndarray) -> np.ndarray:
+    """How strip nodes move on the wall per unit pose error: (N, 2, 4) in (rows, cols).
+
+    For an error e in (alpha, beta, dx, dy) (radians, mm) of the pose the strip was
+    unwrapped with, the wall actually shown at node n is at node n + G(n)·e of a strip
+    unwrapped with the right pose. Forward differences through the camera model.
+    """
+    nodes = np.asarray(nodes, float).reshape(-1, 2)
+    theta = np.deg2rad(grid.theta0_deg + nodes[:, 0] * grid.deg_per_px)
+    z = grid.z0_mm + nodes[:, 1] * grid.mm_per_px
+    wall = section.points(theta, z)
+    local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
+    out = np.zeros((len(nodes), 2, 4))
+    for k in range(4):
+        params = np.array([local.alpha, local.beta, local.dx_mm, local.dy_mm])
+        params[k] -= EPS[k]   # the strip's pose is off by +e from the truth
+        truth = Pose(*params)
+        rays = camera.unproject(camera.project(local.to_probe(wall)))
+        seen = rays_to_wall(rays, truth, section)
+        th2, z2 = theta_z_from_points(seen)
+        d_theta = (np.rad2deg(th2 - theta) + 180.0) % 360.0 - 180.0
+        out[:, 0, k] = d_theta / grid.deg_per_px / EPS[k]
+        out[:, 1, k] = (z2 - z) / grid.mm_per_px / EPS[k]
+    return out
+
+
+def _prior_root(information: np.ndarray | None) -> np.ndarray:
+    """Square root R (R^T R = ring information + weak prior) of one frame's prior."""
+    info = np.diag(1.0 / PRIOR_SIGMA**2)
+    if information is not None and np.all(np.isfinite(information)):
+        info = info + information
+    vals, vecs = np.linalg.eigh(0.5 * (info + info.T))
+    return (vecs * np.sqrt(np.clip(vals, 0, None))).T
+
+
+@dataclass(frozen=True)
+class _PairRows:
+    """The observation rows of one pair: shift = c + G_j e_j - G_i e_i.
+
+    ``unknowns`` (10,) are the columns of (c rows, c cols, e_j, e_i); ``shift`` and
+    ``sigma`` (2N,) follow the patches (rows then cols of each).
+    """
+
+    i: int
+    j: int
+    unknowns: np.ndarray
+    g_i: np.ndarray
+    g_j: np.ndarray
+    shift: np.ndarray
+    sigma: np.ndarray
+
+    def design(self) -> np.ndarray:
+        """(2N, 10) coefficients of the rows on ``unknowns`` (built when needed: the
+        Jacobians are all that is kept)."""
+        n = len(self.g_i)
+        a = np.zeros((n, 2, 10))
+        a[:, 0, 0] = a[:, 1, 1] = 1.0
+        a[:, :, 2:6] = self.g_j
+        a[:, :, 6:] = -self.g_i
+        return a.reshape(2 * n, 10)
+
+
+def _pair_rows(observations: Sequence[PatchShifts],
+               jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+               col: Mapping[int, int]) -> list[_PairRows]:
+    """Rows of every pair with patches between two solved frames (the pairs' nuisance
+    unknowns after the frames' 4 each)."""
+    obs = [o for o in observations if len(o.nodes) and o.i in col and o.j in col]
+    n_pose, four = 4 * len(col), np.arange(4)
+    out = []
+    for k, o in enumerate(obs):
+        unknowns = np.concatenate([[n_pose + 2 * k, n_pose + 2 * k + 1],
+                                   col[o.j] + four, col[o.i] + four])
+        sigma = np.repeat(SHIFT_SIGMA_PX / np.sqrt(o.response.astype(np.float64)), 2)
+        out.append(_PairRows(o.i, o.j, unknowns, *jacobians[(o.i, o.j)],
+                             o.shift.reshape(-1).astype(np.float64), sigma))
+    return out
+
+
+def _prior_normal(information: Mapping[int, np.ndarray | None], frames: Sequence[int],
+                  n_unknown: int) -> sp.coo_matrix:
+    """R^T R of every frame's prior (rows of unit sigma, never reweighted), with the
+    frame's 4 unknowns at 4 k."""
+    blocks = np.array([r.T @ r for r in (_prior_root(information[f]) for f in frames)])
+    idx = np.arange(4 * len(frames)).reshape(-1, 4)
+    return sp.coo_matrix((blocks.ravel(), (np.repeat(idx, 4, axis=1).ravel(),
+                                           np.tile(idx, (1, 4)).ravel())),
+                         shape=(n_unknown, n_unknown))
+
+
+def _normal_pattern(pairs: Sequence[_PairRows],
+                    fixed: sp.coo_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the normal matrix's entries: every pair's 10 x 10 block, then
+    ``fixed``'s (the same in every reweighting round)."""
+    idx = np.array([p.unknowns for p in pairs], dtype=np.int32).reshape(-1, 10)
+    rows = np.concatenate([np.repeat(idx, 10, axis=1).ravel(), fixed.row])
+    cols = np.concatenate([np.tile(idx, (1, 10)).ravel(), fixed.col])
+    return rows, cols
+
+
+def _normal_equations(pairs: Sequence[_PairRows], weights: Sequence[np.ndarray],
+                      fixed: sp.coo_matrix,
+                      pattern: tuple[np.ndarray, np.ndarray]) -> tuple[sp.csc_matrix, np.ndarray]:
+    """A^T W A + ``fixed`` and A^T W b, summed pair by pair (each pair's 10 x 10 block
+    at ``pattern``, :func:`_normal_pattern`): no matrix with a row per patch shift is
+    ever built."""
+    n_unknown = fixed.shape[0]
+    rhs = np.zeros(n_unknown)
+    data = np.empty(100 * len(pairs) + fixed.nnz)
+    blocks = data[:100 * len(pairs)].reshape(-1, 10, 10)
+    for k, (p, w) in enumerate(zip(pairs, weights, strict=True)):
+        a = p.design()
+        aw = a * w[:, None]
+        blocks[k] = aw.T @ a
+        np.add.at(rhs, p.unknowns, aw.T @ p.shift)   # sums repeated unknowns, as += does not
+    data[100 * len(pairs):] = fixed.data
+    return sp.csc_matrix((data, pattern), shape=(n_unknown, n_unknown)), rhs
+
+
+def solve_pose_errors(observations: Sequence[PatchShifts],
+                      jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+                      information: Mapping[int, np.ndarray | None], *,
+                      iterations: int = 4) -> tuple[dict[int, np.ndarray],
+                                                    dict[tuple[int, int], np.ndarray]]:
+    """Pose error of every frame and the rigid motion of every pair once it is removed.
+
+    Parameters
+    ----------
+    observations : sequence of PatchShifts
+        Patch shifts per registered pair.
+    jacobians : mapping
+        (i, j) -> (G_i at the patches' positions in strip i, G_j at the patch nodes),
+        each (N, 2, 4), from :func:`node_jacobian`.
+    information : mapping
+        Frame -> the ring's 4 x 4 information matrix (or None).
+    iterations : int
+        Huber reweighting rounds (threshold 2 sigma).
+
+    Returns
+    -------
+    errors : dict
+        Frame -> e (alpha, beta, dx, dy; rad, mm); subtract it from the pose.
+    motions : dict
+        (i, j) -> rigid motion (rows, cols) from strip i to strip j of the corrected
+        strips: the registration link free of the pose errors' warp.
+
+    Notes
+    -----
+    The normal equations are summed pair by pair, so the working memory is the
+    Jacobians plus a 10 x 10 block per pair (~12 kB a frame), not a sparse matrix
+    with a row per patch shift (~170 kB a frame when built from Python lists); the
+    solution is the same to rounding (1e-12 relative on a 150-pair run).
+    """
+    frames = sorted(information)
+    col = {f: 4 * k for k, f in enumerate(frames)}
+    n_pose = 4 * len(frames)
+    pairs = _pair_rows(observations, jacobians, col)
+    n_unknown = n_pose + 2 * len(pairs)
+    # the priors and a ridge of 1e-9 on every unknown
+    fixed = (_prior_normal(information, frames, n_unknown)
+             + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
+    pattern = _normal_pattern(pairs, fixed)
+    weights = [1.0 / p.sigma**2 for p in pairs]
+    x = np.zeros(n_unknown)
+    for _ in range(iterations):
+        normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
+        x = spsolve(normal, rhs)
+        weights = [_huber(np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma) / p.sigma**2
+                   for p in pairs]
+    errors = {f: x[col[f]:col[f] + 4] for f in frames}
+    motions = {(p.i, p.j): x[p.unknowns[:2]] for p in pairs}
+    return errors, motions
+
+
+WINDOW_FRAMES = 600   # frames per solve of a long run (a 250-pair run is one solve)
+WINDOW_MARGIN = 100   # frames on each side of a window's kept core
+
+
+def refinement_windows(n_frames: int, window: int = WINDOW_FRAMES,
+                       margin: int = WINDOW_MARGIN) -> list[tuple[int, int, int, int]]:
+    """Overlapping windows of a run's frames: (lo, hi, core_lo, core_hi) positions.
+
+    The cores tile ``0 .. n_frames`` in order; each window reaches ``margin`` frames
+    beyond its core (where the run has them) and spans at most ``window`` frames. One
+    window when the run fits in one.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the run.
+    window, margin : int
+        Frames a window spans at most, and of context on each side of its core
+        (``window`` > 2 ``margin``).
+
+    Returns
+    -------
+    list of (int, int, int, int)
+        Each window's span ``lo .. hi`` and kept core ``core_lo .. core_hi``.
+    """
+    if window <= 2 * margin:
+        raise ValueError(f"refinement_windows: window {window} must exceed twice the "
+                         f"margin {margin}")
+    out, core_lo = [], 0
+    while core_lo < n_frames or not out:
+        lo = max(0, core_lo - margin)
+        hi = min(n_frames, lo + window)
+        core_hi = n_frames if hi == n_frames else hi - margin
+        out.append((lo, hi, core_lo, core_hi))
+        core_lo = core_hi
+    return out
+
+
+def solve_in_windows(observations: Sequence[PatchShifts],
+                     jacobians_of: Callable[[PatchShifts], tuple[np.ndarray, np.ndarray]],
+                     information: Mapping[int, np.ndarray | None], *,
+                     window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
+                     iterations: int = 4) -> tuple[dict[int, np.ndarray],
+                                                   dict[tuple[int, int], np.ndarray]]:
+    """:func:`solve_pose_errors` over overlapping windows of frames (bounded memory).
+
+    The working memory is that of one window however long the run is.
+
+    Each window solves its frames and the pairs between them; it keeps the errors of
+    its core's frames and the motions of the pairs whose later frame is in its core (a
+    pair reaching back past the window's margin widens the window to its earlier
+    frame, so every pair is solved).
+    A frame's pose error is tied to its neighbours only through the patches of the few
+    links between them, each frame having its ring's prior, so ``margin`` frames of
+    context on each side leave a core's solution as the whole run's to far below its
+    uncertainty (tested). ``jacobians_of(observation)`` gives (G_i, G_j) as
+    :func:`solve_pose_errors` takes them; each pair's are computed once, and dropped
+    when no later window needs them.
+
+    Returns
+    -------
+    errors, motions
+        As :func:`solve_pose_errors`.
+    """
+    frames = sorted(information)
+    position = {f: k for k, f in enumerate(frames)}
+    obs = [o for o in observations if len(o.nodes) and o.i in position and o.j in position]
+    # each pair's (earlier, later) frame positions
+    span = {(o.i, o.j): (min(position[o.i], position[o.j]), max(position[o.i], position[o.j]))
+            for o in obs}
+    errors: dict[int, np.ndarray] = {}
+    motions: dict[tuple[int, int], np.ndarray] = {}
+    jac: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for lo, hi, core_lo, core_hi in refinement_windows(len(frames), window, margin):
+        # a pair reaching back beyond the margin (frames between it unread) widens
+        # the window to its earlier frame, so that every pair is solved once
+        lo = min([lo] + [first for first, last in span.values() if core_lo <= last < core_hi])
+        inside = [o for o in obs if lo <= span[(o.i, o.j)][0] and span[(o.i, o.j)][1] < hi]
+        for key in [k for k in jac if span[k][0] < lo]:
+            del jac[key]   # no later window reaches back this far
+        for o in inside:
+            if (o.i, o.j) not in jac:
+                jac[(o.i, o.j)] = jacobians_of(o)
+        e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
+                                 iterations=iterations)
+        errors.update((f, e[f]) for f in frames[core_lo:core_hi])
+        motions.update((k, v) for k, v in m.items() if core_lo <= span[k][1] < core_hi)
+    return errors, motions
+
+
+def _huber(z: np.ndarray) -> np.ndarray:
+    """Huber weights at 2 sigma of normalised residuals ``z``."""
+    return np.where(z > 2.0, 2.0 / np.maximum(z, 1e-12), 1.0)

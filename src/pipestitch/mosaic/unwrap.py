@@ -1,0 +1,403 @@
+"""Centralised unwrapping: an LED frame + its pose -> a strip of the wall in (theta, z).
+
+For every node of an output grid over the wall (theta around the pipe, z along it,
+relative to the camera's axial position and with roll 0) the wall point is moved
+into the probe frame by the frame's pose, projected by the camera model and the
+frame is sampled there with ``cv2.remap``: one resampling, straight from wall to
+pixel, so the strip has a true millimetre scale whatever the probe's tilt and
+offset. Nodes outside the lens' valid range or the image are masked (NaN); occluders
+inside the image (mirror assembly, laser-holder arm) are not known from probe.toml
+and are left to the caller (see :mod:`pipestitch.mosaic.photometric`).
+
+Besides the maps it gives each output node a quality weight (how many source
+pixels it draws on, and how squarely the camera sees the wall there), chooses the
+axial window worth unwrapping from the camera and the pipe, and provides the
+prior-art baseline: a polar unwrap about the image centre that assumes a centred
+probe.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipestitch.camera import CameraModel
+from pipestitch.geometry import PipeSection, Pose
+from pipestitch.mosaic._unwrap_kernels import (
+    column_medians,
+    contrast_of,
+    fill_invalid,
+    mask_strip,
+    upsample_masked,
+)
+
+__all__ = ["Strip", "StripGrid", "UnwrapMaps", "column_levels", "default_mm_per_px",
+           "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
+           "to_grey", "unwrap", "unwrap_maps", "unwrap_with_quality"]
+
+
+@dataclass(frozen=True)
+class StripGrid:
+    """Output grid: row i at theta = theta0_deg + i·deg_per_px, column j at z0_mm + j·mm_per_px.
+
+    z is measured from the camera centre along the pipe axis; the rows always go once
+    around the pipe.
+    """
+
+    deg_per_px: float
+    mm_per_px: float
+    z0_mm: float
+    n_cols: int
+    theta0_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        n = 360.0 / self.deg_per_px
+        if abs(n - round(n)) > 1e-6 or self.mm_per_px <= 0 or self.n_cols < 1:
+            raise ValueError(f"StripGrid: 360/deg_per_px must be an integer and sizes positive, "
+                             f"got {self}")
+
+    @property
+    def n_rows(self) -> int:
+        """Rows around the full circumference."""
+        return round(360.0 / self.deg_per_px)
+
+    @classmethod
+    def window(cls, radius_mm: float, mm_per_px: float, z0_mm: float, z1_mm: float, *,
+               fft_sizes: bool = False) -> StripGrid:
+        """Square pixels in mm on the wall (arc length = axial step) from z0 to z1.
+
+        With ``fft_sizes`` both sizes are rounded up to sizes the FFT is fast for
+        (``cv2.getOptimalDFTSize``: products of 2, 3, 5): rows then are slightly
+        narrower than the axial step and the window slightly longer. For registration
+        strips, whose circular (unpadded) correlation would otherwise run on sizes
+        like 1513 = 17 x 89.
+        """
+        n_rows = max(8, round(2 * np.pi * radius_mm / mm_per_px))
+        n_cols = max(1, round((z1_mm - z0_mm) / mm_per_px))
+        if fft_sizes:
+            n_rows, n_cols = cv2.getOptimalDFTSize(n_rows), cv2.getOptimalDFTSize(n_cols)
+        return cls(360.0 / n_rows, mm_per_px, z0_mm, n_cols)
+
+
+def _grid_points(grid: StripGrid, section: PipeSection, pose: Pose,
+                 step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes of every ``step``-th row and column (the last ones always included).
+
+    Returns the wall points of the rows' ring at z = 0 (rows, 3), the columns' z
+    (cols,) and the nodes in the probe frame (rows, cols, 3). The wall's section
+    depends on theta alone and the world-to-probe map is affine, so the ring is
+    mapped once and each column adds z times the pipe axis seen from the probe (no
+    (N, 3) x (3, 3) product, which a multi-threaded BLAS makes costly).
+    """
+    n_r = -(-(grid.n_rows - 1) // step) + 1
+    n_c = -(-(grid.n_cols - 1) // step) + 1
+    theta = np.deg2rad(grid.theta0_deg + np.arange(n_r) * step * grid.deg_per_px)
+    z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px
+    ring = section.points(theta, np.zeros_like(theta))
+    axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
+    return ring, z, pose.to_probe(ring)[:, None, :] + z[None, :, None] * axis
+
+
+@dataclass(frozen=True)
+class UnwrapMaps:
+    """Where every node of a strip grid is seen in the frame, and how well.
+
+    Attributes
+    ----------
+    map_x, map_y : numpy.ndarray
+        float32 (n_rows, n_cols) pixel column/row for ``cv2.remap``; -1 where invisible.
+    quality : numpy.ndarray
+        float32 (n_rows, n_cols): source pixels per output pixel (the smaller of the two
+        directions) times the cosine of the viewing angle on the wall; 0 where invisible.
+    shading : numpy.ndarray
+        float32 (n_rows, n_cols): irradiance from LEDs at the camera centre,
+        cos(viewing angle) · (radius / distance)², 1 for a wall seen squarely at one
+        radius; dividing a strip by it leaves albedo times the lens' vignetting.
+    """
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    quality: np.ndarray
+    shading: np.ndarray
+
+
+def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid, *,
+                step: int = 1, with_quality: bool = False
+                ) -> tuple[np.ndarray, np.ndarray] | UnwrapMaps:
+    """``cv2.remap`` maps (float32, (n_rows, n_cols)) from the strip to the frame.
+
+    Invisible nodes get -1 (outside the image), so remap returns the border value.
+
+    Parameters
+    ----------
+    camera, pose, section, grid
+        Lens, frame pose (its roll and z are ignored: the grid is in the frame's own
+        (theta, z)), pipe cross-section and output grid.
+    step : int
+        Project only every ``step``-th node exactly and interpolate between them
+        (the map is smooth: with step 4 the interpolation error is ~0.03 px
+        at most, where the wall is seen closest, see the tests); 1 projects every node.
+    with_quality : bool
+        Also return the quality weight (an :class:`UnwrapMaps`).
+    """
+    fields = _node_fields(camera, pose, section, grid, step, with_quality)[0]
+    # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
+    # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
+    # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
+    # nodes whose interpolated validity is not ~1 are masked (-1, quality 0).
+    out = upsample_masked(np.stack(fields).astype(np.float32), step, grid.n_rows, grid.n_cols,
+                          0.999)
+    if not with_quality:
+        return out[0], out[1]
+    return UnwrapMaps(*out)
+
+
+def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
+                 step: int, with_quality: bool) -> tuple[list[np.ndarray], np.ndarray]:
+    """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
+    nodes' column z.
+
+    Pixel column and row (0 where invisible), validity (1/0) and, ``with_quality``, the
+    quality and the shading of :class:`UnwrapMaps`, each (node rows, node columns).
+    """
+    # Roll and axial position are those of the strip's own frame: zero by construction.
+    local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
+    ring, z, probe = _grid_points(grid, section, local, step)
+    shape = probe.shape[:2]
+    px = camera.project(probe.reshape(-1, 3)).reshape(*shape, 2)
+    valid = np.isfinite(px).all(axis=2)
+    px = np.where(valid[..., None], px, 0.0)
+    fields = [px[..., 0], px[..., 1], valid.astype(float)]
+    if with_quality:
+        # Smooth quantities: computed on the projected nodes, interpolated with the maps.
+        cosine, distance = _line_of_sight(local, section, ring, z)
+        cosine = np.clip(cosine, 0, 1)
+        resolution = _resolution(px[..., 0], px[..., 1]) / step
+        fields += [resolution * cosine, cosine * (section.mean_radius_mm / distance) ** 2]
+    return fields, z
+
+
+def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray,
+                   z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|cos| of the angle between line of sight and wall normal, and the distance (mm).
+
+    At the wall points ``ring`` (rows, 3; at z = 0) moved to each ``z`` (cols,):
+    (rows, cols) arrays. The wall normal has no axial part, so the sight's component
+    along it depends on the row alone.
+    """
+    centre = pose.translation_world_probe()
+    sight = ring - centre
+    along_normal = np.abs(np.sum(sight * section.normals(ring), axis=1))
+    across = sight[:, 0] ** 2 + sight[:, 1] ** 2
+    distance = np.sqrt(across[:, None] + (z - centre[2])[None, :] ** 2)
+    return along_normal[:, None] / distance, distance
+
+
+def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """Source pixels per grid step: the smaller of the two directions of the grid."""
+    steps = []
+    for axis in (0, 1):
+        if map_x.shape[axis] >= 2:
+            steps.append(np.hypot(np.gradient(map_x, axis=axis), np.gradient(map_y, axis=axis)))
+    return np.minimum(*steps) if len(steps) == 2 else steps[0]
+
+
+def unwrap(frame: np.ndarray, camera: CameraModel, pose: Pose, section: PipeSection,
+           grid: StripGrid, *, step: int = 1) -> np.ndarray:
+    """Resample ``frame`` (grey float32) onto the wall grid; masked nodes are NaN."""
+    map_x, map_y = unwrap_maps(camera, pose, section, grid, step=step)
+    return _remap(frame, map_x, map_y)
+
+
+def _remap(frame: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    strip = cv2.remap(frame, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=np.nan)
+    strip[map_x < 0] = np.nan
+    return strip
+
+
+@dataclass(frozen=True)
+class Strip:
+    """One frame unwrapped onto a grid: values, quality weight and LED shading.
+
+    ``values`` is NaN and ``weight`` 0 wherever the node is masked.
+    """
+
+    values: np.ndarray
+    weight: np.ndarray
+    shading: np.ndarray
+
+
+def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: float = 0.5,
+                        occluded: np.ndarray | None = None) -> Strip:
+    """Strip with its quality weight and shading; poorly resolved or occluded nodes masked.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        Grey float32 frame.
+    maps : UnwrapMaps
+        From :func:`unwrap_maps` (``with_quality=True``) or :func:`polar_unwrap_maps`.
+    min_resolution : float
+        Nodes drawing on fewer source pixels per output pixel than this are masked
+        (they would only be interpolated blur).
+    occluded : numpy.ndarray, optional
+        Boolean mask of the frame's pixels that never show the wall (mirror assembly,
+        laser-holder arm, outside the lens' image circle); see :mod:`pipestitch.mosaic.occluders`.
+    """
+    values = cv2.remap(frame, maps.map_x, maps.map_y, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    hidden = np.zeros((0, 0), bool) if occluded is None else np.asarray(occluded, bool)
+    weight = mask_strip(values, maps.map_x, maps.map_y, maps.quality, float(min_resolution),
+                        hidden)
+    return Strip(values, weight, maps.shading)
+
+
+def column_levels(strip: Strip) -> np.ndarray:
+    """Median over theta of strip / shading per column (NaN where a column has no data).
+
+    The vignetting (and exposure) along the strip: what is left of the values once the
+    LED shading is divided out, averaged over the wall's texture. A column needs data
+    at a tenth of its nodes; every 4th row is enough for a median over ~1000 rows (and
+    4x faster).
+    """
+    valid = strip.weight[::4] > 0
+    ratio = np.where(valid, strip.values[::4] / np.maximum(strip.shading[::4], 1e-6), np.nan)
+    return column_medians(ratio.astype(np.float32), 0.1 * ratio.shape[0])
+
+
+def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """An 8/16-bit or float, grey or BGR(A) frame as grey float32 (integer ranges to [0, 1]).
+
+    ``out``: a float32 array of the frame's size that a grey integer frame is written
+    into (see :mod:`pipestitch._runtime.scratch`); other frames get a new array.
+    """
+    arr = np.asarray(img)
+    integer = arr.dtype.kind in "ui"
+    scale = 1.0 / np.iinfo(arr.dtype).max if integer else 1.0
+    if integer and arr.ndim == 2:
+        # One pass (cast and scale, the same float32 arithmetic): a frame is read
+        # once per pass of the mosaic.
+        return np.multiply(arr, np.float32(scale), dtype=np.float32, out=out)
+    arr = arr.astype(np.float32)
+    if arr.ndim == 3:
+        arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]
+    arr = np.multiply(arr, np.float32(scale), out=arr if arr.flags.writeable else None)
+    # Only a float frame can hold NaN or infinities.
+    return arr if integer else np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
+    """Value / local mean - 1 over the valid (finite) nodes, and the local data fraction.
+
+    Removes illumination and exposure, keeps texture. Invalid nodes give 0.
+    """
+    filled, valid = fill_invalid(np.asarray(values, np.float32))
+    support = cv2.GaussianBlur(valid, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    local = cv2.GaussianBlur(filled, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    return contrast_of(filled, valid, support, local), support
+
+
+def strip_window_mm(camera: CameraModel, radius_mm: float, mm_per_px: float, *,
+                    min_resolution: float = 0.5) -> tuple[float, float]:
+    """Axial window (z0, z1) from the camera centre worth unwrapping in this pipe.
+
+    From the field of view (how far behind the camera the wall still falls inside
+    the image)
+    to where a centred camera's resolution on the wall drops below
+    ``min_resolution`` source pixels per output pixel, widened by a third of the
+    radius each way for tilted and offset frames (their nodes outside the real
+    window are masked by quality anyway).
+    """
+    z = np.linspace(-radius_mm, 6 * radius_mm, 701)
+    th, zz = np.meshgrid(np.deg2rad([0.0, 90.0]), z, indexing="ij")
+    px = camera.project(PipeSection(radius_mm).points(th.ravel(), zz.ravel())).reshape(2, -1, 2)
+    inside = ((px[..., 0] >= 0) & (px[..., 0] <= camera.width - 1) & (px[..., 1] >= 0)
+              & (px[..., 1] <= camera.height - 1))
+    seen = inside.all(axis=0)
+    step_px = np.linalg.norm(np.gradient(px[0], axis=0), axis=1) * mm_per_px / (z[1] - z[0])
+    good = seen & (step_px >= min_resolution)
+    if not good.any():
+        raise ValueError(f"no part of a {2 * radius_mm:g} mm pipe is seen at "
+                         f"{mm_per_px:g} mm/px with this camera")
+    margin = radius_mm / 3
+    return float(z[good].min() - margin), float(z[good].max() + margin)
+
+
+def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]],
+                   radius_mm: float, mm_per_px: float, window_mm: tuple[float, float], *,
+                   min_resolution: float = 0.5, occluded: np.ndarray | None = None,
+                   step: int = 16, margin_mm: float = 2.0) -> tuple[float, float]:
+    """The part of ``window_mm`` that some frame of a run actually resolves.
+
+    :func:`strip_window_mm` is a centred camera's window widened for any tilt and
+    offset; at fine scales much of it is masked in every frame (too few source pixels
+    per output pixel). Here the window shrinks to the axial range where at least one
+    of ``views`` (each frame's pose and section) has a node inside the image, not
+    ``occluded`` and at ``min_resolution`` or better (what :func:`unwrap_with_quality`
+    masks by), checked every ``step``-th node of the ``mm_per_px`` grid and
+    widened by one such step and ``margin_mm`` (the poses the refinement will still
+    correct). The unwrapping, registration and stitching costs all scale with the
+    window's length; nothing they would keep is cut. ``window_mm`` itself when no view
+    resolves anything.
+    """
+    grid = StripGrid.window(radius_mm, mm_per_px, *window_mm)
+    lo, hi = np.inf, -np.inf
+    for pose, section in views:
+        (x, y, valid, quality, _), z = _node_fields(camera, pose, section, grid, step, True)
+        col, row = np.rint(x).astype(int), np.rint(y).astype(int)
+        good = ((valid > 0) & (quality >= min_resolution) & (col >= 0) & (col < camera.width)
+                & (row >= 0) & (row < camera.height))
+        if occluded is not None:
+            good[good] = ~occluded[row[good], col[good]]
+        seen = np.flatnonzero(good.any(axis=0))
+        if seen.size:
+            lo, hi = min(lo, z[seen[0]]), max(hi, z[seen[-1]])
+    if not np.isfinite(lo):
+        return window_mm
+    pad = step * mm_per_px + margin_mm
+    return max(window_mm[0], float(lo) - pad), min(window_mm[1], float(hi) + pad)
+
+
+def default_mm_per_px(camera: CameraModel, radius_mm: float) -> float:
+    """Output scale: the axial resolution of a centred camera half a radius ahead.
+
+    Rounded to 3 significant digits. Nearer the camera the wall is seen more finely
+    (and the blend prefers it), further ahead more coarsely.
+    """
+    z = np.array([0.5 * radius_mm, 0.5 * radius_mm + 0.01])
+    px = camera.project(np.stack([np.full(2, radius_mm), np.zeros(2), z], axis=1))
+    mm = 0.01 / float(np.linalg.norm(px[1] - px[0]))
+    return float(f"{mm:.3g}")
+
+
+def polar_unwrap_maps(camera: CameraModel, radius_mm: float, grid: StripGrid) -> UnwrapMaps:
+    """Prior-art baseline: polar unwrap about the image centre for a centred probe.
+
+    Row i samples the ray at image azimuth theta_i about the geometric image centre
+    and column j the image radius at which the lens sees a centred pipe's wall at
+    z_j (so the baseline gets the same millimetre axes as ours). Tilt and offset of
+    the probe, and the principal point's offset from the image centre, are ignored:
+    that is what centralisation corrects. Quality is the resolution alone and the
+    shading is that of a centred probe.
+    """
+    theta = np.deg2rad(grid.theta0_deg + np.arange(grid.n_rows) * grid.deg_per_px)
+    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+    wall = np.stack([np.full_like(z, radius_mm), np.zeros_like(z), z], axis=1)
+    px = camera.project(wall)
+    principal = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    rho = np.linalg.norm(px - principal, axis=1)
+    centre = ((camera.width - 1) / 2, (camera.height - 1) / 2)
+    map_x = centre[0] + rho[None, :] * np.cos(theta)[:, None]
+    map_y = centre[1] + rho[None, :] * np.sin(theta)[:, None]
+    ok = np.isfinite(rho)[None, :] & np.ones((grid.n_rows, 1), bool)
+    distance = np.hypot(radius_mm, z)
+    shading = np.broadcast_to((radius_mm / distance) ** 3, ok.shape)  # cos · (r/d)²
+    quality = _resolution(np.where(ok, map_x, 0), np.where(ok, map_y, 0)) * (radius_mm / distance)
+    return UnwrapMaps(np.where(ok, map_x, -1).astype(np.float32),
+                      np.where(ok, map_y, -1).astype(np.float32),
+                      np.where(ok, quality, 0).astype(np.float32),
+                      np.where(ok, shading, 0).astype(np.float32))

@@ -1,0 +1,339 @@
+"""The standards stage on a finished run folder OUT: roll reference -> clock positions,
+named ovality figures, coded observations and their export files.
+
+Reads only OUT's files (mosaic.png/.json, poses.csv, defects.csv, profile.csv) and,
+when given, the dataset (imu.csv, probe.toml), so it runs after ``pipestitch run`` or
+on its own (``pipestitch export``). Writes, each atomically:
+
+* ``observations.csv``: the coded observations, user-editable; re-coding replaces the
+  rows whose ref starts with ``auto:`` and keeps the others;
+* ``ovality.csv``: per profile section the named ovality/deflection figures (%);
+* ``standards.json``: the reference used, the survey header, the dataset and nominal
+  diameter (so a later ``export`` needs neither);
+* ``defects.csv`` again, its clock column by the reference (+ ``clock_reference``);
+* ``observations.txt`` (EN 13508-2), ``observations_pacp.csv``, ``observations.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.errors import DatasetError
+from pipestitch.io.atomic import atomic_write_bytes, atomic_write_text
+from pipestitch.io.dataset import read_csv_columns
+from pipestitch.io.imu import read_imu
+from pipestitch.io.outputs import DEFECT_COLUMNS, read_mosaic, write_csv, write_json
+from pipestitch.io.probe_toml import read_probe_toml
+from pipestitch.measure.defects import Defect, clock_position
+from pipestitch.pipeline.measuring import write_defects_csv
+from pipestitch.report.html import StandardsView
+from pipestitch.standards import (
+    DEFINITIONS,
+    Observation,
+    RollReference,
+    Survey,
+    crown_from_imu,
+    crown_from_invert,
+    detect_invert,
+    parse_observations_csv,
+    relative_reference,
+    section_figures,
+    user_reference,
+    write_en13508,
+    write_json_text,
+    write_observations_csv,
+    write_pacp_csv,
+)
+from pipestitch.standards.invert import invert_columns
+from pipestitch.standards.observations import (
+    ProfileSection,
+    is_auto,
+    observations_from_defects,
+    observations_from_profile,
+)
+
+__all__ = ["EXPORTS", "CodedRun", "code_run", "export_run", "resolve_reference"]
+
+EXPORTS = {"en13508": "observations.txt", "pacp-csv": "observations_pacp.csv",
+           "json": "observations.json"}
+OVALITY_COLUMNS = ("frame", "z_mm", "mean_id_mm", "min_id_mm", "max_id_mm",
+                   *DEFINITIONS)
+
+
+@dataclass
+class CodedRun:
+    """What the stage produced (the report shows it)."""
+
+    reference: RollReference
+    survey: Survey
+    observations: list[Observation]
+    defects: list[Defect]
+    sections: list[ProfileSection] = field(default_factory=list)
+    paths: dict[str, Path] = field(default_factory=dict)
+
+    def report_view(self) -> StandardsView:
+        """What the report shows of it."""
+        return StandardsView(self.reference.source, self.reference.detail,
+                             self.reference.crown_theta_deg, self.observations, self.sections)
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    except (OSError, ValueError) as exc:
+        raise DatasetError(path, f"unreadable: {exc}") from None
+
+
+def resolve_reference(out: Path, *, dataset: Path | None, crown_deg: float | None,
+                      image: np.ndarray | None, deg_per_px: float | None) -> RollReference:
+    """The roll reference: ``--crown-deg`` when given (an explicit choice wins), else the
+    dataset's imu.csv, else a sediment band / water line on the mosaic, else relative."""
+    if crown_deg is not None:
+        return user_reference(crown_deg)
+    imu = read_imu(dataset) if dataset is not None else None
+    if imu is not None:
+        poses = out / "poses.csv"
+        cols = read_csv_columns(poses, ("frame",)) if poses.is_file() else {}
+        roll = {int(f): float(r) for f, r in zip(cols.get("frame", []),
+                                                 cols.get("roll_deg", []), strict=False)}
+        ref = crown_from_imu(roll, imu)
+        if ref is not None:
+            return ref
+    if image is not None and deg_per_px:
+        band = detect_invert(image, deg_per_px)
+        if band is not None:
+            return crown_from_invert(band.theta_deg, (
+                f"band {band.width_deg:.0f} deg wide centred at mosaic theta "
+                f"{band.theta_deg:.1f} deg, contrast {band.contrast:+.2f}, in "
+                f"{100 * band.persistence:.0f} % of the columns"))
+    return relative_reference()
+
+
+def _read_defects(path: Path) -> list[Defect]:
+    if not path.is_file():
+        return []
+    with path.open(newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    out = []
+    for lineno, row in enumerate(rows, start=2):
+        try:
+            values = {c: row[c] for c in DEFECT_COLUMNS}
+            out.append(Defect(**{c: (v if c in ("kind", "clock") else
+                                     bool(int(float(v))) if c == "partial" else float(v))
+                                 for c, v in values.items()}))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DatasetError(path, f"line {lineno}: {exc!r}") from None
+    return out
+
+
+def _sections(out: Path, nominal_mm: float) -> list[ProfileSection]:
+    path = out / "profile.csv"
+    if not path.is_file():
+        return []
+    cols = read_csv_columns(path, ("frame",))
+    n = len(cols["frame"])
+    get = {c: cols.get(c, np.full(n, np.nan)) for c in
+           ("z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm")}
+    sections = []
+    for i in range(n):
+        # min = max radius under the circle model: not measured (ovality NaN).
+        measured = bool(np.isfinite(get["ovality"][i]))
+        mean_id = float(get["diameter_mm"][i])
+        min_id = 2 * float(get["min_radius_mm"][i]) if measured else math.nan
+        max_id = 2 * float(get["max_radius_mm"][i]) if measured else math.nan
+        figures = section_figures(mean_id, min_id, max_id, nominal_mm, measured=measured)
+        sections.append(ProfileSection(int(cols["frame"][i]), float(get["z_mm"][i]), mean_id,
+                                       min_id, max_id, figures))
+    return sections
+
+
+def _frame_for(out: Path, meta: dict) -> Callable[[float], int | None]:
+    """z on the wall -> the frame whose unwrap window is centred nearest to it."""
+    poses = out / "poses.csv"
+    window = meta.get("window_mm")
+    if not poses.is_file() or not window:
+        return lambda z: None
+    cols = read_csv_columns(poses, ("frame",))
+    z = cols.get("z_mm", np.array([]))
+    ok = np.isfinite(z)
+    frames, centres = cols["frame"][ok].astype(int), z[ok] + (window[0] + window[1]) / 2
+
+    def frame_for(z_mm: float) -> int | None:
+        inside = (z[ok] + window[0] <= z_mm) & (z_mm <= z[ok] + window[1])
+        if not inside.any():
+            return None
+        k = np.flatnonzero(inside)[np.argmin(np.abs(centres[inside] - z_mm))]
+        return int(frames[k])
+    return frame_for
+
+
+def _nominal(dataset: Path | None, given: float | None, previous: dict) -> float:
+    if given is not None:
+        return float(given)
+    if dataset is not None and (dataset / "probe.toml").is_file():
+        return float(read_probe_toml(dataset / "probe.toml").pipe.inner_diameter_mm)
+    value = previous.get("nominal_diameter_mm")
+    return float(value) if isinstance(value, int | float) else math.nan
+
+
+def _kept_rows(out: Path) -> list[Observation]:
+    """Rows of an earlier observations.csv that a user added or took over (not auto:)."""
+    path = out / "observations.csv"
+    if not path.is_file():
+        return []
+    try:
+        return [o for o in parse_observations_csv(path.read_text(encoding="utf-8"))
+                if not is_auto(o)]
+    except ValueError as exc:
+        raise DatasetError(path, str(exc)) from None
+
+
+def code_run(out: str | Path, *, dataset: str | Path | None = None,
+             crown_deg: float | None = None, nominal_diameter_mm: float | None = None,
+             ovality_threshold_pct: float = 1.0) -> CodedRun:
+    """Code a finished run: reference, observations, ovality figures and exports.
+
+    Parameters
+    ----------
+    out : path
+        The run folder (``pipestitch run``'s OUT).
+    dataset : path, optional
+        The dataset, for imu.csv and probe.toml (remembered in standards.json).
+    crown_deg : float, optional
+        Mosaic theta of the crown (``--crown-deg``); overrides every other reference.
+    nominal_diameter_mm : float, optional
+        Base inside diameter for deflection (default: probe.toml's nominal).
+    ovality_threshold_pct : float
+        Sections with an ASTM F1216 ovality at least this are coded as deformation.
+
+    Raises
+    ------
+    DatasetError
+        A file of OUT or the dataset is unreadable (naming it).
+    """
+    out = Path(out)
+    previous = _read_json(out / "standards.json")
+    if dataset is None and previous.get("dataset"):
+        dataset = previous["dataset"]
+    dataset = Path(dataset) if dataset is not None else None
+    # only the columns the invert detection reads (a long run's overview is ~10^4 wide)
+    image, meta = (read_mosaic(out, columns=invert_columns) if (out / "mosaic.json").is_file()
+                   else (None, {}))
+    reference = resolve_reference(out, dataset=dataset if dataset and dataset.is_dir() else None,
+                                  crown_deg=crown_deg, image=image,
+                                  deg_per_px=meta.get("deg_per_px"))
+    nominal = _nominal(dataset if dataset and dataset.is_dir() else None, nominal_diameter_mm,
+                       previous)
+    defects = [_rereferenced(d, reference) for d in _read_defects(out / "defects.csv")]
+    sections = _sections(out, nominal)
+    start_z = _start_z(meta, sections)
+    auto = observations_from_defects(defects, reference, start_z,
+                                     frame_for=_frame_for(out, meta))
+    auto += observations_from_profile(sections, start_z, threshold_pct=ovality_threshold_pct,
+                                      first_continuous=1 + sum(o.continuous.startswith("S")
+                                                               for o in auto))
+    observations = sorted(auto + _kept_rows(out), key=lambda o: o.distance_m)
+    survey = _survey(out, dataset, meta, sections, start_z, nominal, reference)
+    coded = CodedRun(reference, survey, observations, defects, sections)
+    _write(out, coded, dataset, nominal, start_z)
+    return coded
+
+
+def _rereferenced(d: Defect, reference: RollReference) -> Defect:
+    return Defect(**{**asdict(d), "clock": clock_position(d.theta_deg, reference.crown_theta_deg)})
+
+
+def _start_z(meta: dict, sections: list[ProfileSection]) -> float:
+    """Distances are from the first wall seen: the mosaic's first column (z0_mm), or
+    the first ring when there is no mosaic."""
+    if isinstance(meta.get("z0_mm"), int | float):
+        return float(meta["z0_mm"])
+    zs = [s.z_mm for s in sections if math.isfinite(s.z_mm)]
+    return min(zs) if zs else 0.0
+
+
+def _survey(out: Path, dataset: Path | None, meta: dict, sections: list[ProfileSection],
+            start_z: float, nominal: float, reference: RollReference) -> Survey:
+    end = start_z
+    if meta.get("n_cols"):
+        end = start_z + meta["n_cols"] * meta["mm_per_px_axial"]
+    end = max([end] + [s.z_mm for s in sections if math.isfinite(s.z_mm)])
+    now = dt.datetime.now(dt.UTC)
+    name = (dataset.name if dataset is not None else out.name) or "pipe"
+    return Survey(name, now.strftime("%Y-%m-%d"), now.strftime("%H:%M"),
+                  round((end - start_z) / 1000, 2),
+                  round(nominal) if math.isfinite(nominal) else 0, reference.source)
+
+
+def _write(out: Path, coded: CodedRun, dataset: Path | None, nominal: float,
+           start_z: float) -> None:
+    paths = coded.paths
+    paths["observations"] = atomic_write_text(out / "observations.csv",
+                                              write_observations_csv(coded.observations))
+    if coded.defects:
+        paths["defects"] = write_defects_csv(out / "defects.csv", coded.defects,
+                                             reference=coded.reference.source)
+    rows = [[s.frame, s.z_mm, s.mean_id_mm, s.min_id_mm, s.max_id_mm,
+             *asdict(s.figures).values()] for s in coded.sections]
+    if rows:
+        paths["ovality"] = write_csv(out / "ovality.csv", OVALITY_COLUMNS, rows)
+    paths["standards"] = write_json(out / "standards.json", {
+        "reference": asdict(coded.reference), "survey": asdict(coded.survey),
+        "dataset": str(dataset.resolve()) if dataset is not None else None,
+        "nominal_diameter_mm": nominal, "start_z_mm": start_z,
+        "start": "first wall seen: the mosaic's first column (z0_mm), else the first ring",
+        "ovality_definitions": DEFINITIONS,
+    })
+    for fmt in EXPORTS:
+        paths[fmt] = _write_export(out / EXPORTS[fmt], fmt, coded.survey, coded.observations,
+                                   coded.sections)
+
+
+def _write_export(path: Path, fmt: str, survey: Survey, observations: list[Observation],
+                  sections: list[ProfileSection]) -> Path:
+    if fmt == "en13508":
+        text = write_en13508([(survey, observations)])
+        # The file declares ISO-8859-1 (#A1); characters outside it become "?".
+        return atomic_write_bytes(path, text.encode("latin-1", errors="replace"))
+    if fmt == "pacp-csv":
+        return atomic_write_text(path, write_pacp_csv(observations))
+    extra = {"ovality_definitions": DEFINITIONS,
+             "sections": [{"frame": s.frame, "z_mm": s.z_mm, **asdict(s.figures)}
+                          for s in sections]}
+    return atomic_write_text(path, write_json_text(survey, observations, extra))
+
+
+def export_run(out: str | Path, fmt: str, *, dest: str | Path | None = None,
+               crown_deg: float | None = None, dataset: str | Path | None = None) -> Path:
+    """``pipestitch export``: write one format from OUT/observations.csv (re-coding first
+    when a reference or dataset is given, or when the run was never coded)."""
+    if fmt not in EXPORTS:
+        raise ValueError(f"--format: expected one of {', '.join(EXPORTS)}, got {fmt!r}")
+    out = Path(out)
+    if not (out / "poses.csv").is_file() and not (out / "observations.csv").is_file():
+        raise DatasetError(out, "not a run folder (no poses.csv or observations.csv; run "
+                                "`pipestitch run` first)")
+    if crown_deg is not None or dataset is not None or not (out / "standards.json").is_file():
+        code_run(out, dataset=dataset, crown_deg=crown_deg)
+    state = _read_json(out / "standards.json")
+    path = out / "observations.csv"
+    try:
+        observations = parse_observations_csv(path.read_text(encoding="utf-8"))
+        survey = Survey(**state["survey"])
+    except FileNotFoundError:
+        raise DatasetError(path, "missing") from None
+    except ValueError as exc:
+        raise DatasetError(path, str(exc)) from None
+    except (KeyError, TypeError) as exc:
+        raise DatasetError(out / "standards.json", f"no valid survey: {exc!r}") from None
+    sections = _sections(out, float(state.get("nominal_diameter_mm") or math.nan))
+    return _write_export(Path(dest) if dest is not None else out / EXPORTS[fmt], fmt, survey,
+                         observations, sections)

@@ -1,0 +1,73 @@
+"""The measurement stage: defects on the mosaic -> defects.csv (``run`` and ``measure``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.errors import DatasetError
+from pipestitch.io.outputs import DEFECT_COLUMNS, mosaic_from_uint8, read_mosaic, write_csv
+from pipestitch.io.tiles import read_column_blocks
+from pipestitch.measure.blocks import BlockDefects
+from pipestitch.measure.defects import Defect, MosaicGeometry
+
+__all__ = ["measure_mosaic", "measure_run", "write_defects_csv"]
+
+
+def measure_mosaic(image: np.ndarray, deg_per_px: float, mm_per_px: float, z0_mm: float,
+                   radius_mm: float, *, crown_theta_deg: float = 270.0) -> list[Defect]:
+    """Defects of a float mosaic (NaN = no data) on SPEC's grid; clock 12 at
+    ``crown_theta_deg`` (default: the relative reference, the first frame's image up).
+
+    Measured by blocks along z as ``run`` measures its streamed mosaic
+    (:class:`pipestitch.measure.blocks.BlockDefects`; one block for up to ~2500 columns).
+    """
+    finder = BlockDefects(MosaicGeometry(deg_per_px, mm_per_px, z0_mm, radius_mm),
+                          up_theta_deg=crown_theta_deg)
+    finder.push(0, image)
+    return finder.finish()
+
+
+def write_defects_csv(path: Path, defects: list[Defect], *,
+                      reference: str = "relative") -> Path:
+    """defects.csv: SPEC's columns first (kind, z_mm, theta_deg, clock, diameter_mm,
+    area_mm2), then the bounding box, contrast, confidence, the partial flag and
+    ``clock_reference`` (which reference the clock column uses)."""
+    rows = [[getattr(d, c) if c != "partial" else int(d.partial) for c in DEFECT_COLUMNS]
+            + [reference] for d in defects]
+    return write_csv(path, (*DEFECT_COLUMNS, "clock_reference"), rows)
+
+
+def measure_run(out: str | Path, *, crown_deg: float | None = None) -> tuple[Path, list[Defect]]:
+    """``pipestitch measure OUT``: defects of an existing run's mosaic -> OUT/defects.csv.
+
+    ``crown_deg``: mosaic theta of 12 o'clock (``--crown-deg``); default relative. The
+    standards stage (``pipeline/coding.py``) re-references the clocks when the run
+    has an IMU or a detected invert.
+    """
+    out = Path(out)
+    image, meta = read_mosaic(out)
+    crown = 270.0 if crown_deg is None else crown_deg
+    full = meta.get("full_resolution")
+    if isinstance(full, dict) and (out / str(full.get("file"))).is_file():
+        defects = _measure_pyramid(out / str(full["file"]), full, meta["radius_mm"], crown)
+    else:   # a mosaic.png without a pyramid (made elsewhere): it is the full resolution
+        defects = measure_mosaic(image, meta["deg_per_px"], meta["mm_per_px_axial"],
+                                 meta["z0_mm"], meta["radius_mm"], crown_theta_deg=crown)
+    reference = "relative" if crown_deg is None else "user (--crown-deg)"
+    return write_defects_csv(out / "defects.csv", defects, reference=reference), defects
+
+
+def _measure_pyramid(path: Path, grid: dict, radius_mm: float, crown_deg: float) -> list[Defect]:
+    """Defects of the full-resolution mosaic in ``path``, read a tile column at a time and
+    measured by blocks as ``run`` does (pipeline/stitched_output.py)."""
+    try:
+        geometry = MosaicGeometry(float(grid["deg_per_px"]), float(grid["mm_per_px_axial"]),
+                                  float(grid["z0_mm"]), float(radius_mm))
+        finder = BlockDefects(geometry, up_theta_deg=crown_deg)
+        for col0, block in read_column_blocks(path):
+            finder.push(col0, mosaic_from_uint8(block))
+        return finder.finish()
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        raise DatasetError(path, f"unreadable mosaic pyramid: {exc}") from None

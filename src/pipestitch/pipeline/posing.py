@@ -1,0 +1,302 @@
+"""The ``pose`` stage: every laser frame -> ring -> both hypotheses -> run-level choice.
+
+Evidence on the mirror ambiguity: the probe envelope per frame and, where the LED
+frames are present and the tilt is large enough to be measured well, photometric
+consistency of consecutive LED frames; temporal continuity carries it along the run.
+
+Frames are processed in order on a small thread pool (OpenCV and most numpy work
+release the GIL). A frame that cannot be read or has no usable ring is reported and
+kept as a row with its error, never dropped. Output: ``poses.csv`` per SPEC, with
+extra columns after SPEC's (error, how the hypothesis was chosen, uncertainties).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+from rich.markup import escape
+
+from pipestitch._runtime import scratch
+from pipestitch._runtime.threads import opencv_threads, ordered_map
+from pipestitch.camera import CameraModel
+from pipestitch.config import ProbeConfig
+from pipestitch.errors import DatasetError
+from pipestitch.geometry import BodyEnvelope
+from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs
+from pipestitch.pipeline.progress import StageTimer, console, track
+from pipestitch.pipeline.ring_store import RingStore, StoredRing
+from pipestitch.pose.ambiguity import Choice, envelope_costs, resolve_run
+from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
+from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
+from pipestitch.pose.section import oval_if_circle_infeasible
+
+__all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
+           "report_frame_messages", "resolve_frames", "ring_search_band",
+           "run_pose", "write_poses_csv"]
+
+T = TypeVar("T")
+
+POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg",
+                "radius_mm", "ovality", "rms_px", "ambiguous", "alt_alpha_deg", "alt_beta_deg",
+                "alt_dx_mm", "alt_dy_mm")
+EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model",
+                 "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm",
+                 "warning", "ovality_std")
+
+
+@dataclass(frozen=True, slots=True)
+class FramePose:
+    """Pose result of one frame: a fit, or the error that prevented it.
+
+    ``strips`` (the LED frame unwrapped with both hypotheses) lives only until the
+    next frame has been compared with it. ``stored_ring``: the fit's ring points once
+    :func:`resolve_frames` has moved them into a :class:`RingStore` (the fit's
+    ``ring`` is then None).
+    """
+
+    index: int
+    fit: PoseFit
+    error: str = ""
+    strips: StripPair | None = None
+    warning: str = ""
+    stored_ring: StoredRing | RingPoints | None = field(default=None, compare=False)
+
+    @property
+    def ring(self) -> RingPoints | StoredRing | None:
+        """The frame's ring points, wherever they are kept."""
+        return self.stored_ring if self.stored_ring is not None else self.fit.ring
+
+
+OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; `pipestitch run` "
+                     "measures it from the LED frames)")
+
+# Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
+# README) makes even the true hypothesis disagree photometrically with its
+# neighbour, so the comparison would be evidence about noise, not about the mirror.
+PHOTOMETRIC_MIN_TILT_DEG = 1.5
+
+
+def _photometric_strips(led: np.ndarray, fit: PoseFit, camera: CameraModel) -> StripPair | None:
+    h = fit.hypotheses[0]
+    tilt_deg = np.rad2deg(h.pose.tilt)
+    sigma_deg = np.rad2deg(np.hypot(h.std.get("alpha", 0.0), h.std.get("beta", 0.0)))
+    if tilt_deg < max(PHOTOMETRIC_MIN_TILT_DEG, 5 * sigma_deg):
+        return None
+    # the strips are new arrays: the grey LED frame is a temporary (pipestitch._runtime.scratch)
+    grey = prepare_laser_frame(led, out=scratch.buffer("pose.led", np.shape(led)[:2], np.float32))
+    return contrast_strips(grey, camera, fit)
+
+
+@dataclass(frozen=True)
+class PoseSettings:
+    """What the per-frame fit needs from probe.toml."""
+
+    camera: CameraModel
+    plane_distance_mm: float
+    nominal_radius_mm: float
+    body: BodyEnvelope
+    plane_normal: np.ndarray | None = None   # laser-plane normal (probe.toml; SPEC: +z)
+    ring_band_px: tuple[float, float] | None = None   # where detect_ring searches
+
+    @classmethod
+    def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
+        """Settings of a dataset's probe.toml (the ring searched in :func:`ring_search_band`)."""
+        camera, normal = cfg.camera_model(), np.asarray(cfg.laser.plane_normal(), float)
+        radius = cfg.pipe.inner_diameter_mm / 2
+        body = BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm)
+        band = ring_search_band(camera, cfg.laser.plane_distance_mm, radius, body, normal)
+        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band)
+
+
+def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
+                     body: BodyEnvelope, plane_normal: np.ndarray | None = None
+                     ) -> tuple[float, float] | None:
+    """Image radii where :func:`pipestitch.pose.ring.detect_ring` looks for the ring of a run.
+
+    Where the laser plane is between half the probe body's radius and twice the
+    nominal pipe diameter from the probe axis: the wall can be neither inside the body
+    nor further than the far side of a pipe twice the nominal size (wide margins for a
+    wrong nominal, ovality and tilt). See :func:`pipestitch.pose.ring.ring_band_px`. None
+    (the whole of every ray) when the lens sees no such plane point.
+    """
+    try:
+        return ring_band_px(camera, plane_distance_mm, plane_normal,
+                            min_wall_mm=body.diameter_mm / 4,
+                            max_wall_mm=4 * nominal_radius_mm)
+    except ValueError:
+        return None
+
+
+def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
+              settings: PoseSettings) -> FramePose:
+    """Ring, both hypotheses and (when possible) photometric strips of one frame pair."""
+    detection = detect_ring(laser, settings.camera, reflectance=led,
+                            band_px=settings.ring_band_px)
+    fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
+                   nominal_radius_mm=settings.nominal_radius_mm,
+                   plane_normal=settings.plane_normal)
+    fit = oval_if_circle_infeasible(fit, settings.body, settings.camera)
+    strips = (_photometric_strips(led, fit, settings.camera)
+              if fit.ok and led is not None else None)
+    warning = (OVAL_TILT_WARNING if fit.ok and fit.model == "oval/tilt-0" else "")
+    return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning)
+
+
+def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
+                  timer: StageTimer) -> FramePose:
+    """One frame, never raising: a failure becomes that frame's error (SPEC)."""
+    with timer("decode"):
+        try:
+            laser = dataset.read_laser(index)
+        except DatasetError as exc:
+            return FramePose(index, PoseFit(False, exc.problem),
+                             f"{exc.path.name}: {exc.problem}")
+        led, warning = None, ""
+        if dataset.has_led:
+            try:
+                led = dataset.read_led(index)
+            except DatasetError as exc:
+                # The laser frame alone still gives a pose, a little less exact.
+                warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
+    try:
+        with timer("ring + pose"):
+            frame = fit_frame(index, laser, led, settings)
+            return replace(frame, warning="; ".join(m for m in (frame.warning, warning) if m))
+    except Exception as exc:  # one bad frame never stops the run
+        return FramePose(index, PoseFit(False, repr(exc)),
+                         f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
+
+
+def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
+             timer: StageTimer) -> Iterator[FramePose]:
+    yield from ordered_map(lambda i: _load_and_fit(dataset, i, settings, timer),
+                           range(dataset.n_pairs), workers)
+
+
+def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope,
+                   rings: RingStore | None = None, *,
+                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
+    """Compare consecutive frames photometrically as they come, then choose over the run.
+
+    Strips are dropped as soon as the next frame has been compared with them, so
+    memory does not grow with the run (beyond the frames the worker pool has read ahead).
+    With ``rings``, each frame's ring points move into that store as the frame comes
+    (:mod:`pipestitch.pipeline.ring_store`; their image pixels are dropped); with
+    ``drop_rings`` they are not kept at all (and ``rings`` is not used).
+    """
+    frames: list[FramePose] = []
+    pairwise: dict[int, np.ndarray] = {}
+    previous: FramePose | None = None
+    for frame in frames_in:
+        if frame.fit.ok:
+            if previous is not None and previous.strips and frame.strips:
+                pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
+            previous = frame
+        if (rings is not None or drop_rings) and frame.fit.ring is not None:
+            frame = replace(frame, fit=replace(frame.fit, ring=None),
+                            stored_ring=None if drop_rings else rings.put(frame.fit.ring))
+        frames.append(replace(frame, strips=None))
+    unary = np.array([envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2) for f in frames])
+    return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
+
+
+def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
+                   timer: StageTimer | None = None, rings: RingStore | None = None,
+                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
+    """Fit every frame and choose between the mirror hypotheses over the run (ring
+    points into ``rings`` when given, or dropped: :func:`resolve_frames`)."""
+    settings = PoseSettings.from_config(dataset.config)
+    frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
+                   total=dataset.n_pairs, enabled=show_progress)
+    return resolve_frames(frames, settings.body, rings, drop_rings=drop_rings)
+
+
+def _fmt(value: float, digits: int = 6) -> str:
+    return "nan" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _row(frame: FramePose, choice: Choice, z_mm: float | None,
+         roll_deg: float | None) -> list[str]:
+    fit = frame.fit
+    z = _fmt(z_mm if z_mm is not None else math.nan)
+    roll = _fmt(roll_deg if roll_deg is not None else math.nan)
+    if not fit.ok or choice.chosen is None:
+        # No pose: every pose value is nan, "ambiguous" does not apply (0), the error says why.
+        return [str(frame.index), *["nan"] * 4, z, *["nan"] * 4, "0", *["nan"] * 4,
+                frame.error or fit.reason, "none", "nan", str(fit.n_points),
+                _fmt(fit.coverage, 3), fit.model, *["nan"] * 5, frame.warning, "nan"]
+    h = fit.hypotheses[choice.chosen]
+    alt = fit.hypotheses[1 - choice.chosen]
+    d, a = h.pose.as_degrees(), alt.pose.as_degrees()
+    std = h.std
+    return [str(frame.index), _fmt(d["alpha_deg"]), _fmt(d["beta_deg"]), _fmt(d["dx_mm"]),
+            _fmt(d["dy_mm"]), z, roll,
+            _fmt(h.radius_mm), _fmt(h.section.ovality if h.section else math.nan),
+            _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
+            _fmt(a["alpha_deg"]), _fmt(a["beta_deg"]), _fmt(a["dx_mm"]), _fmt(a["dy_mm"]),
+            "", choice.reason, _fmt(choice.margin, 2), str(fit.n_points), _fmt(fit.coverage, 3),
+            fit.model, _fmt(math.degrees(std.get("alpha", math.nan))),
+            _fmt(math.degrees(std.get("beta", math.nan))), _fmt(std.get("dx_mm", math.nan)),
+            _fmt(std.get("dy_mm", math.nan)), _fmt(std.get("radius_mm", math.nan)),
+            frame.warning, _fmt(std.get("ovality", math.nan))]
+
+
+def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
+                    z_mm: Mapping[int, float] | None,
+                    roll_deg: Mapping[int, float] | None = None) -> Path:
+    """Write poses.csv (SPEC columns first, then the extra ones), atomically.
+
+    ``z_mm`` comes from registration (``pipestitch run``) or the odometer
+    (``pipestitch pose``); ``roll_deg`` from registration; ``ovality`` where an oval
+    section was fitted (model ``oval/...``; the circle model cannot see it). Missing
+    values are nan.
+    """
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")  # quotes messages that hold commas
+    writer.writerow(POSE_COLUMNS + EXTRA_COLUMNS)
+    for frame, choice in zip(frames, choices, strict=True):
+        z = z_mm.get(frame.index) if z_mm else None
+        roll = roll_deg.get(frame.index) if roll_deg else None
+        writer.writerow(_row(frame, choice, z, roll))
+    return atomic_write_text(path, buffer.getvalue())
+
+
+def report_frame_messages(messages: Iterable[tuple[int, str]]) -> None:
+    """Print one line per (frame, message) on stderr (frame -1: the whole run)."""
+    for index, message in messages:
+        where = f"frame {index:05d}" if index >= 0 else "run"
+        console.print(f"[yellow]{where}[/]: {escape(message)}", highlight=False, soft_wrap=True)
+
+
+@dataclass(frozen=True)
+class PoseSummary:
+    """Counts reported by the CLI."""
+
+    n_frames: int
+    n_failed: int
+    n_ambiguous: int
+    path: Path
+
+
+def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
+             workers: int = 2, video: Path | None = None) -> PoseSummary:
+    """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
+    dataset = open_dataset(root, video=video)
+    with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
+        # poses.csv reads no ring points: not kept (~11.5 kB a frame)
+        frames, choices = estimate_poses(dataset, show_progress=show_progress,
+                                         workers=workers, drop_rings=True)
+    report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
+                          + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
+    path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)
+    return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
+                       sum(1 for c in choices if c.ambiguous), path)

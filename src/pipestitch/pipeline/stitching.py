@@ -1,0 +1,677 @@
+"""The mosaic stages: unwrap every LED frame, register the run, stitch the canvas.
+
+Two passes over the LED frames, each frame unwrapped straight from its pixels:
+
+1. every frame is unwrapped over its own axial window (at the mosaic's scale) and
+   linked to the next two frames by phase correlation; the run's positions (z, roll)
+   are solved globally with the odometer; the vignetting profile is collected;
+2. every placed frame is unwrapped again, this time onto the canvas nodes it covers
+   (sub-pixel, so the image is resampled once), shaded, gain-matched and blended.
+
+Re-reading a frame costs one decode; holding the strips instead would make memory
+grow with the run. Frames that cannot be read, have no pose, or are not connected to
+the run by registration or the odometer are reported and skipped.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Protocol
+
+import numpy as np
+
+from pipestitch._runtime import scratch
+from pipestitch._runtime.memory import release_free_memory
+from pipestitch._runtime.threads import ordered_map
+from pipestitch.camera import CameraModel
+from pipestitch.errors import DatasetError, StageError
+from pipestitch.geometry import PipeSection, Pose
+from pipestitch.io.dataset import Dataset
+from pipestitch.mosaic.blend import (
+    Canvas,
+    ShadedStrip,
+    canvas_grid,
+    frame_grid,
+    profile_step,
+    shade,
+    vignetting_profile,
+)
+from pipestitch.mosaic.occluders import occluder_mask
+from pipestitch.mosaic.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
+from pipestitch.mosaic.register import (
+    Link,
+    Positions,
+    measure_shift,
+    predict_motion,
+    registration_image,
+    solve_positions,
+    spectrum,
+    strip_contrast,
+)
+from pipestitch.mosaic.unwrap import (
+    Strip,
+    StripGrid,
+    UnwrapMaps,
+    column_levels,
+    default_mm_per_px,
+    polar_unwrap_maps,
+    seen_window_mm,
+    strip_window_mm,
+    to_grey,
+    unwrap_maps,
+    unwrap_with_quality,
+)
+from pipestitch.pipeline.progress import StageTimer, track
+from pipestitch.pipeline.ring_store import StoredRing
+from pipestitch.pose.fit import RingPoints
+from pipestitch.pose.section import SectionFit, fit_section
+
+__all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "MosaicSink",
+           "build_mosaic"]
+
+UNWRAP_MODES = ("ours", "centred", "polar")
+LINK_SPAN = 2          # each frame is registered to this many following frames
+
+
+@dataclass(frozen=True)
+class MosaicSettings:
+    """How to unwrap and stitch.
+
+    Attributes
+    ----------
+    mm_per_px : float, optional
+        Output scale on the wall (both axes); default from the camera and the pipe
+        (:func:`pipestitch.mosaic.unwrap.default_mm_per_px`).
+    mode : {"ours", "centred", "polar"}
+        ``ours`` unwraps with each frame's pose; ``centred`` forces the pose to a
+        centred probe (no centralisation); ``polar`` is the prior-art polar unwrap
+        about the image centre. The last two exist for the benchmark.
+    workers : int
+        Threads (frames stay in order).
+    step : int
+        Exact projection every ``step`` grid nodes, interpolated between.
+    min_resolution : float
+        Nodes drawing on fewer source pixels per output pixel are masked.
+    reference_frames : int
+        LED frames sampled along the run to find the occluders.
+    refine_iterations : int
+        Registration rounds with photometric pose refinement (``ours`` only; 0 to use
+        the ring's poses as they are). Each round costs one more unwrapping pass; one
+        round (the default) brings the tilt to a few hundredths of a degree, a second
+        to a few thousandths, which the mosaic does not show (``bench/mosaic.py``).
+    register_coarsening : int
+        All refinement rounds but the last work on strips this many times coarser than
+        the mosaic (4x fewer pixels for 2).
+    final_coarsening : int
+        The same for the last round, whose links place the frames (1: the mosaic's
+        scale). Default 2: the placing round on 4x fewer pixels than the mosaic's;
+        the frames are still placed to a few hundredths of a millimetre and the stitch
+        unwraps onto the canvas at its full scale.
+    """
+
+    mm_per_px: float | None = None
+    mode: str = "ours"
+    workers: int = 2
+    step: int = 4
+    min_resolution: float = 0.5
+    reference_frames: int = 11
+    refine_iterations: int = 1
+    register_coarsening: int = 2
+    final_coarsening: int = 2
+
+    @classmethod
+    def fine(cls, **kwargs: object) -> MosaicSettings:
+        """Two refinement rounds, the placing one on the mosaic's own scale (``pipestitch
+        run --fine-registration``): the tilt to a few thousandths of a degree, at ~1.3x
+        the run's time."""
+        return cls(**{"refine_iterations": 2, "final_coarsening": 1, **kwargs})
+
+    @property
+    def refine_rounds(self) -> int:
+        """Rounds of photometric refinement a run makes (``ours`` only); after each,
+        the sections are refitted to the frames' ring points."""
+        return self.refine_iterations if self.mode == "ours" else 0
+
+    def __post_init__(self) -> None:
+        if self.mode not in UNWRAP_MODES:
+            raise ValueError(f"mode: expected one of {UNWRAP_MODES}, got {self.mode!r}")
+        if self.mm_per_px is not None and not (np.isfinite(self.mm_per_px)
+                                               and self.mm_per_px > 0):
+            raise ValueError(f"mm_per_px: expected a positive number, got {self.mm_per_px}")
+
+
+@dataclass(frozen=True, slots=True)
+class FrameView:
+    """The pose and pipe section a frame is unwrapped with.
+
+    ``alternative`` is the mirror hypothesis of a frame the pose step left ambiguous:
+    registration then keeps whichever agrees better with the previous frames.
+    ``information`` is the ring's information matrix on (alpha, beta, dx, dy), the
+    prior of the photometric refinement; ``refined`` says the pose has been refined.
+    ``ring`` keeps the ring points; after each refinement round ``measured`` is the
+    section (oval) fitted to them with the refined tilt, which then replaces
+    ``section`` and the offset when the pose step fitted an oval (``oval``) or the
+    measured ovality is significant.
+    """
+
+    pose: Pose
+    section: PipeSection
+    alternative: FrameView | None = None
+    information: np.ndarray | None = field(default=None, compare=False)
+    refined: bool = False
+    ring: RingPoints | StoredRing | None = field(default=None, compare=False)
+    oval: bool = False                     # the pose step fitted an oval section
+    measured: SectionFit | None = field(default=None, compare=False)
+
+
+@dataclass
+class MosaicResult:
+    """Output of :func:`build_mosaic`.
+
+    ``image`` is float (NaN where no data) on ``grid`` (None when the mosaic was
+    streamed to a sink); ``skipped`` maps frame -> why;
+    ``switched`` says, for each frame the pose step left ambiguous, whether registration
+    chose its mirror hypothesis instead.
+    """
+
+    grid: StripGrid
+    image: np.ndarray | None          # None when streamed to a sink
+    weights: np.ndarray | None
+    positions: Positions
+    links: list[Link]
+    radius_mm: float
+    window_mm: tuple[float, float]
+    placed: list[int]
+    skipped: dict[int, str] = field(default_factory=dict)
+    gains: dict[int, float] = field(default_factory=dict)
+    switched: dict[int, bool] = field(default_factory=dict)
+    views: dict[int, FrameView] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _Unwrapper:
+    camera: CameraModel
+    settings: MosaicSettings
+    radius_mm: float
+    occluded: np.ndarray
+
+    def maps(self, view: FrameView, grid: StripGrid) -> UnwrapMaps:
+        if self.settings.mode == "polar":
+            return polar_unwrap_maps(self.camera, self.radius_mm, grid)
+        return unwrap_maps(self.camera, view.pose, view.section, grid, step=self.settings.step,
+                           with_quality=True)
+
+    def strip(self, grey: np.ndarray, view: FrameView, grid: StripGrid) -> Strip:
+        return unwrap_with_quality(grey, self.maps(view, grid),
+                                   min_resolution=self.settings.min_resolution,
+                                   occluded=self.occluded)
+
+
+def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
+               scratch_buffer: bool = False) -> np.ndarray:
+    """The LED frame as grey float32; with ``scratch_buffer`` in this thread's buffer
+    (:mod:`pipestitch._runtime.scratch`), for a caller done with it before its next frame."""
+    with timer("decode"):
+        led = dataset.read_led(index)
+        out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
+               if scratch_buffer and led.ndim == 2 else None)
+        return to_grey(led, out=out)
+
+
+def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
+               timer: StageTimer, workers: int) -> np.ndarray:
+    """Occluder mask from up to ``count`` readable LED frames spread over ``frames``."""
+    picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)})
+
+    def read(i: int) -> np.ndarray | None:
+        try:
+            return _read_grey(dataset, i, timer)
+        except DatasetError:
+            return None   # reported when the frame itself is processed
+
+    greys = [g for g in ordered_map(read, picks, workers) if g is not None]
+    if not greys:
+        raise StageError("no LED frame could be read")
+    with timer("occluders"):
+        return occluder_mask(greys, workers=workers)
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """One view of a frame unwrapped for registration."""
+
+    contrast: np.ndarray
+    valid: np.ndarray
+    image: np.ndarray
+    level: np.ndarray
+    spectrum: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Registered:
+    """Pass-1 result of one frame: one candidate per view (two for an ambiguous frame)."""
+
+    index: int
+    candidates: list[_Candidate]
+    error: str = ""
+
+
+@dataclass
+class _Pass1:
+    """What pass 1 gathers over the run."""
+
+    links: list[Link] = field(default_factory=list)
+    levels: list[np.ndarray] = field(default_factory=list)
+    done: list[int] = field(default_factory=list)
+    switched: dict[int, bool] = field(default_factory=dict)
+    patches: list[PatchShifts] = field(default_factory=list)
+
+
+def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
+                      grid: StripGrid, timer: StageTimer) -> _Candidate:
+    with timer("unwrap"):
+        strip = unwrapper.strip(grey, view, grid)
+    with timer("register"):
+        contrast = strip_contrast(strip)
+        image = registration_image(contrast, strip.weight)
+        return _Candidate(contrast, strip.weight > 0, image, column_levels(strip),
+                          spectrum(image))
+
+
+def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
+              i: int, links: Sequence[Link],
+              odometry_mm: Mapping[int, float] | None) -> list[tuple[Link, _Candidate]]:
+    found = ((measure_shift(prev.image, cand.image, grid, j, i,
+                            predict_motion(j, i, links, odometry_mm),
+                            (prev.spectrum, cand.spectrum)), prev)
+             for j, prev in recent)
+    return [(link, prev) for link, prev in found if link is not None]
+
+
+MIRROR_RATIO = 1.3     # a hypothesis must correlate this much better to be chosen
+
+
+def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None:
+    """Which of an ambiguous frame's two unwraps registers clearly better, or None.
+
+    Compared over the previous frames both registered with; the better one needs
+    ``MIRROR_RATIO`` times the summed response of the other (near zero tilt the two
+    unwraps are nearly the same and their difference is noise: the frame stays
+    ambiguous).
+    """
+    common = {ln.i for ln, _ in found[0]} & {ln.i for ln, _ in found[1]}
+    scores = [sum(ln.response for ln, _ in f if ln.i in common) for f in found]
+    if not common:
+        # Only one hypothesis registered at all: that is evidence too.
+        return (0 if found[0] else 1) if (bool(found[0]) != bool(found[1])) else None
+    best = int(np.argmax(scores))
+    return best if scores[best] >= MIRROR_RATIO * scores[1 - best] else None
+
+
+def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
+              own: StripGrid, timer: StageTimer, show_progress: bool,
+              skipped: dict[int, str], *, patches: bool) -> _Pass1:
+    """Pass 1: own-window strips, links to the next frames, vignetting levels (of the
+    frames :func:`pipestitch.mosaic.blend.profile_step` samples).
+
+    For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
+    one whose strip correlates better with the previous frames is kept (``views`` is
+    updated; a frame kept on its first hypothesis keeps the other, so a later, finer
+    round can still reverse the choice). With ``patches`` the local patch shifts of
+    every link are measured too (for the photometric pose refinement).
+    """
+    def work(i: int) -> _Registered:
+        try:
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+        except DatasetError as exc:
+            return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
+        options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
+        return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer)
+                               for v in options])
+
+    def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
+        with timer("refine"):
+            return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
+                                (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
+                                link.i, link.j)
+
+    out = _Pass1()
+    recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
+    order = sorted(views)
+    # the column levels of the frames the vignetting profile will take, not all (a
+    # skipped frame only thins them: still evenly spaced, at most PROFILE_FRAMES)
+    level_step = profile_step(len(order))
+    workers = unwrapper.settings.workers
+    # The links are found in order here (each frame's motion prior and hypothesis
+    # choice depend on the links before it); their patch shifts, which nothing else
+    # waits for, are measured on a pool of their own, at most 2 per worker pending
+    # (memory stays bounded), kept in link order.
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        pending: deque[Future[PatchShifts]] = deque()
+        for reg in track(ordered_map(work, order, workers), "register", total=len(order),
+                         enabled=show_progress):
+            if not reg.candidates:
+                skipped[reg.index] = reg.error
+                continue
+            with timer("register"):
+                found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
+                         for c in reg.candidates]
+            best = _better_hypothesis(found) if len(found) > 1 else None
+            if best is not None:
+                out.switched[reg.index] = best == 1
+                if best == 1:
+                    views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
+            cand = reg.candidates[best or 0]
+            for link, prev in found[best or 0]:
+                out.links.append(link)
+                if patches:
+                    pending.append(pool.submit(patch_job, link, prev, cand))
+            while len(pending) > 2 * max(1, workers):
+                out.patches.append(pending.popleft().result())
+            recent.append((reg.index, cand))
+            if len(out.done) % level_step == 0:   # float32, as the profile takes them
+                out.levels.append(cand.level.astype(np.float32))
+            out.done.append(reg.index)
+        out.patches.extend(f.result() for f in pending)
+    return out
+
+
+def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraModel,
+                  own: StripGrid) -> tuple[dict[int, FrameView], list[Link]]:
+    """Views with poses corrected by the photometric refinement, and corrected links.
+
+    A link with patches is replaced by the pair's rigid motion from the refinement
+    (free of the warp the old poses left in the strips); the others are kept.
+    """
+    def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
+        # float32: a window's links' Jacobians are held for its solve
+        return (node_jacobian(camera, views[o.i].pose, views[o.i].section, own,
+                              o.nodes + o.shift).astype(np.float32),
+                node_jacobian(camera, views[o.j].pose, views[o.j].section, own,
+                              o.nodes).astype(np.float32))
+
+    errors, motions = solve_in_windows(pass1.patches, jacobians,
+                                       {i: v.information for i, v in views.items()})
+    links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px),
+                     droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
+             if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
+             for ln in pass1.links]
+    out = {}
+    for i, v in views.items():
+        e = errors.get(i, np.zeros(4))
+        if not np.all(np.isfinite(e)):
+            e = np.zeros(4)   # keep the ring's pose rather than lose the frame
+        p = v.pose
+        out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
+                                      p.dy_mm - e[3]), refined=True)
+    return out, links
+
+
+# Ovality this far above its uncertainty (and at least this large) is taken as real:
+# the view is then unwrapped with the oval section.
+OVAL_SIGNIFICANCE = 5.0
+OVAL_MIN = 0.005
+
+
+def _refit_section(view: FrameView) -> FrameView:
+    """The view with its section fitted to the ring at the refined tilt (see FrameView).
+
+    An adopted oval brings its offset, and its information (section marginalised) as
+    the next round's prior: the circle fit's would claim a tilt the ovality biased.
+    """
+    if view.ring is None or not view.refined:
+        return view
+    start = view.measured.section if view.measured is not None else view.section
+    points = view.ring.points_mm   # outside the try: a store that fails must say so
+    try:
+        measured = fit_section(points, view.pose, view.section.mean_radius_mm, start=start)
+    except ValueError:   # no valid section (degenerate ring points): keep the view
+        return view
+    # Kept for the whole run: the per-point residuals (~6 kB a frame) are not read again.
+    measured = replace(measured, residuals_mm=measured.residuals_mm[:0].copy())
+    oval = measured.section.ovality
+    if view.oval or oval > max(OVAL_SIGNIFICANCE * measured.ovality_std, OVAL_MIN):
+        return replace(view, pose=measured.pose, section=measured.section, measured=measured,
+                       information=measured.information, oval=True)
+    return replace(view, measured=measured)
+
+
+@dataclass
+class _Registration:
+    """What the registration rounds leave for the stitch: per frame only its view and
+    links (the patch shifts and column levels of the passes are dropped)."""
+
+    views: dict[int, FrameView]
+    links: list[Link]
+    done: list[int]
+    switched: dict[int, bool]
+    vignetting: np.ndarray          # vignetting_profile of the last pass's levels
+    grid: StripGrid                 # the last pass's grid (the profile's columns)
+
+
+def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
+                         grids: tuple[StripGrid, StripGrid], rounds: int, timer: StageTimer,
+                         show_progress: bool, skipped: dict[int, str]) -> _Registration:
+    """Registration passes with photometric refinement between them.
+
+    Early rounds on ``grids[0]``, the last (whose links place the frames) on
+    ``grids[1]``. One more round follows on ``grids[1]`` when the last one moved some
+    frame's tilt by more than ``LINEAR_TILT_DEG`` (the refinement is linearised about
+    the poses it starts from: an oval pipe's frames, whose tilt the ring leaves at 0,
+    come out a few hundredths of a degree off per degree of correction) or found frames
+    oval that it registered as circles (their strips had the wrong section). Each pass's
+    patch shifts are released once the refinement has used them, and only the last
+    pass's column levels are kept, reduced to the vignetting profile at once.
+    """
+    camera, switched = unwrapper.camera, {}
+    total, k = max(1, rounds), 0
+    while k < total:
+        own = grids[0] if k < rounds - 1 else grids[1]
+        release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
+        pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
+                          patches=rounds > 0)
+        switched.update(pass1.switched)
+        links, done, levels = pass1.links, pass1.done, pass1.levels
+        if pass1.patches:
+            before = views
+            with timer("refine"):
+                views, links = _refine_views(views, pass1, camera, own)
+                views = {i: _refit_section(v) for i, v in views.items()}
+            if k == rounds - 1 and _another_round(before, views):
+                total += 1
+        del pass1   # its patches: before the next pass gathers its own
+        k += 1
+    # The ring points served the section refits: the stitch and the outputs do not
+    # read them (~6 kB a frame, 24 MB at 4000 pairs).
+    views = {i: _without_ring(v) for i, v in views.items()}
+    return _Registration(views, links, done, switched, vignetting_profile(levels), own)
+
+
+LINEAR_TILT_DEG = 1.0   # a round that corrects a tilt by more is followed by another
+
+
+def _another_round(before: Mapping[int, FrameView], after: Mapping[int, FrameView]) -> bool:
+    """Whether a refinement round left poses worth one more (see _registration_rounds)."""
+    for i, v in after.items():
+        b = before.get(i)
+        if b is None:
+            continue
+        moved = max(abs(v.pose.alpha - b.pose.alpha), abs(v.pose.beta - b.pose.beta))
+        if np.rad2deg(moved) > LINEAR_TILT_DEG or (v.oval and not b.oval):
+            return True
+    return False
+
+
+def _without_ring(view: FrameView) -> FrameView:
+    """The view (and its mirror alternative) without the ring points."""
+    alternative = view.alternative and replace(view.alternative, ring=None)
+    return replace(view, ring=None, alternative=alternative)
+
+
+RELEASE_COLS = 512     # the canvas releases finished columns in blocks of at least this
+
+
+class MosaicSink(Protocol):
+    """Where a streamed mosaic goes (see :func:`build_mosaic`)."""
+
+    def start(self, grid: StripGrid, radius_mm: float) -> None:
+        """Called once, before any column, with the canvas grid and the pipe radius."""
+
+    def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:
+        """Finished columns ``col0 ..``, left to right (float, NaN where no data)."""
+
+
+def _release_points(canvas: StripGrid, positions: Positions, placed: list[int],
+                    window: tuple[float, float]) -> list[int]:
+    """For each placed frame, the canvas columns no later frame reaches (all before it)."""
+    firsts = [frame_grid(canvas, positions.z_mm[i], positions.roll_deg[i], window)[1]
+              for i in placed]
+    later = np.minimum.accumulate(np.array(firsts[::-1] or [0]))[::-1]
+    return [int(c) for c in later[1:]] + [canvas.n_cols]
+
+
+def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
+            positions: Positions, placed: list[int], canvas: Canvas, window: tuple[float, float],
+            profile: Callable[[np.ndarray], np.ndarray], timer: StageTimer,
+            show_progress: bool, skipped: dict[int, str],
+            sink: MosaicSink | None) -> dict[int, float]:
+    """Pass 2: every placed frame onto the canvas nodes it covers.
+
+    With a ``sink``, the columns no later frame reaches are released to it after each
+    frame (in blocks of at least ``RELEASE_COLS``), so the canvas holds only the frames
+    in flight.
+    """
+    def work(i: int) -> tuple[int, ShadedStrip | None, int, str]:
+        grid, col = frame_grid(canvas.grid, positions.z_mm[i], positions.roll_deg[i], window)
+        try:
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+        except DatasetError as exc:  # readable in pass 1: changed on disk since
+            return i, None, col, f"{exc.path.name}: {exc.problem}"
+        with timer("unwrap"):
+            strip = unwrapper.strip(grey, views[i], grid)
+        with timer("blend"):
+            z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+            return i, shade(strip, profile(z_local)), col, ""
+
+    gains = {}
+    release = _release_points(canvas.grid, positions, placed, window)
+    # Unwrapping and shading run on the workers; only the blend, whose gain depends on
+    # the strips before, waits for them here in order.
+    frames = ordered_map(work, placed, unwrapper.settings.workers)
+    for k, (i, shaded, col, error) in enumerate(track(frames, "stitch", total=len(placed),
+                                                      enabled=show_progress)):
+        if shaded is not None:
+            with timer("blend"):
+                gains[i] = canvas.blend(shaded, col)
+        else:
+            skipped[i] = error
+        if sink is not None and (release[k] - canvas.first >= RELEASE_COLS
+                                 or k == len(placed) - 1):
+            with timer("blend"):
+                block = canvas.release(release[k])
+            if block is not None:
+                sink.push(*block)
+    return gains
+
+
+def _views(poses: Mapping[int, FrameView], mode: str,
+           nominal_radius_mm: float) -> dict[int, FrameView]:
+    if mode == "ours":
+        return dict(poses)
+    return {i: FrameView(Pose(), PipeSection(nominal_radius_mm)) for i in poses}
+
+
+def _windows(camera: CameraModel, views: Mapping[int, FrameView], radius_mm: float,
+             mm_per_px: float, settings: MosaicSettings,
+             occluded: np.ndarray) -> dict[int, tuple[float, float]]:
+    """Axial window of the strips at each coarsening the run uses (1: the canvas').
+
+    The centred camera's window at the canvas' scale (:func:`strip_window_mm`), cut to
+    what the run's frames resolve outside the ``occluded`` pixels at each scale
+    (:func:`seen_window_mm`; both hypotheses of an ambiguous frame). The polar
+    baseline keeps the centred window: its maps ignore the poses.
+    """
+    window = strip_window_mm(camera, radius_mm, mm_per_px, min_resolution=settings.min_resolution)
+    scales = {1, settings.final_coarsening, settings.register_coarsening}
+    if settings.mode == "polar":
+        return dict.fromkeys(scales, window)
+    seen = [(w.pose, w.section) for v in views.values() for w in (v, v.alternative)
+            if w is not None]
+    return {k: seen_window_mm(camera, seen, radius_mm, mm_per_px * k, window,
+                              min_resolution=settings.min_resolution, occluded=occluded)
+            for k in scales}
+
+
+def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
+                 settings: MosaicSettings, *, timer: StageTimer | None = None,
+                 show_progress: bool = True, sink: MosaicSink | None = None) -> MosaicResult:
+    """Unwrap, register and stitch the frames that have a pose.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The run (LED frames, camera, odometer).
+    poses : mapping
+        Frame index -> view (chosen pose and fitted section, the mirror for ambiguous
+        frames) for the frames to use.
+    settings : MosaicSettings
+        Scale, unwrap mode, threads.
+    sink : MosaicSink, optional
+        Streams the mosaic: finished columns go to the sink as the stitching proceeds
+        and the result holds no image (``image`` and ``weights`` are None). Without a
+        sink the whole mosaic is returned.
+    """
+    timer = timer or StageTimer()
+    if not dataset.has_led:
+        raise DatasetError(dataset.root / "frames", "no LED frames: nothing to stitch")
+    camera = dataset.config.camera_model()
+    nominal = dataset.config.pipe.inner_diameter_mm / 2
+    radii = [v.section.mean_radius_mm for v in poses.values()]
+    radius = float(np.median(radii)) if radii and settings.mode == "ours" else nominal
+    mm = settings.mm_per_px or default_mm_per_px(camera, radius)
+    skipped: dict[int, str] = {i: "no LED frame" for i in dataset.led_missing() if i in poses}
+    usable = {i: p for i, p in poses.items() if i not in skipped}
+    if not usable:
+        raise StageError("no frame has both a pose and an LED frame")
+    views = _views(usable, settings.mode, nominal)
+    occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer,
+                          settings.workers)
+    with timer("unwrap"):
+        windows = _windows(camera, views, radius, mm, settings, occluded)
+    window = windows[1]
+    # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
+    fine = StripGrid.window(radius, mm * settings.final_coarsening,
+                            *windows[settings.final_coarsening], fft_sizes=True)
+    coarse = StripGrid.window(radius, mm * settings.register_coarsening,
+                              *windows[settings.register_coarsening], fft_sizes=True)
+    unwrapper = _Unwrapper(camera, settings, radius, occluded)
+    reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
+                               timer, show_progress, skipped)
+    views, links = reg.views, reg.links
+    with timer("register"):
+        positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,
+                                    placed=reg.done)
+    placed = [i for i in reg.done if np.isfinite(positions.z_mm[i])]
+    for i in reg.done:
+        if i not in placed:
+            skipped[i] = "not registered to the run (no common texture, no odometer)"
+    if not placed:
+        raise StageError("no frame could be placed in the mosaic")
+    prof, own = reg.vignetting, reg.grid
+    z_own = own.z0_mm + np.arange(own.n_cols) * own.mm_per_px
+
+    def profile(z_local: np.ndarray) -> np.ndarray:
+        return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
+
+    canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
+    release_free_memory()   # the stitch starts from what is live, not the passes' peak
+    if sink is not None:
+        sink.start(canvas.grid, radius)
+    gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
+                    timer, show_progress, skipped, sink)
+    image, weights = canvas.image() if sink is None else (None, None)
+    return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
+                        [i for i in placed if i in gains], skipped, gains, reg.switched, views)

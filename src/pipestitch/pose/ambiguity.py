@@ -1,0 +1,182 @@
+"""Choosing between the two mirror hypotheses of every frame of a run.
+
+One laser ring fits two poses exactly (see :mod:`pipestitch.pose.fit`), so a single
+frame's ring never decides. Evidence that does:
+
+* the **probe envelope**: the rigid body (probe.toml length and diameter) must fit
+  inside the pipe; a hypothesis that puts it through the wall is penalised by how
+  far, relative to the uncertainty of that check;
+* **photometric consistency** of consecutive LED frames (added by the unwrapping
+  stage as extra per-frame costs through ``unary``).
+
+**Temporal continuity** then carries a decision along the run: a min-sum (Viterbi)
+pass over a two-state chain whose transition cost is the pose change between
+consecutive hypotheses. Continuity alone never decides: the mirror track is exactly
+as smooth as the true one, so a run without any deciding evidence stays ambiguous.
+Each frame's margin is the difference between the best total cost with its state
+forced to either hypothesis; below ``min_margin`` the frame is flagged ambiguous.
+Frames whose two hypotheses coincide (tilt near zero) are not ambiguous: both give
+the same pose within the uncertainty.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise as pairwise_indices
+
+import numpy as np
+
+from pipestitch.geometry import BodyEnvelope, PipeSection
+from pipestitch.pose.fit import Hypothesis, PoseFit
+
+__all__ = ["Choice", "envelope_costs", "hypothesis_distance", "resolve_run"]
+
+
+@dataclass(frozen=True, slots=True)
+class Choice:
+    """Decision for one frame.
+
+    Attributes
+    ----------
+    chosen : int or None
+        Index of the chosen hypothesis (None for frames without a fit).
+    ambiguous : bool
+        True when the evidence does not decide (the chosen one is only the likelier).
+    reason : str
+        What decided: "envelope", "photometric", "continuity", "coincide", "undecided",
+        "infeasible" (neither hypothesis fits a circular pipe) or "no fit".
+    margin : float
+        Cost difference between the two choices (negative log-likelihood units).
+    """
+
+    chosen: int | None
+    ambiguous: bool
+    reason: str
+    margin: float
+
+
+def hypothesis_distance(h1: Hypothesis, h2: Hypothesis, *, angle_scale_rad: float,
+                        offset_scale_mm: float) -> float:
+    """Normalised pose difference: sqrt((dangle/scale)² + (doffset/scale)²)."""
+    p, q = h1.pose, h2.pose
+    dang = np.hypot(p.alpha - q.alpha, p.beta - q.beta) / angle_scale_rad
+    doff = np.hypot(p.dx_mm - q.dx_mm, p.dy_mm - q.dy_mm) / offset_scale_mm
+    return float(np.hypot(dang, doff))
+
+
+def envelope_costs(fit: PoseFit, body: BodyEnvelope, *, sigma_mm: float = 0.5) -> np.ndarray:
+    """Cost of each hypothesis from the probe body's fit inside the pipe.
+
+    A hypothesis whose body crosses the wall by v mm costs (v / sigma)² / 2, where
+    sigma is the uncertainty of the body's far end (a tenth of a degree of tilt moves
+    the rear of a 145 mm body by 0.25 mm). The wall is the ring's own radius.
+    """
+    costs = np.zeros(2)
+    for i, h in enumerate(fit.hypotheses):
+        clearance = body.clearance_mm(h.pose, PipeSection(h.radius_mm))
+        costs[i] = 0.5 * (min(clearance, 0.0) / sigma_mm) ** 2
+    return costs
+
+
+def _photo_evidence(photo: dict[int, np.ndarray], idx: list[int], k: int) -> float:
+    """How strongly the photometric costs next to frame idx[k] prefer one of its states."""
+    ev = 0.0
+    if idx[k] in photo:  # frame k is the first of the pair
+        p = photo[idx[k]]
+        ev = max(ev, abs(p[0].min() - p[1].min()))
+    if k > 0 and idx[k - 1] in photo:  # frame k is the second of the pair
+        p = photo[idx[k - 1]]
+        ev = max(ev, abs(p[:, 0].min() - p[:, 1].min()))
+    return ev
+
+
+def _reason(u: np.ndarray, photo_evidence: float, min_margin: float) -> str:
+    if abs(u[0] - u[1]) >= min_margin:
+        return "envelope"
+    return "photometric" if photo_evidence >= min_margin else "continuity"
+
+
+def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
+                offset_mm: float) -> np.ndarray:
+    cost = np.zeros((2, 2))
+    scale = np.sqrt(gap)
+    for i, ha in enumerate(fa.hypotheses):
+        for j, hb in enumerate(fb.hypotheses):
+            d = hypothesis_distance(ha, hb, angle_scale_rad=angle_rad * scale,
+                                    offset_scale_mm=offset_mm * scale)
+            cost[i, j] = 0.5 * d * d
+    return cost
+
+
+def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
+                pairwise: dict[int, np.ndarray] | None = None,
+                step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
+                min_margin: float = 5.0, coincide_deg: float = 0.05,
+                coincide_mm: float = 0.05, infeasible_cost: float = 50.0) -> list[Choice]:
+    """Choose a hypothesis per frame from per-frame costs and temporal continuity.
+
+    Parameters
+    ----------
+    fits : list of PoseFit
+        One per frame in run order; frames with ``ok`` False are skipped (the chain
+        connects their neighbours with a proportionally looser transition).
+    unary : numpy.ndarray, shape (N, 2)
+        Per-frame cost of each hypothesis (envelope ...).
+    pairwise : dict of int -> numpy.ndarray (2, 2), optional
+        Photometric costs between frame k and the next frame with a fit, keyed by k
+        (:func:`pipestitch.mosaic.photometric.pair_costs`).
+    step_angle_deg, step_offset_mm : float
+        Typical pose change between consecutive frames (transition scale).
+    min_margin : float
+        Margin below which a frame is flagged ambiguous (5 ≈ 150:1 odds).
+    coincide_deg, coincide_mm : float
+        Hypotheses closer than this are the same pose: not ambiguous.
+    infeasible_cost : float
+        When both hypotheses cost at least this much, neither is physically possible:
+        the frame is flagged "infeasible" (ambiguous) and gives the chain no evidence.
+
+    Returns
+    -------
+    list of Choice
+    """
+    n = len(fits)
+    if unary.shape != (n, 2):
+        raise ValueError(f"unary: expected shape ({n}, 2), got {unary.shape}")
+    idx = [i for i, f in enumerate(fits) if f.ok and len(f.hypotheses) == 2]
+    choices = [Choice(None, False, "no fit", 0.0) for _ in range(n)]
+    if not idx:
+        return choices
+    ang, off = np.deg2rad(step_angle_deg), step_offset_mm
+    u = unary[idx].copy()
+    # Both hypotheses impossible (an oval pipe read as tilt, a wrong calibration):
+    # such a frame carries no evidence for the chain and is flagged.
+    impossible = np.min(u, axis=1) >= infeasible_cost
+    u[impossible] = 0.0
+    photo = pairwise or {}
+    trans = [_transition(fits[a], fits[b], b - a, ang, off) + photo.get(a, np.zeros((2, 2)))
+             for a, b in pairwise_indices(idx)]
+    fwd = np.zeros((len(idx), 2))
+    fwd[0] = u[0]
+    for k, t in enumerate(trans, start=1):
+        fwd[k] = u[k] + np.min(fwd[k - 1][:, None] + t, axis=0)
+    bwd = np.zeros((len(idx), 2))
+    for k in range(len(idx) - 2, -1, -1):
+        bwd[k] = np.min(trans[k] + (u[k + 1] + bwd[k + 1])[None, :], axis=1)
+    total = fwd + bwd
+    for k, i in enumerate(idx):
+        h0, h1 = fits[i].hypotheses
+        margin = float(abs(total[k, 0] - total[k, 1]))
+        chosen = int(np.argmin(total[k]))
+        same = (np.rad2deg(np.hypot(h0.pose.alpha - h1.pose.alpha, h0.pose.beta - h1.pose.beta))
+                < coincide_deg and np.hypot(h0.pose.dx_mm - h1.pose.dx_mm,
+                                            h0.pose.dy_mm - h1.pose.dy_mm) < coincide_mm)
+        if impossible[k]:
+            choices[i] = Choice(chosen, True, "infeasible", margin)
+        elif same:
+            choices[i] = Choice(chosen, False, "coincide", margin)
+        elif margin < min_margin:
+            choices[i] = Choice(chosen, True, "undecided", margin)
+        else:
+            choices[i] = Choice(chosen, False, _reason(u[k], _photo_evidence(photo, idx, k),
+                                                       min_margin), margin)
+    return choices

@@ -1,0 +1,345 @@
+"""Laser frame -> sub-pixel laser-ring points with a confidence.
+
+The ring surrounds the optical axis, so every ray from the image of the optical
+axis crosses it once. The frame is resampled on a polar grid about that point
+(``cv2.remap``), each radial profile is matched against a ridge (a
+difference-of-Gaussians tuned to a thin line, which answers weakly to broad glints
+and steps), the strongest ridges above the frame's own noise level are kept as
+candidates, and each is located to sub-pixel precision by the centroid of its
+background-subtracted profile. Candidates are ranked per azimuth; outliers
+(glints, reflections) are removed later by the geometric fit, which knows that
+the ring lies on the laser plane (see :mod:`pipestitch.pose.fit`).
+
+What this module does not do: decide which candidate lies on the ring when two
+are equally strong (it returns both, ranked) or know the pose.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipestitch._runtime import scratch
+from pipestitch.camera import CameraModel
+from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
+
+__all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame",
+           "ring_band_px"]
+
+
+@dataclass(frozen=True)
+class RingDetection:
+    """Candidate ring points of one laser frame.
+
+    Attributes
+    ----------
+    pixels : numpy.ndarray, shape (N, 2)
+        Sub-pixel points (col, row).
+    azimuth : numpy.ndarray, shape (N,)
+        Index of the polar ray each point was found on.
+    rank : numpy.ndarray, shape (N,)
+        0 for the strongest candidate of its ray, 1 for the next, ...
+    snr : numpy.ndarray, shape (N,)
+        Ridge strength divided by the frame's noise level.
+    n_azimuths : int
+        Number of polar rays searched.
+    noise : float
+        Estimated noise of the ridge response (fraction of full scale).
+    """
+
+    pixels: np.ndarray
+    azimuth: np.ndarray
+    rank: np.ndarray
+    snr: np.ndarray
+    n_azimuths: int
+    noise: float
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of azimuths with at least one candidate."""
+        if not self.n_azimuths or not self.azimuth.size:
+            return 0.0
+        return float(np.count_nonzero(np.bincount(self.azimuth)) / self.n_azimuths)
+
+    def best(self) -> np.ndarray:
+        """The strongest candidate of every ray, (M, 2)."""
+        return self.pixels[self.rank == 0]
+
+
+def laser_channel(img: np.ndarray) -> int | None:
+    """Channel of a colour frame with the highest peak-over-median contrast (None if grey).
+
+    A red laser lives in one channel; a grey conversion would dilute it with the
+    other two.
+    """
+    arr = np.asarray(img)
+    if arr.ndim != 3:
+        return None
+    step = max(1, arr.shape[0] // 256)
+    sub = arr[::step, ::step, :3].reshape(-1, min(3, arr.shape[2])).astype(np.float32)
+    contrast = np.percentile(sub, 99.9, axis=0) - np.median(sub, axis=0)
+    return int(np.argmax(contrast))
+
+
+def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,
+                        out: np.ndarray | None = None) -> np.ndarray:
+    """Grey float32 in [0, 1] that keeps the laser's contrast.
+
+    8- and 16-bit frames are scaled by their dtype's range. Colour frames give
+    ``channel``, by default the laser's (:func:`laser_channel`). ``out``: a float32
+    array of the frame's size to write into (see :mod:`pipestitch._runtime.scratch`).
+    """
+    arr = np.asarray(img)
+    if arr.dtype.kind not in "uif":
+        raise ValueError(f"laser frame: expected a numeric image, got dtype {arr.dtype}")
+    integer = arr.dtype.kind in "ui"
+    scale = np.float32(1.0 / np.iinfo(arr.dtype).max if integer else 1.0)
+    if arr.ndim == 3:
+        index = laser_channel(arr) if channel is None else min(channel, arr.shape[2] - 1)
+        arr = arr[..., index]
+    elif arr.ndim != 2:
+        raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
+    # Cast and scale in one pass (the float32 arithmetic of a cast, then a product).
+    arr = np.multiply(arr, scale, dtype=np.float32, out=out)
+    # Only a float frame can hold NaN or infinities.
+    if not integer and not np.all(np.isfinite(arr)):
+        arr = np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
+    return arr
+
+
+@functools.lru_cache(maxsize=8)
+def _polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
+                band_px: tuple[float, float] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sampling maps of rays from the image of the optical axis out to the lens edge
+    (or over the image radii ``band_px`` only).
+
+    The same for every frame of a run: cached (read-only arrays).
+    """
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    edge_theta = min(camera.max_incidence_rad, np.deg2rad(100.0))
+    phi = np.linspace(0, 2 * np.pi, n_azimuths, endpoint=False)
+    edge_rays = np.stack([np.sin(edge_theta) * np.cos(phi), np.sin(edge_theta) * np.sin(phi),
+                          np.full_like(phi, np.cos(edge_theta))], axis=1)
+    edge = camera.project(edge_rays)
+    r_max = float(np.nanmax(np.linalg.norm(edge - centre, axis=1)))
+    r_lo, r_hi = (2.0, r_max) if band_px is None else (max(2.0, band_px[0]),
+                                                        min(r_max, band_px[1]))
+    radii = np.arange(r_lo, max(r_hi, r_lo + step_px), step_px)
+    map_x = (centre[0] + np.cos(phi)[:, None] * radii[None, :]).astype(np.float32)
+    map_y = (centre[1] + np.sin(phi)[:, None] * radii[None, :]).astype(np.float32)
+    for arr in (map_x, map_y, radii, centre):
+        arr.flags.writeable = False
+    return map_x, map_y, radii, centre
+
+
+# The crop reaches this far beyond the samples: bilinear reads the next pixel, and the
+# LED frame's 0.5 px blur (a 5-tap kernel) must not see the crop's edge there.
+CROP_PAD_PX = 4
+
+
+@functools.lru_cache(maxsize=8)
+def _polar_crop(camera: CameraModel, n_azimuths: int, step_px: float,
+                band_px: tuple[float, float] | None = None,
+                ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+    """The part of the frame the polar maps read ((rows, cols) slices) and the maps
+    relative to it.
+
+    Converting and blurring only that part gives the polar samples of the whole frame
+    exactly: the maps move by whole pixels (exact in float32 below 2**24, and so are the
+    interpolation weights), and every pixel read, and every pixel the blur of a pixel
+    read reaches, is inside the part unless it is outside the frame, where the constant
+    border applies as before. Cached (read-only arrays).
+    """
+    map_x, map_y, _, _ = _polar_grid(camera, n_azimuths, step_px, band_px)
+
+    def span(m: np.ndarray, size: int) -> tuple[int, int]:
+        lo, hi = float(np.nanmin(m)), float(np.nanmax(m))
+        return (max(0, min(size, int(np.floor(lo)) - CROP_PAD_PX)),
+                max(0, min(size, int(np.ceil(hi)) + CROP_PAD_PX + 1)))
+
+    (x0, x1), (y0, y1) = span(map_x, camera.width), span(map_y, camera.height)
+    if x1 - x0 < 2 or y1 - y0 < 2:   # the rays miss the frame: read it whole
+        x0, x1, y0, y1 = 0, camera.width, 0, camera.height
+    shifted = [(m - np.float32(o)).astype(np.float32) for m, o in ((map_x, x0), (map_y, y0))]
+    for arr in shifted:
+        arr.flags.writeable = False
+    return (slice(y0, y1), slice(x0, x1)), shifted[0], shifted[1]
+
+
+def ring_band_px(camera: CameraModel, plane_distance_mm: float,
+                 plane_normal: np.ndarray | None = None, *, min_wall_mm: float,
+                 max_wall_mm: float) -> tuple[float, float]:
+    """Image radii (about the image of the optical axis) between which the ring can lie.
+
+    The ring is where the laser plane {n·p = d} meets the wall, so it lies on the rays
+    whose plane point is ``min_wall_mm`` to ``max_wall_mm`` from the probe axis; the
+    band is those rays' image radii over every azimuth. Physical bounds (the probe
+    body, a pipe the probe could be in) keep :func:`detect_ring` off the image
+    centre (the mirror assembly) and the lens edge, where no ring can be.
+    """
+    normal = np.array([0.0, 0.0, 1.0]) if plane_normal is None else np.asarray(plane_normal,
+                                                                                float)
+    theta = np.linspace(0.0, camera.max_incidence_rad, 721)[1:]
+    phi = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    rays = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+    along = rays @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(along > 1e-9, plane_distance_mm / along, np.inf)
+    wall = t * np.sin(th)                  # the plane point's distance from the probe axis
+    ok = (wall >= min_wall_mm) & (wall <= max_wall_mm)
+    if not ok.any():
+        raise ValueError(f"no ray meets the laser plane {min_wall_mm:g}-{max_wall_mm:g} mm "
+                         f"from the probe axis")
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    px = camera.project(rays[ok])
+    radius = np.linalg.norm(px - centre, axis=1)
+    radius = radius[np.isfinite(radius)]
+    return float(radius.min()), float(radius.max())
+
+
+def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray | None = None,
+                n_azimuths: int = 1440, band_px: tuple[float, float] | None = None,
+                line_sigma_px: float | None = None, min_snr: float = 8.0,
+                max_candidates: int = 3, min_relative: float = 0.2) -> RingDetection:
+    """Find laser-ring candidates in a laser frame.
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        Laser frame (8/16-bit or float, grey or colour) of the camera's size.
+    camera : CameraModel
+        Camera model (gives the image of the optical axis and the lens edge).
+    reflectance : numpy.ndarray, optional
+        The pair's LED frame. The laser line's brightness follows the wall's
+        reflectance, and a reflectance gradient across the line shifts its centre
+        (by gradient × width²: tenths of a pixel on a textured wall). Dividing by the
+        LED frame, which sees the same wall, removes that bias.
+    n_azimuths : int
+        Number of polar rays.
+    band_px : (float, float), optional
+        Search only between these image radii about the image of the optical axis
+        (:func:`ring_band_px`), widened by the ridge filter's reach; default: from the
+        centre out to the lens edge.
+    line_sigma_px : float, optional
+        Expected Gaussian width of the laser line; default scales with the image.
+    min_snr : float
+        Minimum ridge strength in units of the noise of the ridge response.
+    max_candidates : int
+        Candidates kept per ray (the fit decides between them).
+    min_relative : float
+        Minimum ridge strength relative to the frame's typical ring response.
+
+    Returns
+    -------
+    RingDetection
+        Possibly empty (no ring in the frame): check ``coverage``.
+    """
+    _check_frame("laser frame", img, camera)
+    channel = laser_channel(img)
+    sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
+    step = 0.5
+    if band_px is not None:
+        # Widened by the wide ridge Gaussian's kernel (16 sigma), so that the ridge of a
+        # ring inside the band is what the whole ray would give; whole pixels (cache key).
+        reach = 16 * sigma + 2
+        band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
+    _, _, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
+    crop, map_x, map_y = _polar_crop(camera, n_azimuths, step, band_px)
+    part = np.asarray(img)[crop]
+    # grey and the reflectance's temporaries do not outlive this call: scratch buffers
+    grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
+                                                                 np.float32))
+    polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    if reflectance is not None:
+        polar = _flatten_reflectance(polar, reflectance, channel, crop, map_x, map_y, camera)
+    # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
+    narrow = _blur_along_rays(polar, sigma / step)
+    wide = _blur_along_rays(polar, 4 * sigma / step)
+    ridge = narrow - wide
+    # Noise of the ridge response (robust, from a subsample), floored at a quarter of
+    # an 8-bit step so that a noise-free frame does not turn every ripple into a candidate.
+    sample = ridge[::3, ::3]
+    noise = max(1.4826 * float(np.median(np.abs(sample - np.median(sample)))), 0.25 / 255)
+    # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
+    # the noise and above a fraction of the typical ring response of this frame.
+    strongest = np.max(ridge, axis=1)
+    typical = float(np.median(strongest[strongest > min_snr * noise])) if np.any(
+        strongest > min_snr * noise) else np.inf
+    # A broad glint also has a ridge maximum; a thin line has a much larger ridge
+    # response relative to its height, so rank by the response itself.
+    order, top = ridge_peaks(ridge, max(min_snr * noise, min_relative * typical),
+                             max_candidates)
+    az_idx, rank = np.nonzero(np.isfinite(top))
+    idx = order[az_idx, rank]
+    radius = _centroid(polar, narrow, az_idx, idx, sigma / step) * step + radii[0]
+    phi = az_idx * (2 * np.pi / n_azimuths)
+    pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
+    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
+                         snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
+
+
+def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:
+    """Raise ValueError, naming ``what``, unless ``img`` is a grey or colour image of the
+    camera's size."""
+    shape = np.shape(img)
+    if len(shape) not in (2, 3):
+        raise ValueError(f"{what}: expected a 2-D or 3-D image, got shape {shape}")
+    if shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"{what}: expected {camera.width}x{camera.height}, "
+                         f"got {shape[1]}x{shape[0]}")
+
+
+def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur along each ray (axis 1) only; OpenCV's separable filter is fast."""
+    k = 2 * int(np.ceil(4 * sigma)) + 1
+    return cv2.GaussianBlur(polar, (k, 1), sigmaX=sigma, sigmaY=0,
+                            borderType=cv2.BORDER_REPLICATE)
+
+
+def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,
+                         crop: tuple[slice, slice], map_x: np.ndarray, map_y: np.ndarray,
+                         camera: CameraModel) -> np.ndarray:
+    """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
+
+    The LED image is normalised by its own broad average (LED fall-off, vignetting)
+    so that only the local reflectance remains; where the wall is too dark to
+    measure (holes, black paint) the laser carries no usable signal and is zeroed.
+    """
+    _check_frame("reflectance", reflectance, camera)
+    # the wall as the laser's channel sees it (over the crop the maps read)
+    part = np.asarray(reflectance)[crop]
+    led = prepare_laser_frame(part, channel,
+                              out=scratch.buffer("ring.led", part.shape[:2], np.float32))
+    led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", led.shape,
+                                                                np.float32))
+    local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    # A broad local mean (two passes of an 81-sample box, ~ a Gaussian of 33 samples).
+    broad = cv2.blur(cv2.blur(local, (81, 1), borderType=cv2.BORDER_REPLICATE), (81, 1),
+                     borderType=cv2.BORDER_REPLICATE)
+    return divide_by_reflectance(polar, local, broad, 0.15, 0.15)
+
+
+def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+              sigma_samples: float) -> np.ndarray:
+    """Sub-sample peak position: centroid of the profile above its local background.
+
+    The window spans +-3 sigma of the expected line; the background is the lower
+    of the window's two end values, so a sloping background (LED leakage, the
+    far-wall glow) is not mistaken for signal. Saturated (flat-topped) peaks are
+    handled correctly, which a parabola fit is not.
+    """
+    half = max(2, int(np.ceil(3 * sigma_samples)))
+    offsets = np.arange(-half, half + 1)
+    cols = np.clip(idx[:, None] + offsets[None, :], 0, polar.shape[1] - 1)
+    profile = polar[rows[:, None], cols]
+    base = np.minimum(profile[:, :1], profile[:, -1:])
+    peak = smooth[rows, idx][:, None]
+    weight = np.clip(profile - (base + 0.3 * (peak - base)), 0, None)
+    total = weight.sum(axis=1)
+    shift = np.where(total > 0, (weight * offsets).sum(axis=1) / np.where(total > 0, total, 1), 0)
+    return idx + shift

@@ -1,0 +1,188 @@
+"""Ring points + a known tilt -> the pipe's oval cross-section and the probe offset.
+
+One ring cannot tell an oval pipe from a tilted probe: the ring is a conic (five
+numbers) and the unknowns are seven (tilt alpha, beta, offset dx, dy, and the
+section's mean radius, ovality and its direction). An oval pipe therefore has up
+to four exact pose solutions (±alpha, ±beta), not two. Given the tilt from other
+evidence (the photometric refinement of :mod:`pipestitch.mosaic.refine`, which sees the
+tilt linearly where the ring sees it only quadratically), the remaining five
+unknowns are exactly determined by the ring. With no such evidence the tilt is
+held at 0, which reads a tilt tau as an extra ovality of at most about tau²/2
+(0.14 % at 3°).
+
+The section is parametrised by its mean radius r and the ovality vector
+(e cos 2phi, e sin 2phi), e = (Dmax - Dmin)/Dmean (SPEC), phi the direction of the
+major axis: smooth through the circle, where phi is undefined. The wall is
+q^T M q = 1 with M = [(1 + e²/4) I - [[c, s], [s, -c]]] / (r² (1 - e²/4)²) for
+semi-axes r (1 ± e/2); the residual r (sqrt(q^T M q) - 1) is the radial distance
+to first order. Fitted by ``scipy.optimize.least_squares`` (soft-L1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from pipestitch.camera import CameraModel
+from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, rot_x, rot_y
+from pipestitch.pose.fit import Hypothesis, PoseFit, plane_to_world, ring_rms_px
+
+__all__ = ["SectionFit", "fit_section", "oval_if_circle_infeasible", "oval_residuals"]
+
+
+@dataclass(frozen=True, slots=True)
+class SectionFit:
+    """Result of :func:`fit_section`.
+
+    Attributes
+    ----------
+    pose : Pose
+        The given tilt with the fitted offset.
+    section : PipeSection
+        Fitted cross-section (semi-axes r (1 ± e/2), major axis direction).
+    ovality_std : float
+        One-sigma uncertainty of the ovality (fraction).
+    radius_std_mm : float
+        One-sigma uncertainty of the mean radius.
+    rms_mm : float
+        RMS residual on the wall.
+    residuals_mm : numpy.ndarray
+        Residual of every point.
+    information : numpy.ndarray
+        4 x 4 information of (alpha, beta, dx, dy) from the ring with the section
+        marginalised out: near zero along the tilt directions that ovality can mimic.
+    """
+
+    pose: Pose
+    section: PipeSection
+    ovality_std: float
+    radius_std_mm: float
+    rms_mm: float
+    residuals_mm: np.ndarray
+    information: np.ndarray
+
+
+def _section(r: float, c: float, s: float) -> PipeSection:
+    e = float(np.hypot(c, s))
+    return PipeSection(r * (1 + e / 2), r * (1 - e / 2), float(np.arctan2(s, c) / 2))
+
+
+def oval_residuals(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+    """Radial residuals (mm) of probe-frame points for x = (alpha, beta, dx, dy, r, c, s)."""
+    rot = rot_x(x[0]) @ rot_y(x[1])
+    q = points_mm @ rot[:2].T + x[2:4]
+    r, c, s = x[4], x[5], x[6]
+    e2 = c * c + s * s
+    qx, qy = q[:, 0], q[:, 1]
+    qmq = ((1 + e2 / 4) * (qx * qx + qy * qy) - (c * (qx * qx - qy * qy) + 2 * s * qx * qy)) / (
+        r * r * (1 - e2 / 4) ** 2)
+    return r * (np.sqrt(np.maximum(qmq, 0.0)) - 1)
+
+
+def _numeric_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+    steps = np.array([1e-6, 1e-6, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6])
+    cols = []
+    for k, h in enumerate(steps):
+        up, down = x.copy(), x.copy()
+        up[k] += h
+        down[k] -= h
+        cols.append((oval_residuals(up, points_mm) - oval_residuals(down, points_mm)) / (2 * h))
+    return np.column_stack(cols)
+
+
+def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
+                start: PipeSection | None = None, noise_mm: float = 0.05) -> SectionFit:
+    """Fit the offset and an oval section to ring points with the tilt held fixed.
+
+    Parameters
+    ----------
+    points_mm : numpy.ndarray, shape (N, 3)
+        Ring points on the laser plane, probe frame (:attr:`RingPoints.points_mm`).
+    pose : Pose
+        alpha, beta are held; dx, dy start the fit.
+    radius_mm : float
+        Starting mean radius.
+    start : PipeSection, optional
+        Starting section (e.g. the previous round's); a circle otherwise.
+    noise_mm : float
+        Point noise on the wall: the soft-L1 scale.
+
+    Returns
+    -------
+    SectionFit
+    """
+    if start is not None and not start.is_circle:
+        e = start.ovality
+        c0, s0 = e * np.cos(2 * start.angle), e * np.sin(2 * start.angle)
+        if start.b_mm > start.a_mm:   # major axis along angle + 90°
+            c0, s0 = -c0, -s0
+        x0 = np.array([pose.dx_mm, pose.dy_mm, start.mean_radius_mm, c0, s0])
+    else:
+        x0 = np.array([pose.dx_mm, pose.dy_mm, radius_mm, 0.0, 0.0])
+    tilt = np.array([pose.alpha, pose.beta])
+
+    def fun(v: np.ndarray) -> np.ndarray:
+        return oval_residuals(np.concatenate([tilt, v]), points_mm)
+
+    # Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
+    bounds = ([-np.inf, -np.inf, 1e-3, -0.5, -0.5], [np.inf, np.inf, np.inf, 0.5, 0.5])
+    x0[3:] = np.clip(x0[3:], -0.49, 0.49)
+    res = least_squares(fun, x0, loss="soft_l1", f_scale=noise_mm, method="trf",
+                        x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]), bounds=bounds)
+    x = np.concatenate([tilt, res.x])
+    resid = oval_residuals(x, points_mm)
+    jac = _numeric_jacobian(x, points_mm)
+    dof = max(1, len(resid) - 5)
+    info = jac.T @ jac / max(float(resid @ resid) / dof, 1e-12)
+    cov = np.linalg.pinv(info[2:, 2:])
+    e = float(np.hypot(x[5], x[6]))
+    grad = np.array([x[5], x[6]]) / e if e > 0 else np.array([1.0, 0.0])
+    ovality_std = float(np.sqrt(max(grad @ cov[3:, 3:] @ grad, 0.0)))
+    section_info = info[4:, 4:]
+    pose_info = info[:4, :4] - info[:4, 4:] @ np.linalg.pinv(section_info) @ info[4:, :4]
+    evals, evecs = np.linalg.eigh((pose_info + pose_info.T) / 2)
+    pose_info = (evecs * np.maximum(evals, 0.0)) @ evecs.T   # PSD up to rounding
+    return SectionFit(Pose(pose.alpha, pose.beta, float(x[2]), float(x[3])),
+                      _section(*x[4:]), ovality_std, float(np.sqrt(max(cov[2, 2], 0.0))),
+                      float(np.sqrt(np.mean(resid**2))), resid, pose_info)
+
+
+# A circle fit whose every hypothesis puts the probe body this far into the wall is
+# not a probe in a circular pipe: the ring's tilt error moves the body's rear end by
+# tenths of a mm, not by one.
+INFEASIBLE_CLEARANCE_MM = -1.0
+
+
+def oval_if_circle_infeasible(fit: PoseFit, body: BodyEnvelope, camera: CameraModel,
+                              noise_mm: float = 0.05) -> PoseFit:
+    """The frame refitted as an oval pipe (tilt held at 0) when no circle pose fits the body.
+
+    An oval pipe read as a circle looks like a strong tilt (5 % ovality ~ 18°) that
+    the probe body cannot take. Such a frame gets model ``"oval/tilt-0"``: offset and
+    section from the ring with the tilt unobserved and held at 0 (the photometric
+    refinement of ``pipestitch run`` then measures it); both hypotheses coincide.
+    Other fits are returned unchanged.
+    """
+    if not fit.ok or fit.ring is None:
+        return fit
+    clearances = [body.clearance_mm(h.pose, h.pipe_section) for h in fit.hypotheses]
+    if max(clearances) >= INFEASIBLE_CLEARANCE_MM:
+        return fit
+    h = fit.hypotheses[0]
+    plane = fit.ring.plane
+    centre = plane_to_world(h.pose, plane)[1]   # world (x, y) of the plane centre
+    # untilted, the plane centre d·n lands at d·n[:2] + offset: start the offset there
+    offset = centre - plane.distance_mm * plane.normal[:2]
+    sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *offset), h.radius_mm, noise_mm=noise_mm)
+    keep = np.abs(sf.residuals_mm) < max(0.25, 5 * noise_mm)
+    rms_px = ring_rms_px(sf.pose, sf.section.mean_radius_mm,
+                         fit.ring.pixels[keep].astype(np.float64),
+                         fit.ring.uv[keep].astype(np.float64), sf.residuals_mm[keep], camera,
+                         plane)
+    oval = Hypothesis(sf.pose, sf.section.mean_radius_mm, float("nan"), sf.rms_mm, rms_px,
+                      {"dx_mm": float("nan"), "dy_mm": float("nan"),
+                       "radius_mm": sf.radius_std_mm, "ovality": sf.ovality_std},
+                      sf.information, sf.section)
+    return replace(fit, hypotheses=(oval, oval), model="oval/tilt-0")

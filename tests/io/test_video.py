@@ -1,0 +1,208 @@
+"""Video input: lossless round trips, laser/LED pairing by content, dropped frames,
+timestamps, random access, bad input, and `run`/`pose --video` against the frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli.app import app
+from pipestitch.errors import DatasetError
+from pipestitch.io.dataset import open_dataset
+from pipestitch.io.video import (
+    VideoReader,
+    classify_laser_frames,
+    frame_brightness,
+    pair_frames,
+    write_video,
+)
+
+H, W = 96, 128
+
+
+def _laser(k: int, dtype=np.uint8, colour: bool = False) -> np.ndarray:
+    """Dark frame with a thin bright ring (radius varies with k) and sensor noise."""
+    top = np.iinfo(dtype).max
+    rng = np.random.default_rng(k)
+    img = rng.integers(0, max(2, top // 60), (H, W)).astype(np.float64)
+    cv2.circle(img, (W // 2, H // 2), 30 + k % 5, 0.9 * top, 2)
+    img = img.astype(dtype)
+    return np.dstack([img, img // 2, img]) if colour else img
+
+
+def _led(k: int, dtype=np.uint8, colour: bool = False) -> np.ndarray:
+    """Lit wall: a random texture at mid to high brightness."""
+    top = np.iinfo(dtype).max
+    rng = np.random.default_rng(1000 + k)
+    img = (rng.uniform(0.3, 0.9, (H, W)) * top).astype(dtype)
+    return np.dstack([img, rng.permutation(img), img]) if colour else img
+
+
+def _interleaved(n_pairs: int, laser_first: bool = True, **kw) -> list[np.ndarray]:
+    out = []
+    for k in range(n_pairs):
+        pair = [_laser(k, **kw), _led(k, **kw)]
+        out += pair if laser_first else pair[::-1]
+    return out
+
+
+@pytest.mark.parametrize("codec", ["ffvhuff", "ffv1"])
+@pytest.mark.parametrize("dtype,colour", [(np.uint8, False), (np.uint16, False),
+                                          (np.uint8, True), (np.uint16, True)])
+def test_video_round_trip_is_lossless_with_random_access(tmp_path: Path, dtype,
+                                                         colour: bool, codec: str) -> None:
+    frames = _interleaved(6, dtype=dtype, colour=colour)
+    path = write_video(tmp_path / "v.vid", frames, fps=25.0, codec=codec)
+    reader = VideoReader(path)
+    assert reader.n_frames == len(frames)
+    np.testing.assert_allclose(reader.index.time_s, np.arange(len(frames)) / 25.0, atol=1e-3)
+    order = np.random.default_rng(0).permutation(len(frames)).tolist() + [0, 1, 11, 2]
+    for k in order:  # out of order: seeks backwards and forwards, cache hits
+        got = reader.frame(k)
+        assert got.dtype == frames[k].dtype and got.shape == frames[k].shape
+        assert np.array_equal(got, frames[k]), k
+    reader.close()
+
+
+def test_brightness_classifies_laser_frames_without_a_threshold() -> None:
+    # Two exposures (x 1/3) in one run: what matters is the two populations, not a level.
+    frames = _interleaved(5) + [(f // 3).astype(np.uint8) for f in _interleaved(5)]
+    truth = np.array([k % 2 == 0 for k in range(len(frames))])
+    got = classify_laser_frames(np.array([frame_brightness(f) for f in frames]))
+    assert np.array_equal(got, truth)
+    with pytest.raises(ValueError, match="equally bright"):
+        classify_laser_frames(np.full(6, 0.2))
+
+
+def test_pairing_resyncs_after_dropped_frames_and_reports_them() -> None:
+    # LED-first video: (E L)(E L)(E -)(E L)(- L)(E L) -> frames 5 and 8 missing.
+    sequence = "ELELE" + "EL" + "L" + "EL"
+    is_laser = np.array([c == "L" for c in sequence])
+    pairs = pair_frames(is_laser)
+    assert not pairs.laser_first
+    # Independently worked out: frame numbers of each pair's laser and LED frames.
+    assert pairs.laser.tolist() == [1, 3, 6, 7, 9]
+    assert pairs.led.tolist() == [0, 2, 5, -1, 8]
+    assert len(pairs.messages) == 2
+    assert "frame 4: LED frame without its laser frame" in pairs.messages[0]
+    assert "frame 7: laser frame without its LED frame" in pairs.messages[1]
+
+
+def test_dropped_frames_in_a_video_give_pairs_timestamps_and_gaps(tmp_path: Path) -> None:
+    frames = _interleaved(6)
+    keep = [k for k in range(12) if k not in (3, 6, 7)]  # one LED, then a whole pair
+    path = write_video(tmp_path / "v.avi", [frames[k] for k in keep], fps=20.0,
+                       frame_numbers=keep)
+    root = _dataset_root(tmp_path, W, H)
+    ds = open_dataset(root, video=path)
+    # Pairs 0, 1 (LED dropped), 2, 4, 5 of the original run (pair 3 lost whole).
+    assert ds.n_pairs == 5
+    assert ds.led_missing() == [1]
+    np.testing.assert_allclose(ds.timestamps_s, [0.0, 0.1, 0.2, 0.4, 0.5], atol=1e-3)
+    assert np.array_equal(ds.read_laser(3), frames[8])
+    assert np.array_equal(ds.read_led(4), frames[11])
+    with pytest.raises(DatasetError, match="pair 1: LED frame missing"):
+        ds.read_led(1)
+    assert any("without its LED frame" in n for n in ds.notes)
+    assert any("timestamp gap" in n and "2 frame(s) dropped" in n for n in ds.notes)
+
+
+def _dataset_root(tmp_path: Path, width: int, height: int) -> Path:
+    root = tmp_path / "ds"
+    root.mkdir(parents=True)
+    (root / "probe.toml").write_text(
+        "[camera]\nmodel = \"opencv_fisheye\"\n"
+        f"width = {width}\nheight = {height}\n"
+        f"K = [[40.0, 0.0, {width / 2 - 0.5}], [0.0, 40.0, {height / 2 - 0.5}], [0, 0, 1]]\n"
+        "D = [0.0, 0.0, 0.0, 0.0]\n"
+        "[laser]\nplane_distance_mm = 16.0\n[probe]\nlength_mm = 145.0\ndiameter_mm = 45.0\n"
+        "[pipe]\ninner_diameter_mm = 65.0\n", encoding="utf-8")
+    return root
+
+
+def test_bad_videos_are_reported_naming_the_file(tmp_path: Path) -> None:
+    root = _dataset_root(tmp_path, W, H)
+    with pytest.raises(DatasetError, match="video file not found") as info:
+        open_dataset(root, video=tmp_path / "missing.mkv")
+    assert info.value.path == tmp_path / "missing.mkv"
+    junk = tmp_path / "junk.mkv"
+    junk.write_text("not a video")
+    with pytest.raises(DatasetError, match="cannot open as a video"):
+        open_dataset(root, video=junk)
+    flat = write_video(tmp_path / "flat.avi", [np.full((H, W), 90, np.uint8)] * 4)
+    with pytest.raises(DatasetError, match="equally bright"):
+        open_dataset(root, video=flat)
+    wrong = _dataset_root(tmp_path / "w", W * 2, H)
+    ds = open_dataset(wrong, video=write_video(tmp_path / "v.avi", _interleaved(2)))
+    with pytest.raises(DatasetError, match=r"probe\.toml says"):
+        ds.read_laser(0)
+
+
+@pytest.fixture(scope="module")
+def simulated_video(tmp_path_factory, simulate_small) -> tuple[Path, Path]:
+    """A small simulated dataset and its frames written as a video (laser first)."""
+    tmp = tmp_path_factory.mktemp("video")
+    root = simulate_small(tmp / "ds", "--scenario", "default", "--pairs", "3")
+    ds = open_dataset(root)
+    frames = (f for i in range(ds.n_pairs) for f in (ds.read_laser(i), ds.read_led(i)))
+    return root, write_video(tmp / "run.avi", frames)
+
+
+def test_video_dataset_matches_the_frames_dataset(simulated_video) -> None:
+    root, video = simulated_video
+    frames_ds, video_ds = open_dataset(root), open_dataset(root, video=video)
+    assert video_ds.n_pairs == frames_ds.n_pairs == 3
+    assert video_ds.has_led and video_ds.led_missing() == []
+    assert video_ds.odometry_mm == frames_ds.odometry_mm
+    for i in (2, 0, 1):
+        assert np.array_equal(video_ds.read_laser(i), frames_ds.read_laser(i))
+        assert np.array_equal(video_ds.read_led(i), frames_ds.read_led(i))
+
+
+def test_cli_run_and_pose_with_video_match_the_frames(tmp_path: Path, simulated_video) -> None:
+    root, video = simulated_video
+    runner = CliRunner()
+    outs = {}
+    for name, extra in (("frames", []), ("video", ["--video", str(video)])):
+        outs[name] = tmp_path / name
+        result = runner.invoke(app, ["run", str(root), "--out", str(outs[name]), "--quiet",
+                                     *extra])
+        assert result.exit_code == 0, result.output
+    for name in ("poses.csv", "profile.csv", "defects.csv"):
+        assert (outs["video"] / name).read_text() == (outs["frames"] / name).read_text(), name
+    a = cv2.imread(str(outs["frames"] / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    b = cv2.imread(str(outs["video"] / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(a, b)
+    result = runner.invoke(app, ["pose", str(root), "--out", str(tmp_path / "p"), "--quiet",
+                                 "--video", str(video)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["run", str(root), "--out", str(tmp_path / "x"),
+                                 "--video", str(tmp_path / "nope.mkv")])
+    assert result.exit_code == 2
+    assert "nope.mkv" in result.output and "video file not found" in result.output
+
+
+def test_check_with_a_video(tmp_path: Path) -> None:
+    """`pipestitch check DATASET --video FILE`: dropped frames are warnings, a frame
+    size other than probe.toml's and a missing video are errors naming the file."""
+    from typer.testing import CliRunner
+
+    from pipestitch.cli.app import app
+
+    frames = _interleaved(4)
+    keep = [k for k in range(8) if k != 3]                 # pair 1's LED frame dropped
+    video = write_video(tmp_path / "v.avi", [frames[k] for k in keep], frame_numbers=keep)
+    root = _dataset_root(tmp_path, W, H)
+    runner = CliRunner()
+    result = runner.invoke(app, ["check", str(root), "--video", str(video), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "without its LED frame" in result.output and "warning" in result.output
+    wrong = _dataset_root(tmp_path / "w", W * 2, H)
+    result = runner.invoke(app, ["check", str(wrong), "--video", str(video), "--quiet"])
+    assert result.exit_code == 2 and "probe.toml says" in result.output
+    result = runner.invoke(app, ["check", str(root), "--video", str(tmp_path / "no.avi")])
+    assert result.exit_code == 2 and "video file not found" in result.output

@@ -1,0 +1,132 @@
+"""Blending strips into the canvas: placement, seams across theta = 0, gain, release in
+blocks, overview, vignetting.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.mosaic.blend import Canvas, Overview, _feather, frame_grid, vignetting_profile
+from pipestitch.mosaic.unwrap import (
+    Strip,
+    StripGrid,
+)
+from pipestitch.simulate.textures import WallGrid, make_wall
+
+R = 32.5
+
+
+@pytest.fixture(scope="module")
+
+
+def wall() -> tuple[WallGrid, np.ndarray]:
+    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
+    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
+
+
+def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
+
+
+def test_frame_grid_places_frames_by_z_and_roll() -> None:
+    canvas_grid = StripGrid(0.5, 0.1, -10.0, 1000)
+    grid, col = frame_grid(canvas_grid, 12.34, 2.0, (-5.0, 30.0))
+    assert grid.theta0_deg == -2.0
+    assert canvas_grid.z0_mm + col * 0.1 - 12.34 == pytest.approx(grid.z0_mm)
+    assert grid.z0_mm >= -5.0 and grid.z0_mm + (grid.n_cols - 1) * 0.1 <= 30.0
+
+
+def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> None:
+    grid = StripGrid(1.0, 0.1, 0.0, 120)
+    canvas = Canvas(grid)
+    level = np.ones(80)
+    wall = _texture((360, 120), seed=5)
+    ones = np.ones((360, 80), np.float32)
+    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0, level)
+    gain = canvas.add(Strip(2.0 * wall[:, 40:120], ones, ones), 40, level)
+    image, weights = canvas.image()
+    assert np.all(weights > 0)
+    assert gain == pytest.approx(0.5, rel=0.02)
+    assert np.allclose(image, wall, atol=0.02)
+    feather = _feather(np.ones((360, 80), bool))
+    assert feather[0, 40] == 1.0 and feather[-1, 40] == 1.0   # rows wrap: no seam at 0/360
+    assert feather[100, 0] < 0.1
+
+
+def test_canvas_released_in_blocks_equals_the_whole_canvas() -> None:
+    """Streaming: columns released as soon as no later strip reaches them give exactly
+    the mosaic of a canvas held whole, and the window stays the width of the strips."""
+    grid = StripGrid(1.0, 0.1, 0.0, 2000)
+    wall = _texture((360, 2000), seed=7)
+    ones = np.ones((360, 300), np.float32)
+    starts = list(range(0, 1701, 100))
+    whole, streamed = Canvas(grid), Canvas(grid)
+    blocks, widest = [], 0
+    for k, c in enumerate(starts):
+        strip = Strip((1 + 0.1 * (k % 3)) * wall[:, c:c + 300], ones, ones)
+        whole.add(strip, c, np.ones(300))
+        streamed.add(strip, c, np.ones(300))
+        widest = max(widest, streamed.total.shape[1])
+        nxt = starts[k + 1] if k + 1 < len(starts) else None
+        got = streamed.release(nxt)
+        if got is not None:
+            blocks.append(got)
+    image, weights = whole.image()
+    assert [b[0] for b in blocks] == starts      # released up to the next strip each time
+    assert np.array_equal(np.concatenate([b[1] for b in blocks], axis=1), image, equal_nan=True)
+    assert np.array_equal(np.concatenate([b[2] for b in blocks], axis=1), weights)
+    assert widest <= 300 + 512
+    with pytest.raises(ValueError, match="released"):
+        streamed.add(Strip(wall[:, :300], ones, ones), 0, np.ones(300))
+
+
+def test_overview_keeps_the_wall_image_convention() -> None:
+    """A reduced mosaic.png: row i at theta = i x its deg_per_px, column j at its z0 +
+    j x its mm_per_px, values the local mean; half-seen groups are data, others 0."""
+    grid = StripGrid(360 / 1500, 0.135, -12.0, 5003)
+    theta = np.arange(1500)[:, None] * grid.deg_per_px
+    z = grid.z0_mm + np.arange(5003)[None, :] * grid.mm_per_px
+    image = np.rint(128 + 60 * np.sin(np.deg2rad(theta)) + 0.1 * z).astype(np.uint8)
+    image[:, 4000:4003] = 0                       # three unseen columns
+    ov = Overview(grid, max_pixels=1_000_000)
+    for c in range(0, 5003, 700):
+        ov.push(image[:, c:c + 700])
+    out = ov.finish()
+    f, g = ov.factor, ov.grid
+    assert f == 3 and out.shape == (g.n_rows, g.n_cols) == (500, 1668)
+    th = np.arange(g.n_rows)[:, None] * g.deg_per_px
+    zz = g.z0_mm + np.arange(g.n_cols)[None, :] * g.mm_per_px
+    expect = 128 + 60 * np.sin(np.deg2rad(th)) + 0.1 * zz
+    data = out > 0
+    assert np.abs(out[data] - np.broadcast_to(expect, out.shape)[data]).max() <= 1.01
+    assert not data[:, 4000 // 3].any() and data[:, 4003 // 3 + 1].all()
+
+
+def test_vignetting_profile_of_a_long_run_from_a_bounded_sample_of_frames(monkeypatch) -> None:
+    """A long run's profile is the median over PROFILE_FRAMES evenly spaced frames: the
+    vignetting (here a falloff to 0.6 at the ends, under ±10 % exposure changes and 5 %
+    noise a frame) comes out to 0.5 % RMS, as from all frames, and the frames between
+    the sampled ones are not read."""
+    from pipestitch.mosaic import blend as mosaic
+
+    rng = np.random.default_rng(4)
+    z = np.linspace(-1, 1, 300)
+    falloff = 1.0 - 0.4 * z**2
+    levels = [(falloff * rng.uniform(0.9, 1.1) * rng.normal(1, 0.05, z.size)).astype(np.float32)
+              for _ in range(3000)]
+    for lv in levels[::7]:
+        lv[:40] = np.nan                     # columns some frames do not see
+    expected = falloff / np.median(falloff)
+    sampled = vignetting_profile(levels)
+    assert len(levels) > 5 * mosaic.PROFILE_FRAMES
+    assert np.sqrt(np.mean((sampled - expected) ** 2)) < 0.005   # ~0.3 % a column
+    step = -(-len(levels) // mosaic.PROFILE_FRAMES)
+    assert mosaic.profile_step(len(levels)) == step   # what a pass keeps of a run's levels
+    np.testing.assert_array_equal(vignetting_profile(levels[::step]), sampled)
+    garbled = [lv if k % step == 0 else np.full_like(lv, 7.0) for k, lv in enumerate(levels)]
+    np.testing.assert_array_equal(vignetting_profile(garbled), sampled)
+    monkeypatch.setattr(mosaic, "PROFILE_FRAMES", len(levels))
+    assert np.sqrt(np.mean((vignetting_profile(levels) - expected) ** 2)) < 0.005

@@ -1,0 +1,39 @@
+"""The compiled blending kernels against the numpy expressions they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight, shaded_albedo
+
+RNG = np.random.default_rng(7)
+
+
+def test_shaded_albedo_is_the_numpy_division_with_its_validity() -> None:
+    values = RNG.random((30, 40)).astype(np.float32)
+    values[2, :7] = np.nan
+    shading = RNG.random((30, 40)).astype(np.float32)
+    shading[3, :4] = 0   # below the 1e-6 floor
+    weight = np.where(RNG.random((30, 40)) < 0.2, 0, RNG.random((30, 40))).astype(np.float32)
+    level = 0.5 + RNG.random(40)
+    want = values / np.maximum(shading * level[None, :], 1e-6)   # float64, as numpy promotes
+    valid = np.isfinite(want) & (weight > 0)
+    albedo, got_valid = shaded_albedo(values, shading, level, weight)
+    np.testing.assert_array_equal(got_valid.astype(bool), valid)
+    np.testing.assert_array_equal(albedo, np.where(valid, want, 0).astype(np.float32))
+    feather = RNG.random((30, 40)).astype(np.float32)
+    np.testing.assert_array_equal(feathered_weight(weight, feather, got_valid),
+                                  np.where(valid, weight * feather, 0).astype(np.float32))
+
+
+def test_accumulated_strip_is_the_numpy_sums_over_its_columns() -> None:
+    total = RNG.random((12, 50)).astype(np.float32)
+    weights = RNG.random((12, 50)).astype(np.float32)
+    albedo = RNG.random((12, 20)).astype(np.float32)
+    weight = np.where(RNG.random((12, 20)) < 0.3, 0, RNG.random((12, 20))).astype(np.float32)
+    want_total, want_weights = total.copy(), weights.copy()
+    want_total[:, 7:27] += albedo.astype(np.float64) * 1.3 * weight
+    want_weights[:, 7:27] += weight
+    accumulate_strip(total, weights, 7, albedo, weight, 1.3)
+    np.testing.assert_array_equal(weights, want_weights)
+    np.testing.assert_allclose(total, want_total, rtol=1e-7, atol=0)

@@ -1,0 +1,81 @@
+"""Pose refinement from the strips' local warps: patch shifts and the node Jacobian."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import PipeSection, Pose
+from pipestitch.mosaic.refine import PATCHES_AROUND, node_jacobian, patch_shifts
+from pipestitch.mosaic.unwrap import (
+    StripGrid,
+    unwrap_maps,
+)
+from pipestitch.simulate.textures import WallGrid, make_wall
+
+R = 32.5
+
+
+CAMERA = default_camera("half")
+
+
+@pytest.fixture(scope="module")
+
+
+def wall() -> tuple[WallGrid, np.ndarray]:
+    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
+    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
+
+
+def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
+
+
+def _shifted(img: np.ndarray, d_rows: float, d_cols: float) -> np.ndarray:
+    """img(x + d), rows wrapping (as the pipe does)."""
+    rows, cols = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(np.float32)
+    return cv2.remap(img, cols + d_cols, rows + d_rows, cv2.INTER_CUBIC,
+                     borderMode=cv2.BORDER_WRAP)
+
+
+def test_patch_shifts_measure_local_motion() -> None:
+    wall = _texture((400, 400), seed=2)
+    first = wall[:, :300] - 0.5
+    second = (_shifted(wall, 3.0, 20.25)[:, :300] - 0.5).astype(np.float32)
+    valid = np.ones_like(first, bool)
+    found = patch_shifts(first, valid, second, valid, (3.0, 20.0), 0, 1)
+    assert len(found.nodes) > 10
+    assert np.allclose(found.shift, [3.0, 20.25], atol=0.05)
+    # a strip of many rows (a full-size sensor's) gets at most PATCHES_AROUND around
+    tall = np.vstack([first] * 8)
+    found = patch_shifts(tall, np.ones_like(tall, bool), np.vstack([second] * 8),
+                         np.ones_like(tall, bool), (3.0, 20.0), 0, 1)
+    rows = np.unique(found.nodes[:, 0])
+    assert np.all(np.diff(rows) == tall.shape[0] // PATCHES_AROUND)
+    assert PATCHES_AROUND <= len(rows) <= PATCHES_AROUND + 1   # the step rounds down
+    assert np.allclose(found.shift, [3.0, 20.25], atol=0.05)
+
+
+def test_node_jacobian_predicts_the_strip_warp_of_a_pose_error() -> None:
+    """Unwrap one frame with the true pose and with a slightly wrong one: the wall
+    moves between the two strips by G·e, as node_jacobian says."""
+    grid = StripGrid.window(R, 0.135, 5.0, 40.0)
+    true = Pose.from_degrees(1.0, -0.5, 2.0, 1.0)
+    error = np.array([np.deg2rad(0.3), np.deg2rad(-0.2), 0.1, -0.05])
+    wrong = Pose(true.alpha + error[0], true.beta + error[1], true.dx_mm + error[2],
+                 true.dy_mm + error[3])
+    nodes = np.array([[100.0, 50.0], [600.0, 120.0], [1200.0, 200.0]])
+    g = node_jacobian(CAMERA, wrong, PipeSection(R), grid, nodes)
+    # Ground truth: where the wrong strip's node really is on the wall, found by
+    # projecting it with the wrong pose and locating that pixel in the true strip.
+    mx_t, my_t = unwrap_maps(CAMERA, true, PipeSection(R), grid)
+    mx_w, my_w = unwrap_maps(CAMERA, wrong, PipeSection(R), grid)
+    for (r, c), gn in zip(nodes.astype(int), g, strict=True):
+        px = np.array([mx_w[r, c], my_w[r, c]])
+        d = np.hypot(mx_t - px[0], my_t - px[1])
+        rr, cc = np.unravel_index(np.argmin(d), d.shape)
+        predicted = np.array([r, c]) + gn @ error
+        assert np.allclose(predicted, [rr, cc], atol=1.0)

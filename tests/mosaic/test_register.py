@@ -1,0 +1,132 @@
+"""Registration of strips (axial shift and roll) and the global solve over the run's links."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.mosaic.register import (
+    Link,
+    MotionPrior,
+    measure_shift,
+    registration_image,
+    solve_positions,
+    spectrum,
+    strip_contrast,
+)
+from pipestitch.mosaic.unwrap import (
+    Strip,
+    StripGrid,
+)
+from pipestitch.simulate.textures import WallGrid, make_wall
+
+R = 32.5
+
+
+@pytest.fixture(scope="module")
+
+
+def wall() -> tuple[WallGrid, np.ndarray]:
+    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
+    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
+
+
+def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
+
+
+def _shifted(img: np.ndarray, d_rows: float, d_cols: float) -> np.ndarray:
+    """img(x + d), rows wrapping (as the pipe does)."""
+    rows, cols = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(np.float32)
+    return cv2.remap(img, cols + d_cols, rows + d_rows, cv2.INTER_CUBIC,
+                     borderMode=cv2.BORDER_WRAP)
+
+
+def test_registration_recovers_axial_shift_and_roll() -> None:
+    grid = StripGrid(360 / 720, 0.1, 0.0, 300)
+    wall = _texture((720, 420))
+    first = wall[:, :300]
+    second = _shifted(wall, 13.4, 37.3)[:, :300]     # frame j: 3.73 mm on, 6.7 deg of roll
+    images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),
+                                 np.ones_like(s)) for s in (first, second)]
+    link = measure_shift(images[0], images[1], grid, 0, 1)
+    assert link is not None
+    assert link.dz_mm == pytest.approx(3.73, abs=0.01)
+    assert link.droll_deg == pytest.approx(13.4 * 0.5, abs=0.01)
+    assert measure_shift(images[0], np.zeros_like(images[1]), grid, 0, 1) is None
+
+
+@pytest.mark.parametrize("shape", [(720, 300), (675, 300), (720, 243), (675, 243)])
+
+
+def test_registration_with_a_motion_prior_on_strips_of_any_parity(
+        shape: tuple[int, int]) -> None:
+    # The correlation runs on packed spectra, whose layout depends on the parity of
+    # both sizes; the prior (odometer-like, 0.3 mm and 0.5 deg off) must not bias it.
+    n_rows, n_cols = shape
+    grid = StripGrid(360 / n_rows, 0.1, 0.0, n_cols)
+    wall = _texture((n_rows, n_cols + 120), seed=1)
+    second = _shifted(wall, 13.4, 37.3)[:, :n_cols]
+    images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),
+                                 np.ones_like(s)) for s in (wall[:, :n_cols], second)]
+    droll = 13.4 * grid.deg_per_px
+    prior = MotionPrior(3.73 + 0.3, droll + 0.5, 3.0, 5.0)
+    link = measure_shift(images[0], images[1], grid, 0, 1, prior,
+                         (spectrum(images[0]), spectrum(images[1])))
+    assert link is not None
+    # One Lucas-Kanade step from the whole-pixel peak: ~0.02 px measured, 0.05 px allowed.
+    assert link.dz_mm == pytest.approx(3.73, abs=0.005)
+    assert link.droll_deg == pytest.approx(droll, abs=0.05 * grid.deg_per_px)
+
+
+def _link(i: int, j: int, dz: float, droll: float = 0.0) -> Link:
+    return Link(i, j, dz, droll, 0.5, 0.02, 0.02)
+
+
+def test_global_solve_outvotes_a_bad_link_and_an_odometer_slip() -> None:
+    z_true = np.array([0.0, 5.1, 9.8, 15.2, 20.0, 25.3])
+    roll_true = np.array([0.0, 0.3, 0.5, 0.6, 0.5, 0.2])
+    links = [_link(i, j, z_true[j] - z_true[i], roll_true[j] - roll_true[i])
+             for i in range(6) for j in (i + 1, i + 2) if j < 6]
+    links[3] = dataclasses.replace(links[3], dz_mm=links[3].dz_mm + 4.0)   # a wrong peak
+    odometer = {i: 1.02 * (z - 0.0) + 100.0 for i, z in enumerate(z_true)}
+    odometer.update({k: v - 3.0 for k, v in odometer.items() if k >= 4})  # the wheel slips
+    pos = solve_positions(6, links, odometry_mm=odometer)
+    dz = np.diff(pos.z_mm)
+    assert np.allclose(dz, np.diff(z_true), atol=0.01)
+    assert np.allclose(pos.roll_deg - pos.roll_deg[0], roll_true, atol=0.01)
+    assert (links[3].i, links[3].j, "registration") in pos.outliers
+    assert any(src == "odometer" for *_, src in pos.outliers)
+
+
+def test_roll_of_frames_tied_only_by_the_odometer_is_interpolated_and_reported() -> None:
+    links = [_link(0, 1, 5.0, 10.0), _link(2, 3, 5.0, 10.0)]
+    pos = solve_positions(4, links, odometry_mm={i: 5.0 * i for i in range(4)})
+    assert np.allclose(np.diff(pos.z_mm), 5.0, atol=1e-6)
+    assert pos.roll_deg[0] == pytest.approx(0.0, abs=1e-6)
+    assert pos.roll_deg[1] == pytest.approx(10.0, abs=1e-3)
+    assert pos.roll_deg[3] - pos.roll_deg[2] == pytest.approx(10.0, abs=1e-3)
+    assert sorted(pos.roll_guessed) == [2, 3]
+
+
+def test_a_frame_whose_only_links_are_rejected_is_not_placed() -> None:
+    """Frame 4's two links disagree by 10 mm: neither can be trusted, so it is left out
+    instead of being put somewhere in between."""
+    good = [_link(0, 1, 5.0), _link(1, 2, 5.0), _link(0, 2, 10.0), _link(1, 3, 10.0),
+            _link(2, 3, 5.0)]
+    pos = solve_positions(5, [*good, _link(3, 4, 5.0), _link(2, 4, 20.0)])
+    assert np.allclose(pos.z_mm[:4], [0.0, 5.0, 10.0, 15.0], atol=1e-6)
+    assert np.isnan(pos.z_mm[4])
+    assert {(3, 4, "registration"), (2, 4, "registration")} <= set(pos.outliers)
+
+
+def test_global_solve_leaves_unconnected_frames_unplaced() -> None:
+    links = [_link(0, 1, 5.0), _link(1, 2, 5.0), _link(3, 4, 5.0)]
+    pos = solve_positions(5, links)
+    assert np.all(np.isfinite(pos.z_mm[:3])) and np.all(np.isnan(pos.z_mm[3:]))
+    pos = solve_positions(5, links, odometry_mm={i: 5.0 * i for i in range(5)})
+    assert np.allclose(np.diff(pos.z_mm), 5.0, atol=1e-6)

@@ -1,0 +1,87 @@
+"""The compiled registration kernels against the numpy/OpenCV expressions they replace."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.mosaic._register_kernels import (
+    cross_power_ccs,
+    gradient_moments,
+    residual_moments,
+    shifted_residual_moments,
+)
+
+RNG = np.random.default_rng(7)
+
+
+@pytest.mark.parametrize("shape", [(64, 48), (63, 48), (64, 47), (63, 47), (2, 9)])
+
+
+def test_packed_cross_power_equals_the_complex_form(shape: tuple[int, int]) -> None:
+    # The packed layout has special rows and columns that depend on the parity of each size.
+    a = RNG.normal(size=shape).astype(np.float32)
+    b = np.roll(a, (1, 3), axis=(0, 1)) + 0.1 * RNG.normal(size=shape).astype(np.float32)
+    fa, fb = (cv2.dft(x, flags=cv2.DFT_COMPLEX_OUTPUT) for x in (a, b))
+    cross = cv2.mulSpectrums(fb, fa, 0, conjB=True)
+    cross /= np.maximum(np.hypot(cross[..., 0], cross[..., 1]), 1e-12)[..., None]
+    want = cv2.idft(cross, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    got = cv2.idft(cross_power_ccs(cv2.dft(b), cv2.dft(a)),
+                   flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    # A unit-modulus spectrum: the surface sums to ~1, float32 rounding ~1e-7.
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-6)
+
+
+def test_gradient_moments_are_numpy_gradient_sums() -> None:
+    img = RNG.normal(size=(31, 45)).astype(np.float32)
+    weight = RNG.random(img.shape).astype(np.float32)
+    gy, gx = np.gradient(img)
+    want = [np.sum(weight.astype(float) * v) for v in (gx * gx, gx * gy, gy * gy)]
+    np.testing.assert_allclose(gradient_moments(img, weight), want, rtol=1e-5)
+    unweighted = gradient_moments(img, np.zeros((0, 0), np.float32))
+    np.testing.assert_allclose(unweighted, [np.sum(v) for v in (gx * gx, gx * gy, gy * gy)],
+                               rtol=1e-5)
+
+
+@pytest.mark.parametrize(("d_rows", "d_cols"), [(0, 0), (3, -7), (-12, 20), (30, -44)])
+
+
+def test_residual_moments_read_a_whole_pixel_shift_as_the_warp_gives_it(
+        d_rows: int, d_cols: int) -> None:
+    img = RNG.normal(size=(31, 45)).astype(np.float32)
+    moved = RNG.normal(size=img.shape).astype(np.float32)
+    weight = RNG.random(img.shape).astype(np.float32)
+    # back(x) = moved(x + d), wrapping: what _polish warps (cubic, exact at whole pixels).
+    back = cv2.warpAffine(moved, np.float32([[1, 0, d_cols], [0, 1, d_rows]]), (45, 31),
+                          flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_WRAP)
+    assert residual_moments(img, moved, weight, d_rows, d_cols) == \
+        residual_moments(img, back, weight, 0, 0)
+    gy, gx = np.gradient(img)
+    err = weight.astype(float) * (back - img)
+    np.testing.assert_allclose(residual_moments(img, back, weight, 0, 0),
+                               [np.sum(err * gx), np.sum(err * gy)], rtol=1e-5)
+
+
+@pytest.mark.parametrize(("dx", "dy"), [(0.3, -0.7), (2.25, 1.5), (-20.2, 30.6), (44.5, -10.25),
+                                        (3.0, -2.0)])
+
+
+@pytest.mark.parametrize("weighted", [True, False])
+
+
+def test_shifted_residual_moments_are_the_cubic_warp_s(dx: float, dy: float,
+                                                       weighted: bool) -> None:
+    """The fused kernel equals cv2.warpAffine (INTER_CUBIC, wrapping) + residual_moments,
+    sub-pixel and whole-pixel shifts, positive and negative, beyond half the size."""
+    img = cv2.GaussianBlur(RNG.normal(size=(31, 45)).astype(np.float32), (0, 0), 1.2)
+    moved = cv2.GaussianBlur(RNG.normal(size=img.shape).astype(np.float32), (0, 0), 1.2)
+    weight = (RNG.random(img.shape).astype(np.float32) if weighted
+              else np.zeros((0, 0), np.float32))
+    back = cv2.warpAffine(moved, np.float32([[1, 0, dx], [0, 1, dy]]), (45, 31),
+                          flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_WRAP)
+    np.testing.assert_allclose(shifted_residual_moments(img, moved, weight, dx, dy),
+                               residual_moments(img, back, weight, 0, 0), rtol=2e-5,
+                               atol=1e-6)

@@ -1,0 +1,107 @@
+"""`pipestitch batch` on dask.distributed: real runs on a local cluster against the
+plain `run` command, failures that never stop the others, retries, --scheduler, and
+bad input."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli.app import app
+from pipestitch.errors import DatasetError
+from pipestitch.pipeline import batch as batch_module
+from pipestitch.pipeline.batch import ATTEMPT_MARK, output_names, run_batch
+
+pytestmark = pytest.mark.slow   # starts dask clusters: slow on 2 cores
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="", encoding="utf-8") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_batch_cli_runs_each_dataset_like_run_and_survives_a_bad_one(
+        tmp_path: Path, simulate_small) -> None:
+    good = simulate_small(tmp_path / "in" / "good", "--scenario", "default", "--pairs", "2")
+    bad = tmp_path / "in" / "bad"
+    bad.mkdir()
+    (bad / "probe.toml").write_text((good / "probe.toml").read_text())  # no frames/
+    out = tmp_path / "out"
+    runner = CliRunner()
+    result = runner.invoke(app, ["batch", str(bad), str(good), "--out", str(out), "--quiet",
+                                 "--workers", "1"])
+    assert result.exit_code == 1, result.output
+    rows = _rows(out / "batch_summary.csv")
+    assert [(r["dataset"], r["status"]) for r in rows] == [("bad", "failed"), ("good", "ok")]
+    assert "frames/ folder not found" in rows[0]["message"]
+    assert rows[1]["pairs"] == "2" and rows[1]["attempts"] == "1"
+    for name in ("bad", "good"):
+        assert ATTEMPT_MARK in (out / name / "run.log").read_text()
+    # The batch's outputs are those of a plain `run` of the same dataset.
+    plain = tmp_path / "plain"
+    assert runner.invoke(app, ["run", str(good), "--out", str(plain), "--quiet",
+                               "--workers", "1"]).exit_code == 0
+    for name in ("poses.csv", "profile.csv", "defects.csv"):
+        assert (out / "good" / name).read_text() == (plain / name).read_text(), name
+
+
+def test_batch_cli_rejects_missing_folders_and_bad_options(tmp_path: Path) -> None:
+    runner = CliRunner()
+    result = runner.invoke(app, ["batch", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2
+    assert "nope" in result.output and "dataset folder not found" in result.output
+    assert not (tmp_path / "o").exists()
+    result = runner.invoke(app, ["batch", str(tmp_path), "--out", str(tmp_path / "o"),
+                                 "--workers", "0"])
+    assert result.exit_code == 2
+
+
+@pytest.fixture()
+def scheduler():
+    """An in-process cluster (threads), so that a monkeypatched run is seen by workers."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_retries_and_crashes_on_an_existing_scheduler(tmp_path: Path, scheduler,
+                                                      monkeypatch) -> None:
+    calls: dict[str, int] = {}
+
+    def fake_run(root, out, **_kw):
+        name = Path(root).name
+        calls[name] = calls.get(name, 0) + 1
+        if name == "flaky" and calls[name] == 1:
+            raise RuntimeError("worker hiccup")
+        if name == "broken":
+            raise RuntimeError("always fails")
+        if name == "bad":
+            raise DatasetError(Path(root) / "probe.toml", "missing")
+        return SimpleNamespace(mosaic_failed=False, n_frames=7, n_placed=6, n_failed=1,
+                               no_mosaic="")
+
+    monkeypatch.setattr(batch_module, "run_dataset", fake_run)
+    roots = []
+    for name in ("flaky", "broken", "bad", "fine"):
+        (tmp_path / name).mkdir()
+        roots.append(tmp_path / name)
+    results = run_batch(roots, tmp_path / "out", scheduler=scheduler, retries=2)
+    by_name = {r.dataset: r for r in results}
+    assert [r.dataset for r in results] == ["flaky", "broken", "bad", "fine"]
+    assert (by_name["flaky"].status, by_name["flaky"].attempts) == ("ok", 2)
+    assert by_name["broken"].status == "failed" and "always fails" in by_name["broken"].message
+    assert calls["broken"] == 3  # 1 + 2 retries
+    assert (by_name["bad"].status, calls["bad"]) == ("failed", 1)  # bad input: no retry
+    assert (by_name["fine"].status, by_name["fine"].pairs, by_name["fine"].placed) == ("ok", 7, 6)
+    assert len(_rows(tmp_path / "out" / "batch_summary.csv")) == 4
+
+
+def test_output_names_are_unique() -> None:
+    assert output_names([Path("a/run"), Path("b/run"), Path("c/x"), Path("d/run")]) == [
+        "run", "run_2", "x", "run_3"]

@@ -1,0 +1,183 @@
+"""The standards stage on real runs: clock positions against the simulator's truth after
+the IMU reference, re-export of an edited observations.csv, --crown-deg, bad imu.csv,
+invert detection on a mosaic with a sediment band, and the report."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli.app import app
+from pipestitch.io.outputs import mosaic_to_uint8, write_json, write_mosaic_png
+from pipestitch.pipeline.coding import code_run
+from pipestitch.report.html import ReportData, render_report
+from pipestitch.standards import clock_hour, parse_en13508, parse_json, parse_pacp_csv
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    return simulate_small(tmp_path_factory.mktemp("std") / "ds", "--scenario", "test_piece",
+                          "--pairs", "8", "--seed", "1")
+
+
+@pytest.fixture(scope="module")
+def output(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("std") / "out"
+    result = runner.invoke(app, ["run", str(dataset), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_run_codes_observations_relative(output: Path) -> None:
+    state = json.loads((output / "standards.json").read_text())
+    assert state["reference"]["source"] == "relative"
+    assert {r["clock_reference"] for r in _rows(output / "defects.csv")} == {"relative"}
+    [(survey, obs)] = parse_en13508((output / "observations.txt").read_text("latin-1"))
+    assert survey.reference == "relative" and survey.nominal_diameter_mm == 65
+    assert sum(o.code == "BAC" for o in obs) >= 2
+    # The test piece is round: where a section's ovality is measured it is far below the
+    # 1 % coding threshold (0.1 %: a few times the oval fit's own scatter), so no BAA.
+    assert not any(o.code == "BAA" for o in obs)
+    for row in _rows(output / "ovality.csv"):
+        q = float(row["f1216_mean_min_pct"])
+        assert np.isnan(q) or 0 <= q < 0.1
+    html = (output / "report.html").read_text()
+    assert "Coded observations" in html and "reference: relative" in html
+
+
+def test_imu_reference_gives_the_true_clock_positions(dataset: Path, output: Path,
+                                                      tmp_path: Path) -> None:
+    """With the simulator's true roll as the IMU (its pipe frame taken as +y down), each
+    hole's clock is that of the true hole it matches, and its distance is the true one
+    (mosaic start and z reference offsets removed) to the 0.01 m of the standard."""
+    ds, out = tmp_path / "ds", tmp_path / "out"
+    shutil.copytree(dataset, ds)
+    shutil.copytree(output, out)
+    truth_poses = _rows(ds / "truth" / "poses.csv")
+    (ds / "imu.csv").write_text("frame,roll_deg\n" + "".join(
+        f"{r['frame']},{r['roll_deg']}\n" for r in truth_poses))
+    result = runner.invoke(app, ["export", str(out), "--dataset", str(ds), "--format", "json"])
+    assert result.exit_code == 0, result.output
+    survey, obs = parse_json((out / "observations.json").read_text())
+    assert survey.reference == "imu"
+    est = {r["frame"]: float(r["z_mm"]) for r in _rows(out / "poses.csv")}
+    z_off = np.median([float(r["z_mm"]) - est[r["frame"]] for r in truth_poses])
+    z0 = json.loads((out / "mosaic.json").read_text())["z0_mm"]
+    truth = [r for r in _rows(ds / "truth" / "defects.csv") if r["kind"] == "hole"]
+    defects = _rows(out / "defects.csv")
+    holes = [o for o in obs if o.code == "BAC"]
+    assert len(holes) >= 2
+    for o in holes:
+        d = defects[int(o.ref.split()[0][len("auto:D"):]) - 1]
+        z_true = float(d["z_mm"]) + z_off
+        match = min(truth, key=lambda t: abs(float(t["z_mm"]) - z_true)
+                    + abs((float(t["theta_deg"]) - _gravity(out, d) + 180) % 360 - 180))
+        assert abs(float(match["z_mm"]) - z_true) < 1.0
+        assert o.clock_from == clock_hour(float(match["theta_deg"]))
+        assert o.distance_m == pytest.approx((float(match["z_mm"]) - z_off - z0) / 1000,
+                                             abs=0.0051)
+        assert d["clock_reference"] == "imu"
+
+
+def _gravity(out: Path, defect: dict[str, str]) -> float:
+    crown = json.loads((out / "standards.json").read_text())["reference"]["crown_theta_deg"]
+    return (float(defect["theta_deg"]) - crown + 270) % 360
+
+
+def test_user_rows_survive_recoding_with_crown_deg(output: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(output, out)
+    with (out / "observations.csv").open("a") as handle:
+        handle.write('0.05,BBC,Z,,,,"sediment, seen by eye",5,7,,my note\n')
+    result = runner.invoke(app, ["export", str(out), "--crown-deg", "90", "--format",
+                                 "pacp-csv", "--out", str(tmp_path / "survey.csv")])
+    assert result.exit_code == 0, result.output
+    obs = parse_pacp_csv((tmp_path / "survey.csv").read_text())
+    assert [o.ref for o in obs if not o.ref.startswith("auto:")] == ["my note"]
+    state = json.loads((out / "standards.json").read_text())
+    assert state["reference"]["source"] == "user (--crown-deg)"
+    # Crown moved from theta 270 to 90: every clock turns by 6 hours.
+    before = {o["ref"]: int(o["clock_from"]) for o in _rows(output / "observations.csv")}
+    for o in obs:
+        if o.ref in before:
+            assert o.clock_from == (before[o.ref] + 6 - 1) % 12 + 1
+
+
+def test_bad_imu_file_is_named(dataset: Path, output: Path, tmp_path: Path) -> None:
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    (ds / "imu.csv").write_text("frame,roll_deg\n0,abc\n")
+    result = runner.invoke(app, ["export", str(output), "--dataset", str(ds),
+                                 "--out", str(tmp_path / "x.txt")])
+    assert result.exit_code == 2
+    assert "imu.csv" in result.output and "roll_deg" in result.output
+
+
+def test_invert_detected_on_a_mosaic_with_a_sediment_band(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    rows, deg_per_px = 720, 0.5
+    img = 100 + 10 * rng.standard_normal((rows, 400))
+    theta = np.arange(rows) * deg_per_px
+    invert = 123.0
+    img[np.abs((theta - invert + 180) % 360 - 180) < 35] *= 0.55
+    image_u8, _ = mosaic_to_uint8(img)
+    write_mosaic_png(tmp_path / "mosaic.png", image_u8)
+    write_json(tmp_path / "mosaic.json", {"mm_per_px_axial": 0.2, "deg_per_px": deg_per_px,
+                                          "z0_mm": 0.0, "radius_mm": 32.5, "n_cols": 400})
+    coded = code_run(tmp_path)
+    assert coded.reference.source == "invert-detected"
+    # Band drawn 70 deg wide around 123 deg; 8-bit quantisation and smoothing only.
+    assert abs((coded.reference.crown_theta_deg - (invert + 180) + 180) % 360 - 180) < 1.0
+    assert clock_hour(invert, coded.reference.crown_theta_deg) == 6
+
+
+def test_oval_sections_are_coded_and_reported(tmp_path: Path) -> None:
+    """profile.csv as the oval pose fit will write it: ovality measured from frame 10 on.
+    Expected figures computed here from the radii, independently of the stage."""
+    rows = ["frame,z_mm,diameter_mm,ovality,min_radius_mm,max_radius_mm,diameter_std_mm,"
+            "model,within_tolerance"]
+    for k in range(50):
+        r_min, r_max = (32.5, 32.5) if k < 10 else (31.85, 33.15)
+        ovality = "nan" if k < 10 else f"{(r_max - r_min) / 32.5:.6f}"
+        model = "circle" if k < 10 else "ellipse"
+        rows.append(f"{k},{10.0 * k:.6f},65.000000,{ovality},{r_min},{r_max},0.002,{model},1")
+    (tmp_path / "profile.csv").write_text("\n".join(rows) + "\n")
+    coded = code_run(tmp_path, nominal_diameter_mm=66.0)
+    oval = _rows(tmp_path / "ovality.csv")
+    assert oval[0]["f1216_mean_min_pct"] == "nan" and oval[0]["deflection_pct"] == "nan"
+    assert float(oval[20]["f1216_mean_min_pct"]) == pytest.approx(100 * (65 - 63.7) / 65)
+    assert float(oval[20]["f1216_max_mean_pct"]) == pytest.approx(100 * (66.3 - 65) / 65)
+    assert float(oval[20]["range_nominal_pct"]) == pytest.approx(100 * 2.6 / 66)
+    assert float(oval[20]["deflection_pct"]) == pytest.approx(100 * (66 - 63.7) / 66)
+    baa = [o for o in coded.observations if o.code == "BAA"]
+    # Frames 10..49 at 10 mm: 390 mm > 0.3 m, a start/finish pair from the first ring.
+    assert [(o.continuous, o.distance_m) for o in baa] == [("S01", 0.10), ("F01", 0.49)]
+    assert baa[0].quant1 == round(100 * (66 - 63.7) / 66)
+    html = render_report(ReportData("t", None, 0.0, 1.0, 1.0, 66.0, [],
+                                    standards=coded.report_view()))
+    assert "ovality along the pipe" in html and "ASTM F1216 X1 ovality" in html
+
+
+def test_export_bad_input_exits_2(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["export", str(tmp_path), "--format", "xml"])
+    assert result.exit_code == 2 and "--format" in result.output
+    result = runner.invoke(app, ["export", str(tmp_path)])
+    assert result.exit_code == 2 and "not a run folder" in result.output
+    (tmp_path / "poses.csv").write_text("frame,z_mm,roll_deg\n0,0,0\n")
+    (tmp_path / "observations.csv").write_text("distance_m,code,clock_from\n0.1,BAC,13\n")
+    result = runner.invoke(app, ["export", str(tmp_path), "--format", "json"])
+    assert result.exit_code == 2
+    assert "observations.csv" in result.output and "line 2" in result.output

@@ -1,0 +1,97 @@
+"""The pose stage on simulated runs: oval pipes are flagged, decisions carry reasons."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipestitch.io.dataset import open_dataset, read_csv_columns
+from pipestitch.pipeline.posing import estimate_poses, run_pose
+from pipestitch.pipeline.simulating import simulate_dataset
+from pipestitch.simulate.scenarios import SCENARIOS
+
+
+def test_oval_pipe_is_not_reported_as_confident_tilt(tmp_path: Path) -> None:
+    run = simulate_dataset(SCENARIOS["oval"], tmp_path / "oval", seed=0, size="half",
+                           n_pairs=3, show_progress=False)
+    frames, _ = estimate_poses(open_dataset(tmp_path / "oval"), show_progress=False)
+    # 5 % ovality read as a circle needs ~18° of tilt, which the 145 mm body cannot
+    # have in a 65 mm pipe: the frames are refitted as an oval section with the tilt
+    # (unobservable from the ring) held at 0, and each frame says so.
+    for frame, pose in zip(frames, run.poses, strict=True):
+        assert frame.fit.ok and frame.fit.model == "oval/tilt-0"
+        assert "cannot see the tilt" in frame.warning
+        h = frame.fit.hypotheses[0]
+        # Truth: 5 % ovality; the tilt held at 0 adds about tau²/2 (< 0.01 % here).
+        assert abs(h.section.mean_radius_mm - run.section.mean_radius_mm) < 0.02
+        assert abs(h.section.ovality - run.section.ovality) < 0.002
+        assert np.hypot(pose.alpha, pose.beta) < np.deg2rad(1.0)  # what the tilt-0 bound needs
+        # The major axis is seen in the probe's roll frame: the world angle minus the roll.
+        diff = (h.section.angle - (run.section.angle - pose.roll)) % np.pi
+        assert min(diff, np.pi - diff) < np.deg2rad(1.0)
+
+
+def test_pose_csv_matches_truth_on_a_run(tmp_path: Path) -> None:
+    run = simulate_dataset(SCENARIOS["test_piece"], tmp_path / "tp", seed=4, size="half",
+                           n_pairs=8, show_progress=False)
+    summary = run_pose(tmp_path / "tp", tmp_path / "out", show_progress=False)
+    assert summary.n_failed == 0
+    cols = read_csv_columns(tmp_path / "out" / "poses.csv",
+                            ("alpha_deg", "beta_deg", "dx_mm", "dy_mm", "ambiguous"))
+    truth = np.array([[np.rad2deg(p.alpha), np.rad2deg(p.beta), p.dx_mm, p.dy_mm]
+                      for p in run.poses])
+    est = np.column_stack([cols[k] for k in ("alpha_deg", "beta_deg", "dx_mm", "dy_mm")])
+    alt = np.column_stack([cols["alt_" + k] for k in ("alpha_deg", "beta_deg", "dx_mm",
+                                                        "dy_mm")])
+    decided = cols["ambiguous"] == 0
+    # The run's tilt grows to ~2° at its end, where the body envelope rules the mirror
+    # out and continuity carries that back over a few frames.
+    assert decided.sum() >= 2
+    # Decided frames must have chosen the true pose (no silent wrong choice); every
+    # frame has the truth among its two hypotheses within the issue's success
+    # tolerance T_e = 0.5°/0.5 mm (tilts here are 0.7-2.2°, where a single ring gives
+    # the tilt to a few tenths of a degree; see README "Limits, measured").
+    ok = np.all(np.abs(est - truth) <= 0.5, axis=1)
+    ok_alt = np.all(np.abs(alt - truth) <= 0.5, axis=1)
+    assert np.all(ok | ok_alt)
+    assert not np.any(decided & ~ok & ok_alt)
+
+
+def test_pose_uses_the_calibrated_plane_of_probe_toml(tmp_path: Path) -> None:
+    """A dataset whose laser plane is tilted 1°: with [laser] normal in probe.toml the
+    pose stage recovers the simulator's poses; without it, it is biased."""
+    from pipestitch.camera import default_camera
+    from pipestitch.geometry import PipeSection, Pose
+    from pipestitch.io.images import write_image
+    from pipestitch.io.probe_toml import probe_config_for, write_probe_toml
+    from pipestitch.simulate.render import Renderer, WallTexture
+
+    normal = np.array([np.sin(np.deg2rad(1.0)), 0.0, np.cos(np.deg2rad(1.0))])
+    camera = default_camera("half")
+    rng = np.random.default_rng(0)
+    albedo = np.kron(rng.uniform(0.6, 0.75, (36, 40)), np.ones((100, 60))).astype(np.float32)
+    renderer = Renderer(camera, PipeSection.circle(65.0), WallTexture(albedo, 0.1, 0.1, -50.0),
+                        16.0, plane_normal=normal)
+    # Poses the 145 x 45 mm body can take in a 65 mm pipe.
+    poses = [Pose.from_degrees(2.0, -1.0, 1.0, -0.5), Pose.from_degrees(-1.0, 2.0, -1.5, 1.0)]
+    (tmp_path / "ds" / "frames").mkdir(parents=True)
+    for i, pose in enumerate(poses):
+        laser, led = renderer.render_pair(pose, np.random.default_rng(i))
+        write_image(tmp_path / "ds" / "frames" / f"laser_{i:05d}.png", laser)
+        write_image(tmp_path / "ds" / "frames" / f"led_{i:05d}.png", led)
+    errors = {}
+    for label, n in (("calibrated", normal), ("nominal", None)):
+        write_probe_toml(tmp_path / "ds" / "probe.toml", probe_config_for(
+            camera, plane_distance_mm=16.0, pipe_diameter_mm=65.0,
+            plane_normal=None if n is None else list(n)))
+        run_pose(tmp_path / "ds", tmp_path / label, show_progress=False)
+        cols = read_csv_columns(tmp_path / label / "poses.csv",
+                                ("alpha_deg", "beta_deg", "alt_alpha_deg", "alt_beta_deg"))
+        errors[label] = max(min(np.hypot(cols["alpha_deg"][i] - np.rad2deg(p.alpha),
+                                         cols["beta_deg"][i] - np.rad2deg(p.beta)),
+                                np.hypot(cols["alt_alpha_deg"][i] - np.rad2deg(p.alpha),
+                                         cols["alt_beta_deg"][i] - np.rad2deg(p.beta)))
+                            for i, p in enumerate(poses))
+    assert errors["calibrated"] < 0.2      # the accuracy of an aligned plane (half size)
+    assert errors["nominal"] > 0.5         # a 1° plane error read as z = d

@@ -1,0 +1,29 @@
+"""The registration rounds of a run: when another round follows."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipestitch.geometry import PipeSection, Pose
+
+
+def test_another_round_follows_a_large_tilt_correction_or_new_ovals() -> None:
+    """One refinement round is linearised about its starting poses: one that moved a
+    tilt by more than LINEAR_TILT_DEG, or found frames oval that it had registered as
+    circles, is followed by another; small corrections are not."""
+    from pipestitch.pipeline.stitching import LINEAR_TILT_DEG, FrameView, _another_round
+
+    section = PipeSection(32.5)
+    before = {0: FrameView(Pose(0.01, 0.0, 1.0, 0.0), section),
+              1: FrameView(Pose(0.0, 0.02, 0.0, 1.0), section)}
+    small = np.deg2rad(0.5 * LINEAR_TILT_DEG)
+    after = {0: FrameView(Pose(0.01 + small, 0.0, 1.2, 0.0), section),
+             1: FrameView(Pose(0.0, 0.02 - small, 0.0, 1.0), section)}
+    assert not _another_round(before, after)
+    large = np.deg2rad(1.5 * LINEAR_TILT_DEG)
+    assert _another_round(before, {**after, 1: FrameView(Pose(0.0, 0.02 - large, 0, 1),
+                                                         section)})
+    assert _another_round(before, {**after, 0: FrameView(after[0].pose, section, oval=True)})
+    oval_before = {**before, 0: FrameView(before[0].pose, section, oval=True)}
+    assert not _another_round(oval_before, {**after, 0: FrameView(after[0].pose, section,
+                                                                  oval=True)})

@@ -1,0 +1,82 @@
+"""Choosing between mirror hypotheses: envelope decides, continuity carries, never guess."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
+from pipestitch.pose.ambiguity import envelope_costs, resolve_run
+from pipestitch.pose.fit import ConicModel, Hypothesis, PoseFit, pose_from_conic
+
+D = 16.0
+R = 32.5
+
+
+def exact_fit(pose: Pose) -> PoseFit:
+    """Both hypotheses of a noise-free ring (closed form), true one first or second."""
+    ring = laser_ring(pose, PipeSection(R), D, n_points=90)
+    sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), D)
+    hyps = tuple(Hypothesis(p, r, 0.0, 0.0, 0.0) for p, r in sols)
+    return PoseFit(True, "", hyps, 90, 1.0)
+
+
+def is_true(fit: PoseFit, index: int, pose: Pose) -> bool:
+    h = fit.hypotheses[index].pose
+    return abs(h.alpha - pose.alpha) < 1e-6 and abs(h.beta - pose.beta) < 1e-6
+
+
+def track(n: int = 30, tilt_deg: float = 3.0) -> list[Pose]:
+    t = np.linspace(0, 1, n)
+    return [Pose.from_degrees(tilt_deg * np.cos(2 * s), tilt_deg * np.sin(2 * s), 2.0 * s, -1.0)
+            for s in t]
+
+
+def test_envelope_penalises_a_body_through_the_wall() -> None:
+    body = BodyEnvelope(145.0, 45.0)
+    # 4° of tilt with the camera 4.5 mm off axis: the mirror pose has the rear of the
+    # body outside a 65 mm pipe, the true one fits.
+    pose = Pose.from_degrees(4.0, 0.0, 0.0, -4.5)
+    fit = exact_fit(pose)
+    costs = envelope_costs(fit, body)
+    true_index = 0 if is_true(fit, 0, pose) else 1
+    assert costs[true_index] == 0.0
+    assert costs[1 - true_index] > 50
+
+
+def test_continuity_carries_a_decision_but_never_makes_one() -> None:
+    poses = track()
+    fits = [exact_fit(p) for p in poses]
+    # No evidence at all: every frame is ambiguous (the mirror track is as smooth).
+    choices = resolve_run(fits, np.zeros((len(fits), 2)))
+    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+    # Evidence in one frame (say the envelope ruled the mirror out there): the whole
+    # track follows, and every choice is the true pose.
+    unary = np.zeros((len(fits), 2))
+    k = 12
+    unary[k, 1 - (0 if is_true(fits[k], 0, poses[k]) else 1)] = 40.0
+    choices = resolve_run(fits, unary)
+    assert choices[k].reason == "envelope"
+    for fit, pose, c in zip(fits, poses, choices, strict=True):
+        assert not c.ambiguous and is_true(fit, c.chosen, pose)
+    assert {c.reason for i, c in enumerate(choices) if i != k} == {"continuity"}
+
+
+def test_failed_frames_and_coinciding_hypotheses() -> None:
+    poses = [Pose.from_degrees(0.0, 0.0, 1.0, 1.0), Pose.from_degrees(3.0, 1.0, 0.0, 0.0)]
+    fits = [exact_fit(poses[0]), PoseFit(False, "ring not found"), exact_fit(poses[1])]
+    choices = resolve_run(fits, np.zeros((3, 2)))
+    assert choices[0].reason == "coincide" and not choices[0].ambiguous
+    assert choices[1].chosen is None and choices[1].reason == "no fit"
+    assert choices[2].ambiguous
+    with pytest.raises(ValueError, match="expected shape"):
+        resolve_run(fits, np.zeros((2, 2)))
+
+
+def test_both_hypotheses_impossible_is_flagged() -> None:
+    poses = track(5)
+    fits = [exact_fit(p) for p in poses]
+    unary = np.zeros((5, 2))
+    unary[2] = [80.0, 90.0]  # e.g. an oval pipe read as 15° of tilt
+    choices = resolve_run(fits, unary)
+    assert choices[2].ambiguous and choices[2].reason == "infeasible"

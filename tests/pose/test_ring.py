@@ -1,0 +1,178 @@
+"""Ring extraction against the true ring from the geometry, on simulated frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import PipeSection, Pose, laser_ring
+from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
+from pipestitch.simulate.render import Optics, Renderer, WallTexture
+
+SECTION = PipeSection.circle(65.0)
+
+
+def renderer(size: str, optics: Optics | None = None) -> Renderer:
+    rng = np.random.default_rng(0)
+    # A mildly textured metal wall (albedo 0.6-0.75, smooth variations).
+    base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    albedo = np.kron(base, np.ones((100, 50), np.float32))
+    return Renderer(default_camera(size), SECTION, WallTexture(albedo, 0.1, 0.1, -50.0), 16.0,
+                    optics)
+
+
+def distance_to_true_ring(cam, pose: Pose, pixels: np.ndarray) -> np.ndarray:
+    truth = cam.project(laser_ring(pose, SECTION, 16.0, n_points=60000))
+    truth = truth[np.isfinite(truth[:, 0])]
+    return cKDTree(truth).query(pixels)[0]
+
+
+POSE = Pose.from_degrees(3.0, -2.0, 4.0, -3.0, 0.0, 10.0)
+
+
+def test_subpixel_accuracy_full_size_default_noise() -> None:
+    r = renderer("full")
+    laser = r.render_laser(POSE, np.random.default_rng(1))
+    det = detect_ring(laser, r.camera)
+    d = distance_to_true_ring(r.camera, POSE, det.best())
+    rms = float(np.sqrt(np.mean(d**2)))
+    # Issue target: < 0.3 px RMS at default noise. Noise and speckle make a perfect
+    # score impossible, so a tiny RMS would mean the test compares the wrong things.
+    assert 0.02 < rms < 0.3
+    # The arm hides ~2 % of the azimuths; everything else is found.
+    assert 0.95 < det.coverage < 0.99
+
+
+def test_hard_frames_colour_16_bit_glints_partial() -> None:
+    optics = Optics(bit_depth=16, colour=True, glints=4, partial_ring_deg=60.0,
+                    full_well_e=3000.0, read_noise=3.0 / 255, laser_peak=0.35)
+    r = renderer("half", optics)
+    laser = r.render_laser(POSE, np.random.default_rng(2))
+    assert laser.dtype == np.uint16 and laser.ndim == 3
+    det = detect_ring(laser, r.camera)
+    # 60° of partial ring + 7° of arm are missing: coverage about 81 %.
+    assert 0.75 < det.coverage < 0.86
+    d = distance_to_true_ring(r.camera, POSE, det.best())
+    # Most strongest candidates are on the ring; glints give a few outliers that
+    # the pose fit removes (see test_pose_fit).
+    assert np.mean(d < 1.0) > 0.95
+
+
+def test_empty_and_nan_frames_give_no_ring() -> None:
+    cam = default_camera("half")
+    dark = np.zeros((cam.height, cam.width), np.uint8)
+    assert detect_ring(dark, cam).coverage == 0.0
+    nans = np.full((cam.height, cam.width), np.nan, np.float32)
+    assert detect_ring(nans, cam).coverage == 0.0
+
+
+def test_bad_input_is_rejected_clearly() -> None:
+    cam = default_camera("half")
+    with pytest.raises(ValueError, match="expected 1224x1024"):
+        detect_ring(np.zeros((10, 10), np.uint8), cam)
+    with pytest.raises(ValueError, match="2-D or 3-D"):
+        detect_ring(np.zeros(10, np.uint8), cam)
+    with pytest.raises(ValueError, match="reflectance: expected 1224x1024"):
+        detect_ring(np.zeros((cam.height, cam.width), np.uint8), cam,
+                    reflectance=np.zeros((10, 10), np.uint8))
+    with pytest.raises(ValueError, match="2-D or 3-D"):
+        prepare_laser_frame(np.zeros((2, 2, 2, 2), np.uint8))
+
+
+def test_colour_frame_uses_the_laser_channel() -> None:
+    img = np.zeros((50, 60, 3), np.uint16)
+    img[..., 2] = 1000  # red background
+    img[20:22, :, 2] = 60000  # red laser line
+    img[..., 1] = 30000  # bright but flat green
+    grey = prepare_laser_frame(img)
+    assert grey[21, 5] == pytest.approx(60000 / 65535)
+    assert grey[5, 5] == pytest.approx(1000 / 65535)
+
+
+def test_integer_frames_are_cast_then_scaled_exactly() -> None:
+    """The one-pass conversion gives the float32 values of a cast and then a product."""
+    rng = np.random.default_rng(2)
+    for dtype in (np.uint8, np.uint16):
+        img = rng.integers(0, np.iinfo(dtype).max, (30, 40, 3), endpoint=True).astype(dtype)
+        scale = np.float32(1.0 / np.iinfo(dtype).max)
+        for frame, expected in ((img[..., 1], img[..., 1]), (img, img[..., 2])):
+            grey = prepare_laser_frame(frame, channel=2 if frame.ndim == 3 else None)
+            assert grey.dtype == np.float32
+            assert np.array_equal(grey, expected.astype(np.float32) * scale)
+
+
+@pytest.mark.parametrize("size", ["half", "full"])
+def test_search_band_holds_every_ring_the_probe_can_see(size: str) -> None:
+    """The band PoseSettings searches (plane 11.25-130 mm from the axis for the 45 mm
+    body in a nominal 65 mm pipe) holds the true ring of the probe touching the wall
+    on any side, tilted as far as the body allows, in pipes from 50 to 130 mm."""
+    cam = default_camera(size)
+    lo, hi = ring_band_px(cam, 16.0, min_wall_mm=45.0 / 4, max_wall_mm=4 * 32.5)
+    centre = cam.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    for diameter in (50.0, 65.0, 130.0):
+        reach = diameter / 2 - 22.5          # the body touches the wall
+        for side in np.deg2rad([0.0, 135.0, 250.0]):
+            for tilt in (-8.0, 0.0, 8.0):
+                pose = Pose.from_degrees(tilt, -tilt / 2, reach * np.cos(side),
+                                         reach * np.sin(side), 0.0, 0.0)
+                px = cam.project(laser_ring(pose, PipeSection.circle(diameter), 16.0))
+                radius = np.linalg.norm(px - centre, axis=1)
+                radius = radius[np.isfinite(radius)]
+                assert radius.size and lo <= radius.min() and radius.max() <= hi, (
+                    diameter, side, tilt)
+    # and the band leaves out a good part of the ray (the point of it)
+    assert lo > 0.25 * hi
+
+
+def test_search_band_finds_what_the_whole_ray_finds() -> None:
+    r = renderer("half")
+    laser = r.render_laser(POSE, np.random.default_rng(1))
+    whole = detect_ring(laser, r.camera)
+    band = detect_ring(laser, r.camera,
+                       band_px=ring_band_px(r.camera, 16.0, min_wall_mm=11.25, max_wall_mm=130))
+    on_ring = distance_to_true_ring(r.camera, POSE, band.best()) < 1.0
+    assert on_ring.mean() > 0.99 and band.coverage == pytest.approx(whole.coverage, abs=0.005)
+    # the same sub-pixel points on the rays both found (the noise level differs a little:
+    # it is estimated over the band, so candidates right at the threshold may differ)
+    a = dict(zip(whole.azimuth[whole.rank == 0], whole.best(), strict=True))
+    b = dict(zip(band.azimuth[band.rank == 0], band.best(), strict=True))
+    common = sorted(set(a) & set(b))
+    assert len(common) > 0.98 * len(a)
+    assert np.max(np.abs(np.array([a[k] - b[k] for k in common]))) < 1e-3
+
+
+def test_search_band_of_a_lens_that_cannot_see_the_wall_is_the_whole_ray() -> None:
+    from pipestitch.geometry import BodyEnvelope
+    from pipestitch.pipeline.posing import ring_search_band
+
+    cam = default_camera("half")
+    # a plane 1 km ahead: no sampled ray meets it within 2 diameters of the axis
+    with pytest.raises(ValueError, match="no ray meets"):
+        ring_band_px(cam, 1e6, min_wall_mm=11.25, max_wall_mm=130.0)
+    assert ring_search_band(cam, 1e6, 32.5, BodyEnvelope()) is None
+
+
+@pytest.mark.parametrize("band", [(187.0, 440.0), None])
+def test_the_part_of_the_frame_the_rays_read_gives_the_whole_frames_samples(band) -> None:
+    """detect_ring converts and blurs only the part of the frames its polar maps read
+    (``_polar_crop``); sampled there, it gives exactly what the whole frame gives."""
+    import cv2
+
+    from pipestitch.pose.ring import _polar_crop, _polar_grid
+
+    cam = default_camera("half")
+    frame = np.random.default_rng(3).random((cam.height, cam.width)).astype(np.float32)
+    map_x, map_y, _, _ = _polar_grid(cam, 360, 0.5, band)
+    (rows, cols), part_x, part_y = _polar_crop(cam, 360, 0.5, band)
+    if band is not None:   # the band is a part: something is saved
+        assert (rows.stop - rows.start) * (cols.stop - cols.start) < 0.8 * frame.size
+    for image in (frame, cv2.GaussianBlur(frame, (0, 0), 0.5)):
+        part = frame[rows, cols] if image is frame else cv2.GaussianBlur(frame[rows, cols],
+                                                                         (0, 0), 0.5)
+        whole = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT)
+        np.testing.assert_array_equal(
+            cv2.remap(part, part_x, part_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
+            whole)

@@ -12,8 +12,11 @@ the *same* extracted ring points:
   Implemented with ``scipy.optimize.differential_evolution`` configured like MATLAB's
   ``ga`` defaults for 4 variables: population 52 (~50), at most 400 generations
   (100 × nvars), no hybrid polish; infeasible poses are penalised.
-* ours: closed form + robust least squares (``pipestitch.pose.fit.fit_pose``), both
-  hypotheses, chosen per frame by the probe envelope only (no run to lean on). Its
+* ours: the frame as ``pipestitch pose`` fits it (``pipestitch.pipeline.posing.fit_frame``:
+  ring, closed form + robust least squares with the frame's own scales, both
+  hypotheses; probe.toml declares no body, as in the protocol), chosen over the poses
+  as the command chooses (``resolve_frames``). The per-pose time is that of the fit
+  (``fit_pose``) on the same ring candidates the baseline gets. Its
   compiled kernels are built (or loaded from numba's cache) by one warm-up call before
   the loop, timed and printed on its own, not in the per-pose times. The per-pose time
   also shows how much of it is the camera's pixel -> plane unprojection.
@@ -23,22 +26,27 @@ hypothesis, "mirror" also counts the other one. The mirror of the truth is feasi
 under the evaluation's constraints for a share of poses; those no method can tell
 apart from one frame. A noise-free pass measures the bias floor.
 
-Run: python bench/table1.py [--poses 300] [--baseline-poses 300] [--size full] [--quick]
+Run: python bench/table1.py [--poses 300] [--baseline-poses 300] [--size full]
+     [--command-poses 100] [--quick]
      (--pipes "" --noise-free-poses 0 runs only the trajectory part)
 """
 
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import differential_evolution
 
+from pipestitch.api import read_table
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
 from pipestitch.pipeline.posing import PoseSettings, fit_frame, resolve_frames, ring_search_band
-from pipestitch.pose.ambiguity import envelope_costs, resolve_run
 from pipestitch.pose.fit import ConicModel, fit_pose, plane_points, pose_from_conic
 from pipestitch.pose.ring import detect_ring
 from pipestitch.simulate.render import Optics
@@ -124,8 +132,11 @@ def evaluate(name: str, n: int, n_base: int, size: str, noise_free: bool) -> dic
                                                    speckle=0.0))
     run = build_run(scenario, seed=1, size=size, n_pairs=n)
     cam, radius = run.camera, scenario.pipe_diameter_mm / 2
-    body = BodyEnvelope()
-    band = ring_search_band(cam, D, radius, body)   # as `pipestitch pose` searches
+    # the protocol's point probe: probe.toml declares no body (as the scenario writes it)
+    settings = PoseSettings(cam, D, radius, None, ring_band_px=ring_search_band(cam, D, radius,
+                                                                                None))
+    band = settings.ring_band_px
+    frames = []
     out = {k: [] for k in ("ours", "ours_alt", "base", "truth", "mirror", "t_ours", "t_ring",
                            "t_base", "t_unproject", "feasible_mirror", "cpu_ours", "cpu_base")}
     for i, pose in enumerate(run.poses):
@@ -145,18 +156,21 @@ def evaluate(name: str, n: int, n_base: int, size: str, noise_free: bool) -> dic
         out["feasible_mirror"].append(mirror_feasible(mirror, radius))
         out["t_ring"].append(t1 - t0)
         out["t_ours"].append(t2 - t1)
-        if fit.ok:
-            choice = resolve_run([fit], envelope_costs(fit, body)[None, :])[0]
-            out["ours"].append(as_vec(fit.hypotheses[choice.chosen].pose))
-            out["ours_alt"].append(as_vec(fit.hypotheses[1 - choice.chosen].pose))
-        else:
-            out["ours"].append(np.full(4, np.nan))
-            out["ours_alt"].append(np.full(4, np.nan))
+        # the accuracy: the frame as `pipestitch pose` fits it (ring, scales, body rules)
+        frames.append(fit_frame(i, laser, None, settings))
+        if fit.ok != frames[-1].fit.ok:
+            raise AssertionError(f"pose {i}: the timed fit and the command's fit disagree")
         if i < n_base:
             t3, c3 = time.perf_counter(), time.process_time()
             out["base"].append(as_vec(baseline_ga(cam, det.best(), radius, seed=i)))
             out["t_base"].append(time.perf_counter() - t3)
             out["cpu_base"].append(time.process_time() - c3)
+    frames, choices = resolve_frames(frames, settings.body)   # as the command chooses
+    for frame, choice in zip(frames, choices, strict=True):
+        hyps = frame.fit.hypotheses if choice.chosen is not None else ()
+        out["ours"].append(as_vec(hyps[choice.chosen].pose) if hyps else np.full(4, np.nan))
+        out["ours_alt"].append(as_vec(hyps[1 - choice.chosen].pose) if hyps
+                               else np.full(4, np.nan))
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -255,6 +269,53 @@ def trajectories(names: list[str], n: int, size: str) -> None:
               f"{amb / len(fits):9.1%} {silent:12d}   " + " ".join(f"{v:7.3f}" for v in me))
 
 
+BODY_TOML = "\n[probe]\nlength_mm = 145.0\ndiameter_mm = 45.0\n"
+COLUMNS = ("alpha_deg", "beta_deg", "dx_mm", "dy_mm")
+
+
+def via_command(n: int, size: str) -> None:
+    """The protocol through the command itself: ``pipestitch simulate --scenario table1_65``
+    writes the dataset (probe.toml without a body: the protocol's point probe), then
+    ``pipestitch pose`` runs on it as written and again with the 145 x 45 mm body
+    declared. Scored from poses.csv against truth/poses.csv."""
+    print(f"\nthe command (`pipestitch pose`), 65 mm, {n} poses, {size} size:")
+    print(f"  {'probe.toml':28} {'strict':>8} {'mirror':>8} {'flagged':>8} "
+          f"{'wrong, no flag':>14} {'no pose':>8} {'seconds':>8}")
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "table1"
+        _command("simulate", "--scenario", "table1_65", "--pairs", str(n), "--size", size,
+                 "--out", str(data))
+        truth = read_table(data / "truth" / "poses.csv")
+        true_vec = np.stack([truth[c] for c in COLUMNS], axis=1)
+        for label, extra in (("no [probe] body", ""), ("145 x 45 mm body declared", BODY_TOML)):
+            if extra:
+                with (data / "probe.toml").open("a", encoding="utf-8") as handle:
+                    handle.write(extra)
+            out = Path(tmp) / f"out_{len(extra)}"
+            start = time.perf_counter()
+            _command("pose", str(data), "--out", str(out), "--quiet")
+            seconds = time.perf_counter() - start
+            poses = read_table(out / "poses.csv")
+            chosen = np.stack([poses[c] for c in COLUMNS], axis=1)
+            other = np.stack([poses[f"alt_{c}"] for c in COLUMNS], axis=1)
+            strict = success(chosen, true_vec)
+            mirror = strict | success(other, true_vec)
+            posed = np.all(np.isfinite(chosen), axis=1)
+            flagged = posed & ((poses["ambiguous"] == 1) | (poses["warning"] != ""))
+            silent = posed & ~strict & ~flagged
+            print(f"  {label:28} {strict.mean():8.1%} {mirror.mean():8.1%} {flagged.mean():8.1%} "
+                  f"{int(silent.sum()):14d} {int((~posed).sum()):8d} {seconds:8.1f}")
+
+
+def _command(*args: str) -> None:
+    """Run ``pipestitch ARGS`` as a subprocess (as a user does), failing loudly."""
+    done = subprocess.run([sys.executable, "-m", "pipestitch.cli", *args],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"pipestitch {' '.join(args)} failed ({done.returncode}):\n"
+                         f"{done.stderr[-2000:]}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--poses", type=int, default=300)
@@ -263,11 +324,14 @@ def main() -> None:
     parser.add_argument("--size", default="full", choices=("full", "half"))
     parser.add_argument("--pipes", default="50,65,80")
     parser.add_argument("--trajectory-pairs", type=int, default=60)
+    parser.add_argument("--command-poses", type=int, default=100,
+                        help="poses of the run through `pipestitch pose` (0: skip)")
     parser.add_argument("--quick", action="store_true", help="smoke run (CI)")
     args = parser.parse_args()
     if args.quick:
         args.poses, args.baseline_poses, args.noise_free_poses = 3, 1, 2
         args.size, args.pipes, args.trajectory_pairs = "half", "65", 3
+        args.command_poses = 3
     start = time.perf_counter()
     warm_up(args.size)
     for d in (int(v) for v in args.pipes.split(",") if v):
@@ -275,6 +339,8 @@ def main() -> None:
                            args.size, noise_free=False))
     if args.noise_free_poses > 0:
         noise_free(args.noise_free_poses, args.size)
+    if args.command_poses > 0:
+        via_command(args.command_poses, args.size)
     if args.trajectory_pairs > 0:
         trajectories(["test_piece", "corrosion", "aluminium", "chart83"],
                      args.trajectory_pairs, args.size)

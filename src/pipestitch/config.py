@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from pipestitch.camera import CameraModel, OcamModel, OpenCVFisheyeModel
-from pipestitch.geometry import PipeSection
+from pipestitch.geometry import BodyEnvelope, PipeSection
 
 __all__ = ["CameraConfig", "LaserConfig", "PipeConfig", "ProbeBodyConfig", "ProbeConfig"]
 
@@ -118,10 +118,34 @@ class LaserConfig(_Strict):
 
 
 class ProbeBodyConfig(_Strict):
-    """``[probe]``: the rigid probe body, a cylinder behind the camera centre."""
+    """``[probe]`` (optional): the rigid probe body and the occluder mask.
 
-    length_mm: Positive = 145.0
-    diameter_mm: Positive = 45.0
+    ``length_mm`` and ``diameter_mm`` come together: a cylinder behind the camera centre
+    that must fit in the pipe. Without them there is no body constraint (a point
+    probe, as in the reference Table-1 protocol). ``mask`` names a camera-sized grey
+    PNG in the dataset, 0 where the camera never sees the wall.
+    """
+
+    length_mm: Positive | None = None
+    diameter_mm: Positive | None = None
+    mask: str | None = None
+
+    @model_validator(mode="after")
+    def _body_together(self) -> ProbeBodyConfig:
+        if (self.length_mm is None) != (self.diameter_mm is None):
+            given = "length_mm" if self.diameter_mm is None else "diameter_mm"
+            raise ValueError(f"{given} is given without "
+                             f"{'diameter_mm' if given == 'length_mm' else 'length_mm'}: "
+                             "the body needs both (or neither, for no body constraint)")
+        if self.mask is not None and not self.mask.strip():
+            raise ValueError("mask: expected a file name, got an empty string")
+        return self
+
+    def envelope(self) -> BodyEnvelope | None:
+        """The declared body, or None when probe.toml declares none."""
+        if self.length_mm is None or self.diameter_mm is None:
+            return None
+        return BodyEnvelope(self.length_mm, self.diameter_mm)
 
 
 class PipeConfig(_Strict):

@@ -7,7 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from pipestitch._runtime import scratch
-from pipestitch.mosaic.unwrap import to_grey
+from pipestitch.camera.frames import to_grey
 
 
 def test_a_key_gives_the_same_array_until_its_shape_or_dtype_changes() -> None:

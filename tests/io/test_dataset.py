@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -217,3 +218,22 @@ def test_mosaic_to_uint8_keeps_zero_for_no_data() -> None:
     out, scale = mosaic_to_uint8(img)
     assert out[0, 0] == 0 and out[1, 2] == 0
     assert out[0, 1] == 1 and out[1, 1] >= 250 and scale > 0   # 99.5th percentile -> 250
+
+
+@pytest.mark.parametrize(("probe", "message"), [
+    ("[probe]\nlength_mm = 145.0\n", "length_mm is given without diameter_mm"),
+    ("[probe]\ndiameter_mm = 45.0\n", "diameter_mm is given without length_mm"),
+    ("[probe]\nmask = \" \"\n", "mask: expected a file name"),
+])
+def test_probe_body_comes_whole_or_not_at_all(probe: str, message: str) -> None:
+    text = re.sub(r"\[probe\][^\[]*", "", SPEC_EXAMPLE) + probe
+    with pytest.raises(ConfigError, match=message):
+        parse_probe_toml(text)
+
+
+def test_probe_section_is_optional_and_means_no_body() -> None:
+    cfg = parse_probe_toml(re.sub(r"\[probe\][^\[]*", "", SPEC_EXAMPLE))
+    assert cfg.probe.envelope() is None and cfg.probe.mask is None
+    assert "[probe]" not in format_probe_toml(cfg)
+    body = parse_probe_toml(SPEC_EXAMPLE).probe.envelope()
+    assert (body.length_mm, body.diameter_mm) == (145.0, 45.0)

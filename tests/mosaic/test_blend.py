@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipestitch.mosaic.blend import Canvas, Overview, _feather, frame_grid, vignetting_profile
+from pipestitch.mosaic.blend import Canvas, Overview, frame_grid, shade, vignetting_profile
 from pipestitch.mosaic.unwrap import (
     Strip,
     StripGrid,
@@ -51,7 +51,8 @@ def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> No
     assert np.all(weights > 0)
     assert gain == pytest.approx(0.5, rel=0.02)
     assert np.allclose(image, wall, atol=0.02)
-    feather = _feather(np.ones((360, 80), bool))
+    # A strip of quality 1 everywhere is weighed by its feather alone.
+    feather = shade(Strip(wall[:, :80].copy(), ones, ones), level).weight
     assert feather[0, 40] == 1.0 and feather[-1, 40] == 1.0   # rows wrap: no seam at 0/360
     assert feather[100, 0] < 0.1
 
@@ -75,9 +76,10 @@ def test_canvas_released_in_blocks_equals_the_whole_canvas() -> None:
         if got is not None:
             blocks.append(got)
     image, weights = whole.image()
-    assert [b[0] for b in blocks] == starts      # released up to the next strip each time
-    assert np.array_equal(np.concatenate([b[1] for b in blocks], axis=1), image, equal_nan=True)
-    assert np.array_equal(np.concatenate([b[2] for b in blocks], axis=1), weights)
+    firsts, mosaics, block_weights = zip(*blocks, strict=True)
+    assert list(firsts) == starts      # released up to the next strip each time
+    assert np.array_equal(np.concatenate(mosaics, axis=1), image, equal_nan=True)
+    assert np.array_equal(np.concatenate(block_weights, axis=1), weights)
     assert widest <= 300 + 512
     with pytest.raises(ValueError, match="released"):
         streamed.add(Strip(wall[:, :300], ones, ones), 0, np.ones(300))
@@ -122,11 +124,14 @@ def test_vignetting_profile_of_a_long_run_from_a_bounded_sample_of_frames(monkey
     expected = falloff / np.median(falloff)
     sampled = vignetting_profile(levels)
     assert len(levels) > 5 * mosaic.PROFILE_FRAMES
-    assert np.sqrt(np.mean((sampled - expected) ** 2)) < 0.005   # ~0.3 % a column
+    # No estimate from n frames of 5 % noise beats 0.05 / sqrt(n) a column (0.0022 for
+    # the 500 sampled, 0.0009 for all 3000; a median does 1.25x worse): less would mean
+    # more frames read, or the noise not reaching the profile.
+    assert 0.002 < np.sqrt(np.mean((sampled - expected) ** 2)) < 0.005   # ~0.35 % a column
     step = -(-len(levels) // mosaic.PROFILE_FRAMES)
     assert mosaic.profile_step(len(levels)) == step   # what a pass keeps of a run's levels
     np.testing.assert_array_equal(vignetting_profile(levels[::step]), sampled)
     garbled = [lv if k % step == 0 else np.full_like(lv, 7.0) for k, lv in enumerate(levels)]
     np.testing.assert_array_equal(vignetting_profile(garbled), sampled)
     monkeypatch.setattr(mosaic, "PROFILE_FRAMES", len(levels))
-    assert np.sqrt(np.mean((vignetting_profile(levels) - expected) ** 2)) < 0.005
+    assert 0.0007 < np.sqrt(np.mean((vignetting_profile(levels) - expected) ** 2)) < 0.005

@@ -27,7 +27,12 @@ def test_a_long_chain_of_links_places_every_frame_at_its_true_z() -> None:
     positions = solve_positions(n, links, odometry_mm=odometry)
     assert np.isfinite(positions.z_mm).all()
     assert not [o for o in positions.outliers if o[2] == "registration"]
+    # The links themselves are off the true motion by 0.003 mm and 0.004 deg RMS (their
+    # dz and droll less the true differences), and every frame is linked only to the
+    # next two: their errors add up along the 250-frame chain (measured: 0.019 mm and
+    # 0.067 deg peak to peak). A spread under a quarter of that would mean the solve
+    # saw the truth, not the links.
     err = positions.z_mm - data["true_z_mm"]
-    assert np.ptp(err) < 0.05                          # mm, over 1.2 m of pipe
+    assert 0.005 < np.ptp(err) < 0.05                  # mm, over 1.2 m of pipe
     roll_err = positions.roll_deg - data["true_roll_deg"]
-    assert np.ptp((roll_err - roll_err[0] + 180) % 360 - 180) < 0.5
+    assert 0.01 < np.ptp((roll_err - roll_err[0] + 180) % 360 - 180) < 0.5

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from pipestitch.camera import default_camera
+from pipestitch.camera.frames import to_grey
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.mosaic.unwrap import (
     StripGrid,
     default_mm_per_px,
     polar_unwrap_maps,
     strip_window_mm,
-    to_grey,
     unwrap_maps,
     unwrap_with_quality,
 )

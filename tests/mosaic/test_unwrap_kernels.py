@@ -8,7 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from pipestitch.mosaic._unwrap_kernels import column_medians, mask_strip, upsample_masked
+from pipestitch.mosaic._unwrap_kernels import (
+    MapFields,
+    column_medians,
+    mask_strip,
+    upsample_maps,
+)
 from pipestitch.mosaic.unwrap import local_contrast
 
 RNG = np.random.default_rng(7)
@@ -35,18 +40,27 @@ def test_upsampled_maps_are_bilinear_and_masked_where_any_node_is_invalid(
     nodes = (RNG.normal(size=(5, n_r, n_c)) * 100).astype(np.float32)
     nodes[2] = 1.0
     nodes[2, 3, 2] = 0.0                      # one invalid node
-    out = upsample_masked(nodes, step, n_rows, n_cols, 0.999)
-    ref = _bilinear(nodes, step, n_rows, n_cols)
-    bad = ref[2] <= 0.999
+    out = upsample_maps(MapFields(*nodes), step=step, n_rows=n_rows, n_cols=n_cols,
+                        ok_above=0.999)
+    ref = MapFields(*_bilinear(nodes, step, n_rows, n_cols))
+    bad = ref.valid <= 0.999
     # Invalid: every output node the invalid node contributes to, and only those.
     rows, cols = np.nonzero(bad)
     assert rows.min() > (3 - 1) * step and rows.max() < (3 + 1) * step
     assert cols.min() > (2 - 1) * step and cols.max() < (2 + 1) * step
-    for k, f in enumerate((0, 1, 3, 4)):
-        fill = -1.0 if f < 2 else 0.0
-        assert np.all(out[k][bad] == fill)
+    assert out.valid is None   # the mask applied instead
+    for name, fill in (("map_x", -1.0), ("map_y", -1.0), ("quality", 0.0), ("shading", 0.0)):
+        got, want = getattr(out, name), getattr(ref, name)
+        assert got.shape == (n_rows, n_cols)
+        assert np.all(got[bad] == fill)
         # float32 arithmetic on values ~100: a few 1e-5 relative.
-        np.testing.assert_allclose(out[k][~bad], ref[f][~bad], rtol=0, atol=1e-3)
+        np.testing.assert_allclose(got[~bad], want[~bad], rtol=0, atol=1e-3)
+    # Absent fields stay absent; the maps are the same without them.
+    maps_only = upsample_maps(MapFields(*nodes[:3]), step=step, n_rows=n_rows, n_cols=n_cols,
+                              ok_above=0.999)
+    assert maps_only.quality is None and maps_only.shading is None
+    np.testing.assert_array_equal(maps_only.map_x, out.map_x)
+    np.testing.assert_array_equal(maps_only.map_y, out.map_y)
 
 
 def test_column_medians_are_numpy_nanmedians() -> None:

@@ -1,4 +1,5 @@
-"""The pose stage on simulated runs: oval pipes are flagged, decisions carry reasons."""
+"""The pose stage on simulated runs: bodies that cannot fit are flagged, decisions carry
+reasons, no body means no envelope."""
 
 from __future__ import annotations
 
@@ -12,13 +13,22 @@ from pipestitch.pipeline.simulating import simulate_dataset
 from pipestitch.simulate.scenarios import SCENARIOS
 
 
-def test_oval_pipe_is_not_reported_as_confident_tilt(tmp_path: Path) -> None:
+def test_oval_pipe_is_flagged_by_pose_and_started_as_an_oval_by_run(tmp_path: Path) -> None:
     run = simulate_dataset(SCENARIOS["oval"], tmp_path / "oval", seed=0, size="half",
                            n_pairs=3, show_progress=False)
-    frames, _ = estimate_poses(open_dataset(tmp_path / "oval"), show_progress=False)
-    # 5 % ovality read as a circle needs ~18° of tilt, which the 145 mm body cannot
-    # have in a 65 mm pipe: the frames are refitted as an oval section with the tilt
-    # (unobservable from the ring) held at 0, and each frame says so.
+    dataset = open_dataset(tmp_path / "oval")
+    # 5 % ovality read as a circle needs ~18° of tilt, which the declared 145 mm body
+    # cannot have in a 65 mm pipe. `pose` keeps the ring's circle fit and flags the
+    # frame (never a silent answer, never a guessed model) ...
+    frames, choices = estimate_poses(dataset, show_progress=False)
+    for frame, choice in zip(frames, choices, strict=True):
+        assert frame.fit.ok and frame.fit.model == "circle"
+        assert "cannot hold this pose" in frame.warning
+        assert choice.ambiguous and choice.reason == "infeasible"
+        assert np.rad2deg(frame.fit.hypotheses[0].pose.tilt) > 10.0   # the tilt it reads
+    # ... and `run` (oval_start) starts such frames as an oval section with the tilt
+    # (unobservable from the ring) held at 0, for its LED refinement to measure.
+    frames, _ = estimate_poses(dataset, show_progress=False, oval_start=True)
     for frame, pose in zip(frames, run.poses, strict=True):
         assert frame.fit.ok and frame.fit.model == "oval/tilt-0"
         assert "cannot see the tilt" in frame.warning
@@ -30,6 +40,25 @@ def test_oval_pipe_is_not_reported_as_confident_tilt(tmp_path: Path) -> None:
         # The major axis is seen in the probe's roll frame: the world angle minus the roll.
         diff = (h.section.angle - (run.section.angle - pose.roll)) % np.pi
         assert min(diff, np.pi - diff) < np.deg2rad(1.0)
+
+
+def test_without_a_declared_body_no_envelope_applies(tmp_path: Path) -> None:
+    """The Table-1 protocol's point probe: probe.toml has no [probe] body, so poses the
+    145 mm body could never take are answered as the ring gives them, unflagged, and
+    the truth is one of the two hypotheses."""
+    run = simulate_dataset(SCENARIOS["table1_65"], tmp_path / "t1", seed=3, size="half",
+                           n_pairs=6, show_progress=False)
+    dataset = open_dataset(tmp_path / "t1")
+    assert dataset.config.probe.envelope() is None
+    frames, _ = estimate_poses(dataset, show_progress=False)
+    for frame, pose in zip(frames, run.poses, strict=True):
+        assert frame.fit.ok and frame.fit.model == "circle" and frame.warning == ""
+        truth = np.array([np.rad2deg(pose.alpha), np.rad2deg(pose.beta), pose.dx_mm,
+                          pose.dy_mm])
+        errors = [np.abs(np.array([np.rad2deg(h.pose.alpha), np.rad2deg(h.pose.beta),
+                                   h.pose.dx_mm, h.pose.dy_mm]) - truth).max()
+                  for h in frame.fit.hypotheses]
+        assert min(errors) <= 0.5   # the protocol's success tolerance, 0.5°/0.5 mm
 
 
 def test_pose_csv_matches_truth_on_a_run(tmp_path: Path) -> None:

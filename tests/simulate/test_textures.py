@@ -408,11 +408,11 @@ def test_reference_test_piece_drawn() -> None:
 def test_wrapped_rescale_in_chunks_matches_one_warp(monkeypatch: pytest.MonkeyPatch) -> None:
     """Very long walls are rescaled in column chunks (OpenCV crashes on a 20 m wall):
     the chunks must join exactly as one wrapped warp would."""
-    from pipestitch.simulate import textures
+    from pipestitch.simulate.textures import _texture_common
 
     src = np.random.default_rng(0).standard_normal((50, 300)).astype(np.float32)
     m = np.array([[300 / 1000, 0, 0], [0, 50 / 200, 0]])
     one = cv2.warpAffine(src, m, (1000, 200), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_WRAP)
-    monkeypatch.setattr(textures, "WARP_CHUNK", 64)
-    assert np.abs(textures._scale_wrapped(src, 200, 1000) - one).max() < 1e-3
+    monkeypatch.setattr(_texture_common, "WARP_CHUNK", 64)
+    assert np.abs(_texture_common.scale_wrapped(src, 200, 1000) - one).max() < 1e-3

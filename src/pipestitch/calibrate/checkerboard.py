@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipestitch.camera.frames import to_grey
+
 __all__ = ["Board", "BoardView", "detect_board", "parse_board"]
 
 
@@ -89,13 +91,17 @@ def parse_board(text: str) -> tuple[int, int]:
 
 
 def _grey8(img: np.ndarray) -> np.ndarray:
+    """The image as 8-bit grey, the only depth OpenCV's board finders take.
+
+    :func:`~pipestitch.camera.frames.to_grey` (an integer range to [0, 1], a float
+    image as it is), then stretched so that 1 (a float image: its maximum) is 255,
+    rounded to the nearest level. A grey 8-bit image comes back unchanged; a 16-bit
+    one as ``rint(value / 257)``.
+    """
     arr = np.asarray(img)
-    if arr.ndim == 3:
-        arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY)
-    if arr.dtype != np.uint8:
-        top = float(np.iinfo(arr.dtype).max) if arr.dtype.kind in "ui" else float(arr.max() or 1)
-        arr = np.clip(arr.astype(np.float64) * (255.0 / top), 0, 255).astype(np.uint8)
-    return arr
+    grey = to_grey(arr)
+    top = 1.0 if arr.dtype.kind in "ui" else float(grey.max() or 1.0)
+    return np.clip(np.rint(grey.astype(np.float64) * (255.0 / top)), 0, 255).astype(np.uint8)
 
 
 def _refine(grey: np.ndarray, corners: np.ndarray, cols: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Camera models: pure, vectorised maps between probe-frame rays and pixels.
+"""Camera models: pure, vectorised maps between probe-frame rays and pixels; and the
+camera's frames as grey values (:func:`to_grey`, in ``frames.py``).
 
 Both models are valid over the whole field of view of a ~185° fisheye; see
 ``base.py`` for the shared conventions.
@@ -9,6 +10,7 @@ May import nothing else of pipestitch: it is the bottom layer with ``geometry``.
 from __future__ import annotations
 
 from pipestitch.camera.base import CameraModel, pixel_grid
+from pipestitch.camera.frames import to_grey
 from pipestitch.camera.ocam import OcamModel, fit_invpol
 from pipestitch.camera.opencv_fisheye import OpenCVFisheyeModel
 
@@ -19,6 +21,7 @@ __all__ = [
     "default_camera",
     "fit_invpol",
     "pixel_grid",
+    "to_grey",
 ]
 
 # A 5 MP (2448 × 2048) ~185° fisheye like the reference design's: 90° at

@@ -91,8 +91,11 @@ def format_probe_toml(cfg: ProbeConfig) -> str:
     out = ["# probe.toml written by pipestitch (see SPEC: frames, units, OCamCalib conventions)"]
     for section, model in (("camera", cfg.camera), ("laser", cfg.laser), ("probe", cfg.probe),
                            ("pipe", cfg.pipe)):
+        values = model.model_dump(exclude_none=True)
+        if not values:   # [probe] is optional: no body, no mask
+            continue
         out.append(f"\n[{section}]")
-        for key, v in model.model_dump(exclude_none=True).items():
+        for key, v in values.items():
             comment = {"camera": _CAMERA_COMMENTS, "laser": _LASER_COMMENTS}.get(
                 section, {}).get(key)
             out.append(f"{key} = {_value(v)}" + (f"  # {comment}" if comment else ""))
@@ -105,9 +108,10 @@ def write_probe_toml(path: str | Path, cfg: ProbeConfig) -> Path:
 
 
 def probe_config_for(camera: CameraModel, *, plane_distance_mm: float, pipe_diameter_mm: float,
-                     length_mm: float = 145.0, diameter_mm: float = 45.0,
+                     length_mm: float | None = None, diameter_mm: float | None = None,
                      plane_normal: list[float] | None = None) -> ProbeConfig:
-    """Assemble a :class:`ProbeConfig` around a camera model (``plane_normal``: None = +z)."""
+    """Assemble a :class:`ProbeConfig` around a camera model (``plane_normal``: None = +z;
+    no ``length_mm``/``diameter_mm``: no body constraint)."""
     laser: dict[str, object] = {"plane_distance_mm": plane_distance_mm}
     if plane_normal is not None:
         laser["normal"] = [float(v) for v in plane_normal]

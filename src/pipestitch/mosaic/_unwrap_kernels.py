@@ -11,10 +11,13 @@ Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
 (``nogil``) so the worker threads run them side by side; the tests compare every
 kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
 the numpy code it replaces was float32, in the same order, so results are bitwise the
-same; sums are accumulated in float64.
+same; sums are accumulated in float64. :func:`upsample_maps` is the one plain-Python
+wrapper: it names the fields :func:`upsample_masked` takes and gives as a stack.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -81,6 +84,38 @@ def upsample_masked(nodes: np.ndarray, step: int, n_rows: int, n_cols: int,
                 if not valid[j] > ok_f:
                     dst[j] = fill
     return out
+
+
+class MapFields(NamedTuple):
+    """The fields of a strip's maps, each (rows, cols): the pixel column and row where
+    every node is seen, whether it is seen (``valid``, 1/0) and, when computed, its
+    quality and shading (see :class:`pipestitch.mosaic.unwrap.UnwrapMaps`); None where
+    absent."""
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    valid: np.ndarray | None = None
+    quality: np.ndarray | None = None
+    shading: np.ndarray | None = None
+
+
+def upsample_maps(nodes: MapFields, *, step: int, n_rows: int, n_cols: int,
+                  ok_above: float) -> MapFields:
+    """:func:`upsample_masked` of named fields (the same float32 values).
+
+    ``nodes``: the fields every ``step`` nodes, ``valid`` included. Returns the fields
+    on the (``n_rows``, ``n_cols``) grid, masked where the interpolated validity is not
+    above ``ok_above`` (map -1, others 0); ``valid`` is None there (it is the mask),
+    and fields absent from ``nodes`` stay None.
+    """
+    names = [name for name, field in zip(MapFields._fields, nodes, strict=True)
+             if field is not None]
+    if names[:3] != ["map_x", "map_y", "valid"]:
+        raise ValueError(f"upsample_maps: the nodes need map_x, map_y and valid, got {names}")
+    stack = np.stack([field for field in nodes if field is not None]).astype(np.float32)
+    out = upsample_masked(stack, step, n_rows, n_cols, ok_above)
+    names.remove("valid")
+    return MapFields(**dict(zip(names, out, strict=True)))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -236,7 +236,8 @@ class Canvas:
             raise ValueError("image(): columns were released already")
         released = self.release()
         assert released is not None
-        return released[1], released[2]
+        _, mosaic, weights = released
+        return mosaic, weights
 
 
 def overview_factor(n_rows: int, n_cols: int, max_pixels: int) -> int:

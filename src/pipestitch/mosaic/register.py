@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.sparse import csr_matrix, identity, lil_matrix
+from scipy.sparse import coo_matrix, csr_matrix, identity, lil_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
 from pipestitch.mosaic._register_kernels import (
@@ -209,7 +210,8 @@ def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float,
 
 def strip_contrast(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
     """Local contrast of a strip (value / local mean - 1; 0 where masked), float32."""
-    return local_contrast(strip.values, sigma_px)[0]
+    contrast, _ = local_contrast(strip.values, sigma_px)
+    return contrast
 
 
 def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -274,18 +276,11 @@ class Positions:
 
 
 def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:
-    """Connected-component label of every node (union-find)."""
-    parent = list(range(n))
-
-    def find(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for a, b in edges:
-        parent[find(a)] = find(b)
-    return np.array([find(a) for a in range(n)])
+    """Connected-component label of every node (``scipy.sparse.csgraph``)."""
+    ij = np.array(edges, dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels
 
 
 def _robust_linear(rows: list[tuple[int, int, float, float]], n: int, n_extra: int = 0,
@@ -390,7 +385,8 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
     kept = keep[:n_measured]
     # Placement: frames connected to the largest group by measurements that survived.
     label = _components(n, [(i, j) for (i, j, *_), k in zip(z_rows, kept, strict=False) if k])
-    main = np.bincount(label).argmax()
+    # The largest group; of equal ones, that of the earliest frame (whatever the numbering).
+    main = label[np.argmax(np.bincount(label)[label])]
     unplaced = label != main
     scale = float(z[n]) if n_extra else 1.0
     z = z[:n] - z[int(np.flatnonzero(~unplaced)[0])]

@@ -27,16 +27,17 @@ import numpy as np
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.mosaic._unwrap_kernels import (
+    MapFields,
     column_medians,
     contrast_of,
     fill_invalid,
     mask_strip,
-    upsample_masked,
+    upsample_maps,
 )
 
 __all__ = ["Strip", "StripGrid", "UnwrapMaps", "column_levels", "default_mm_per_px",
            "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
-           "to_grey", "unwrap", "unwrap_maps", "unwrap_with_quality"]
+           "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
 @dataclass(frozen=True)
@@ -143,25 +144,26 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
     with_quality : bool
         Also return the quality weight (an :class:`UnwrapMaps`).
     """
-    fields = _node_fields(camera, pose, section, grid, step, with_quality)[0]
+    nodes, _ = _node_fields(camera, pose, section, grid, step, with_quality)
     # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
     # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
     # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
     # nodes whose interpolated validity is not ~1 are masked (-1, quality 0).
-    out = upsample_masked(np.stack(fields).astype(np.float32), step, grid.n_rows, grid.n_cols,
-                          0.999)
+    maps = upsample_maps(nodes, step=step, n_rows=grid.n_rows, n_cols=grid.n_cols,
+                         ok_above=0.999)
     if not with_quality:
-        return out[0], out[1]
-    return UnwrapMaps(*out)
+        return maps.map_x, maps.map_y
+    return UnwrapMaps(maps.map_x, maps.map_y, maps.quality, maps.shading)
 
 
 def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
-                 step: int, with_quality: bool) -> tuple[list[np.ndarray], np.ndarray]:
+                 step: int, with_quality: bool) -> tuple[MapFields, np.ndarray]:
     """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
     nodes' column z.
 
     Pixel column and row (0 where invisible), validity (1/0) and, ``with_quality``, the
-    quality and the shading of :class:`UnwrapMaps`, each (node rows, node columns).
+    quality and the shading of :class:`UnwrapMaps` (else None), each (node rows, node
+    columns).
     """
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
@@ -170,13 +172,14 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: St
     px = camera.project(probe.reshape(-1, 3)).reshape(*shape, 2)
     valid = np.isfinite(px).all(axis=2)
     px = np.where(valid[..., None], px, 0.0)
-    fields = [px[..., 0], px[..., 1], valid.astype(float)]
+    fields = MapFields(px[..., 0], px[..., 1], valid.astype(float))
     if with_quality:
         # Smooth quantities: computed on the projected nodes, interpolated with the maps.
         cosine, distance = _line_of_sight(local, section, ring, z)
         cosine = np.clip(cosine, 0, 1)
         resolution = _resolution(px[..., 0], px[..., 1]) / step
-        fields += [resolution * cosine, cosine * (section.mean_radius_mm / distance) ** 2]
+        fields = fields._replace(quality=resolution * cosine,
+                                 shading=cosine * (section.mean_radius_mm / distance) ** 2)
     return fields, z
 
 
@@ -269,27 +272,6 @@ def column_levels(strip: Strip) -> np.ndarray:
     return column_medians(ratio.astype(np.float32), 0.1 * ratio.shape[0])
 
 
-def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
-    """An 8/16-bit or float, grey or BGR(A) frame as grey float32 (integer ranges to [0, 1]).
-
-    ``out``: a float32 array of the frame's size that a grey integer frame is written
-    into (see :mod:`pipestitch._runtime.scratch`); other frames get a new array.
-    """
-    arr = np.asarray(img)
-    integer = arr.dtype.kind in "ui"
-    scale = 1.0 / np.iinfo(arr.dtype).max if integer else 1.0
-    if integer and arr.ndim == 2:
-        # One pass (cast and scale, the same float32 arithmetic): a frame is read
-        # once per pass of the mosaic.
-        return np.multiply(arr, np.float32(scale), dtype=np.float32, out=out)
-    arr = arr.astype(np.float32)
-    if arr.ndim == 3:
-        arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]
-    arr = np.multiply(arr, np.float32(scale), out=arr if arr.flags.writeable else None)
-    # Only a float frame can hold NaN or infinities.
-    return arr if integer else np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)
-
-
 def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
     """Value / local mean - 1 over the valid (finite) nodes, and the local data fraction.
 
@@ -347,9 +329,10 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
     grid = StripGrid.window(radius_mm, mm_per_px, *window_mm)
     lo, hi = np.inf, -np.inf
     for pose, section in views:
-        (x, y, valid, quality, _), z = _node_fields(camera, pose, section, grid, step, True)
-        col, row = np.rint(x).astype(int), np.rint(y).astype(int)
-        good = ((valid > 0) & (quality >= min_resolution) & (col >= 0) & (col < camera.width)
+        nodes, z = _node_fields(camera, pose, section, grid, step, True)
+        col, row = np.rint(nodes.map_x).astype(int), np.rint(nodes.map_y).astype(int)
+        good = ((nodes.valid > 0) & (nodes.quality >= min_resolution) & (col >= 0)
+                & (col < camera.width)
                 & (row >= 0) & (row < camera.height))
         if occluded is not None:
             good[good] = ~occluded[row[good], col[good]]

@@ -37,7 +37,7 @@ from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, envelope_costs, resolve_run
 from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
-from pipestitch.pose.section import oval_if_circle_infeasible
+from pipestitch.pose.section import INFEASIBLE_CLEARANCE_MM, oval_at_zero_tilt
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
            "report_frame_messages", "resolve_frames", "ring_search_band",
@@ -76,6 +76,9 @@ class FramePose:
         return self.stored_ring if self.stored_ring is not None else self.fit.ring
 
 
+BODY_WARNING = ("the declared probe body cannot hold this pose (it would cross the wall by "
+                "{clearance:.1f} mm in either mirror): ring fit kept as measured; an oval pipe "
+                "or a wrong probe.toml would explain it (`pipestitch run` tests the oval)")
 OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; `pipestitch run` "
                      "measures it from the LED frames)")
 
@@ -98,39 +101,48 @@ def _photometric_strips(led: np.ndarray, fit: PoseFit, camera: CameraModel) -> S
 
 @dataclass(frozen=True)
 class PoseSettings:
-    """What the per-frame fit needs from probe.toml."""
+    """What the per-frame fit needs from probe.toml.
+
+    ``body`` None: probe.toml declares no body, so no envelope applies. ``oval_start``:
+    a frame whose circle pose the body cannot hold starts as an oval section with the
+    tilt held at 0 (``pipestitch run``, whose LED refinement then measures the tilt
+    and keeps the oval only where it is significant); otherwise (``pipestitch pose``)
+    the circle fit is kept and the frame flagged.
+    """
 
     camera: CameraModel
     plane_distance_mm: float
     nominal_radius_mm: float
-    body: BodyEnvelope
+    body: BodyEnvelope | None
     plane_normal: np.ndarray | None = None   # laser-plane normal (probe.toml; SPEC: +z)
     ring_band_px: tuple[float, float] | None = None   # where detect_ring searches
+    oval_start: bool = False
 
     @classmethod
-    def from_config(cls, cfg: ProbeConfig) -> PoseSettings:
+    def from_config(cls, cfg: ProbeConfig, *, oval_start: bool = False) -> PoseSettings:
         """Settings of a dataset's probe.toml (the ring searched in :func:`ring_search_band`)."""
         camera, normal = cfg.camera_model(), np.asarray(cfg.laser.plane_normal(), float)
         radius = cfg.pipe.inner_diameter_mm / 2
-        body = BodyEnvelope(cfg.probe.length_mm, cfg.probe.diameter_mm)
+        body = cfg.probe.envelope()
         band = ring_search_band(camera, cfg.laser.plane_distance_mm, radius, body, normal)
-        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band)
+        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band, oval_start)
 
 
 def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
-                     body: BodyEnvelope, plane_normal: np.ndarray | None = None
+                     body: BodyEnvelope | None, plane_normal: np.ndarray | None = None
                      ) -> tuple[float, float] | None:
     """Image radii where :func:`pipestitch.pose.ring.detect_ring` looks for the ring of a run.
 
-    Where the laser plane is between half the probe body's radius and twice the
-    nominal pipe diameter from the probe axis: the wall can be neither inside the body
-    nor further than the far side of a pipe twice the nominal size (wide margins for a
-    wrong nominal, ovality and tilt). See :func:`pipestitch.pose.ring.ring_band_px`. None
+    Where the laser plane is between half the probe body's radius (without a body: the
+    axis itself, as a point probe may touch the wall) and twice the nominal pipe
+    diameter from the probe axis: the wall can be neither inside the body nor further
+    than the far side of a pipe twice the nominal size (wide margins for a wrong
+    nominal, ovality and tilt). See :func:`pipestitch.pose.ring.ring_band_px`. None
     (the whole of every ray) when the lens sees no such plane point.
     """
     try:
         return ring_band_px(camera, plane_distance_mm, plane_normal,
-                            min_wall_mm=body.diameter_mm / 4,
+                            min_wall_mm=0.0 if body is None else body.diameter_mm / 4,
                             max_wall_mm=4 * nominal_radius_mm)
     except ValueError:
         return None
@@ -144,10 +156,18 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
-    fit = oval_if_circle_infeasible(fit, settings.body, settings.camera)
+    warning = ""
+    if fit.ok and settings.body is not None:
+        clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
+                        for h in fit.hypotheses)
+        if clearance < INFEASIBLE_CLEARANCE_MM:
+            if settings.oval_start:
+                fit = oval_at_zero_tilt(fit, settings.camera)
+                warning = OVAL_TILT_WARNING
+            else:
+                warning = BODY_WARNING.format(clearance=-clearance)
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    warning = (OVAL_TILT_WARNING if fit.ok and fit.model == "oval/tilt-0" else "")
     return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning)
 
 
@@ -182,7 +202,7 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
                            range(dataset.n_pairs), workers)
 
 
-def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope,
+def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
                    rings: RingStore | None = None, *,
                    drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
     """Compare consecutive frames photometrically as they come, then choose over the run.
@@ -211,10 +231,12 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope,
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
                    timer: StageTimer | None = None, rings: RingStore | None = None,
-                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
+                   drop_rings: bool = False,
+                   oval_start: bool = False) -> tuple[list[FramePose], list[Choice]]:
     """Fit every frame and choose between the mirror hypotheses over the run (ring
-    points into ``rings`` when given, or dropped: :func:`resolve_frames`)."""
-    settings = PoseSettings.from_config(dataset.config)
+    points into ``rings`` when given, or dropped: :func:`resolve_frames`;
+    ``oval_start``: see :class:`PoseSettings`)."""
+    settings = PoseSettings.from_config(dataset.config, oval_start=oval_start)
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
     return resolve_frames(frames, settings.body, rings, drop_rings=drop_rings)

@@ -81,7 +81,7 @@ class RingStore:
                 else:
                     self._end += len(data)
                     return StoredRing(self, offset, len(data) // (2 * _POINT.itemsize),
-                                      ring.plane)
+                                      ring.plane, ring.noise_mm)
         return ring.without_pixels()
 
     def read(self, offset: int, n_points: int) -> np.ndarray:
@@ -133,6 +133,7 @@ class StoredRing:
     offset: int
     n_points: int
     plane: LaserPlane
+    noise_mm: float = 0.05   # the point noise of the frame's fit (RingPoints.noise_mm)
 
     @property
     def uv(self) -> np.ndarray:

@@ -288,7 +288,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     refits = dataset.has_led and settings.refine_rounds > 0
     frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                      workers=settings.workers, timer=timer, rings=rings,
-                                     drop_rings=not refits)
+                                     drop_rings=not refits, oval_start=refits)
     if rings.problem:
         report_frame_messages([(-1, rings.problem)])
     views = _views(frames, choices)

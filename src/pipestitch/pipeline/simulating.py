@@ -115,7 +115,8 @@ def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size
     run = build_run(scenario, seed=seed, size=size, n_pairs=n_pairs)
     cfg = probe_config_for(run.camera, plane_distance_mm=PLANE_DISTANCE_MM,
                            pipe_diameter_mm=scenario.pipe_diameter_mm,
-                           length_mm=run.body.length_mm, diameter_mm=run.body.diameter_mm)
+                           **({"length_mm": run.body.length_mm, "diameter_mm": run.body.diameter_mm}
+                              if scenario.declare_body else {}))
     write_probe_toml(out / "probe.toml", cfg)
     _render_all(run, frames_dir, workers, show_progress)
     if run.odometry_mm is not None:

@@ -27,6 +27,7 @@ from pipestitch._runtime import scratch
 from pipestitch._runtime.memory import release_free_memory
 from pipestitch._runtime.threads import ordered_map
 from pipestitch.camera import CameraModel
+from pipestitch.camera.frames import to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
@@ -60,7 +61,6 @@ from pipestitch.mosaic.unwrap import (
     polar_unwrap_maps,
     seen_window_mm,
     strip_window_mm,
-    to_grey,
     unwrap_maps,
     unwrap_with_quality,
 )
@@ -427,7 +427,8 @@ def _refit_section(view: FrameView) -> FrameView:
     start = view.measured.section if view.measured is not None else view.section
     points = view.ring.points_mm   # outside the try: a store that fails must say so
     try:
-        measured = fit_section(points, view.pose, view.section.mean_radius_mm, start=start)
+        measured = fit_section(points, view.pose, view.section.mean_radius_mm, start=start,
+                               noise_mm=view.ring.noise_mm)
     except ValueError:   # no valid section (degenerate ring points): keep the view
         return view
     # Kept for the whole run: the per-point residuals (~6 kB a frame) are not read again.

@@ -64,14 +64,18 @@ def hypothesis_distance(h1: Hypothesis, h2: Hypothesis, *, angle_scale_rad: floa
     return float(np.hypot(dang, doff))
 
 
-def envelope_costs(fit: PoseFit, body: BodyEnvelope, *, sigma_mm: float = 0.5) -> np.ndarray:
-    """Cost of each hypothesis from the probe body's fit inside the pipe.
+def envelope_costs(fit: PoseFit, body: BodyEnvelope | None, *,
+                   sigma_mm: float = 0.5) -> np.ndarray:
+    """Cost of each hypothesis from the probe body's fit inside the pipe (0 without a
+    declared body).
 
     A hypothesis whose body crosses the wall by v mm costs (v / sigma)² / 2, where
     sigma is the uncertainty of the body's far end (a tenth of a degree of tilt moves
     the rear of a 145 mm body by 0.25 mm). The wall is the ring's own radius.
     """
     costs = np.zeros(2)
+    if body is None:
+        return costs
     for i, h in enumerate(fit.hypotheses):
         clearance = body.clearance_mm(h.pose, PipeSection(h.radius_mm))
         costs[i] = 0.5 * (min(clearance, 0.0) / sigma_mm) ** 2

@@ -43,14 +43,26 @@ __all__ = [
     "PoseFit",
     "RingPoints",
     "fit_pose",
+    "frame_noise_mm",
     "model_conic",
     "plane_points",
     "plane_to_world",
     "pose_from_conic",
     "ring_rms_px",
+    "ring_scale_mm_per_px",
 ]
 
 PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
+# A ring point's noise across the line, per pixel of the line's own sigma (measured on
+# the frame: RingDetection.line_sigma_px): a line's centre is found to about a tenth of
+# its width on a textured wall. The robust scale and the inlier gates follow from it
+# through the frame's pixel -> plane scale at the ring (ring_scale_mm_per_px), and are
+# widened from the fit's own residuals when the frame is noisier (fit_pose).
+NOISE_PER_LINE_SIGMA = 0.12
+GATE_SIGMAS = 6.0        # a candidate within this many noise sigmas of the conic is the ring
+RESELECT_SIGMAS = 5.0    # ... when the inliers are re-selected, one per ray
+RESCALE_RMS = 2.0        # inliers' rms above this many sigmas: the noise was underestimated
+RESCALE_ROUNDS = 3
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 
 
@@ -101,6 +113,7 @@ class RingPoints:
     uv: np.ndarray
     pixels: np.ndarray
     plane: LaserPlane
+    noise_mm: float = 0.05   # the point noise the fit took (:func:`fit_pose`); refits reuse it
 
     @property
     def points_mm(self) -> np.ndarray:
@@ -109,7 +122,7 @@ class RingPoints:
 
     def without_pixels(self) -> RingPoints:
         """The same plane points without their image pixels (what later fits read)."""
-        return RingPoints(self.uv, self.pixels[:0].copy(), self.plane)
+        return RingPoints(self.uv, self.pixels[:0].copy(), self.plane, self.noise_mm)
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,7 +295,7 @@ def _pose_vector(pose: Pose, radius_mm: float) -> np.ndarray:
 
 def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: float, *,
              nominal_radius_mm: float | None = None, fit_radius: bool = True,
-             min_coverage: float = 0.25, noise_mm: float = 0.05,
+             min_coverage: float = 0.25, noise_mm: float | None = None,
              plane_normal: np.ndarray | None = None, seed: int = 0) -> PoseFit:
     """Fit both pose hypotheses to one frame's ring candidates.
 
@@ -300,8 +313,13 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         Estimate the local pipe radius (default) or hold it at the nominal value.
     min_coverage : float
         Minimum fraction of azimuths with an inlier for a fit to be accepted.
-    noise_mm : float
-        Expected point noise on the wall; sets the robust loss scale.
+    noise_mm : float, optional
+        Point noise on the laser plane (mm): the robust loss scale; the inlier gates are
+        6 and 5 of it. Default: from the frame itself, the line's measured width times
+        ``NOISE_PER_LINE_SIGMA`` mapped to the plane by the local pixel -> plane scale
+        at the ring (:func:`ring_scale_mm_per_px`), then widened from the fit's own
+        residuals while the inliers scatter more than ``RESCALE_RMS`` of it; so the
+        same code fits at any pipe size, plane distance, lens and line width.
     plane_normal : numpy.ndarray, optional
         Calibrated laser-plane normal in the probe frame (default SPEC's +z).
     seed : int
@@ -315,9 +333,13 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     if not fit_radius and nominal_radius_mm is None:
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
+    radius = np.nan if fit_radius else float(nominal_radius_mm)
     try:
-        found, out = _fit_kernel(detection, camera, plane, noise_mm, seed, min_coverage,
-                                 np.nan if fit_radius else float(nominal_radius_mm))
+        if noise_mm is not None:
+            noise = float(noise_mm)
+            found, out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+        else:
+            noise, found, out = _fit_scaled(detection, camera, plane, seed, min_coverage, radius)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=detection.coverage)
@@ -333,7 +355,73 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
                        else found)
     # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
     return PoseFit(True, "", _hypotheses(*out[3:7]), out[2], coverage, "circle",
-                   RingPoints(out[7], out[8], plane))
+                   RingPoints(out[7], out[8], plane, noise))
+
+
+def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
+                         plane: LaserPlane, *, n_points: int = 24) -> float:
+    """How far a one-pixel step across the ring moves on the laser plane (mm), median
+    over up to ``n_points`` of the rays' strongest candidates.
+
+    The step is taken normal to the ring in the image (the ring's tangent from the
+    neighbouring candidates, in azimuth order): the direction in which the detector
+    localises the line. NaN when no candidate meets the plane.
+    """
+    best = detection.rank == 0
+    order = np.argsort(detection.azimuth[best], kind="stable")
+    ring = _as_points(detection.pixels[best][order])
+    if ring.shape[0] < 3:
+        return math.nan
+    tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
+    take = slice(None, None, max(1, ring.shape[0] // n_points))
+    ring, tangent = ring[take], tangent[take]
+    length = np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.divide(tangent[:, ::-1] * [1.0, -1.0], length, out=np.zeros_like(tangent),
+                       where=length > 0)
+    uv = _plane_coords(np.concatenate([ring, ring + normal]), camera, plane)[0]
+    step = np.linalg.norm(uv[len(ring):] - uv[:len(ring)], axis=1)
+    step = step[np.isfinite(step) & (length[:, 0] > 0)]
+    return float(np.median(step)) if step.size else math.nan
+
+
+def frame_noise_mm(detection: RingDetection, camera: CameraModel, plane: LaserPlane) -> float:
+    """A frame's prior ring-point noise on the laser plane (mm): ``NOISE_PER_LINE_SIGMA``
+    of the measured line width, through :func:`ring_scale_mm_per_px`."""
+    scale = ring_scale_mm_per_px(detection, camera, plane)
+    sigma_px = detection.line_sigma_px
+    if not (math.isfinite(scale) and math.isfinite(sigma_px)):
+        return math.nan
+    return NOISE_PER_LINE_SIGMA * sigma_px * scale
+
+
+def _fit_scaled(detection: RingDetection, camera: CameraModel, plane: LaserPlane, seed: int,
+                min_coverage: float, radius: float) -> tuple[float, float, tuple]:
+    """(noise, coverage, kernel result) with the noise taken from the frame.
+
+    Starts from :func:`frame_noise_mm`; a fit with too few inliers is tried once more
+    with a three times wider gate, and while the inliers' rms exceeds
+    ``RESCALE_RMS`` noise sigmas (their scatter fills the gate: the frame is noisier
+    than its line width says) the fit is repeated with the noise set from that rms
+    (1.3 x: the gate truncates the scatter).
+    """
+    noise = frame_noise_mm(detection, camera, plane)
+    if not math.isfinite(noise):   # no candidate meets the plane: nothing to fit
+        return 0.05, *_fit_kernel(detection, camera, plane, 0.05, seed, min_coverage, radius)
+    found, out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+    if out[0] in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
+        wider = 3.0 * noise
+        found_w, out_w = _fit_kernel(detection, camera, plane, wider, seed, min_coverage, radius)
+        if out_w[0] == _k.FOUND:
+            noise, found, out = wider, found_w, out_w
+    for _ in range(RESCALE_ROUNDS):
+        if out[0] != _k.FOUND or out[3][0, _k.SUMMARY_RMS] <= RESCALE_RMS * noise:
+            break
+        wider = 1.3 * float(out[3][0, _k.SUMMARY_RMS])
+        found_w, out_w = _fit_kernel(detection, camera, plane, wider, seed, min_coverage, radius)
+        if out_w[0] != _k.FOUND:
+            break
+        noise, found, out = wider, found_w, out_w
+    return noise, found, out
 
 
 @functools.lru_cache(maxsize=64)
@@ -374,7 +462,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     pixels = _as_points(detection.pixels)
     azimuth, rank = _as_index(detection.azimuth), _as_index(detection.rank)
     n_az = detection.n_azimuths
-    fit = (max(0.3, 6 * noise_mm), max(0.25, 5 * noise_mm))
+    fit = (GATE_SIGMAS * noise_mm, RESELECT_SIGMAS * noise_mm)
     n_free = 4 if radius == radius else 5
     rest = (plane.distance_mm, plane.normal, plane.basis, _min_rays(min_coverage, n_az),
             radius, n_free, noise_mm)

@@ -17,6 +17,7 @@ are equally strong (it returns both, ranked) or know the pose.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -48,6 +49,10 @@ class RingDetection:
         Number of polar rays searched.
     noise : float
         Estimated noise of the ridge response (fraction of full scale).
+    line_sigma_px : float
+        Gaussian sigma of the laser line across the ring, measured on this frame (its
+        full width at half maximum / 2.355, median over the strongest candidates); the
+        width the ridge filter assumed when too few candidates were found to measure it.
     """
 
     pixels: np.ndarray
@@ -56,6 +61,7 @@ class RingDetection:
     snr: np.ndarray
     n_azimuths: int
     noise: float
+    line_sigma_px: float = float("nan")
 
     @property
     def coverage(self) -> float:
@@ -279,8 +285,63 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     radius = _centroid(polar, narrow, az_idx, idx, sigma / step) * step + radii[0]
     phi = az_idx * (2 * np.pi / n_azimuths)
     pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
-    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
-                         snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise)
+    snr = top[az_idx, rank] / noise
+    width = _line_sigma_px(polar, az_idx[rank == 0], idx[rank == 0], snr[rank == 0],
+                           sigma / step) * step
+    width = width if math.isfinite(width) else sigma   # too few candidates: as searched
+    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank, snr=snr,
+                         n_azimuths=n_azimuths, noise=noise, line_sigma_px=width)
+
+
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+MIN_WIDTH_SAMPLES = 12   # strongest candidates needed to measure the line's width
+
+
+def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np.ndarray,
+                   sigma_samples: float) -> float:
+    """The laser line's Gaussian sigma (in polar samples) from its half-maximum width.
+
+    Measured on the unfiltered profile of the strongest half of the rays' best
+    candidates: background the 20th percentile of a window of +-8 expected sigmas (wide
+    enough for a line several times wider than expected), the half-maximum crossings
+    interpolated linearly on both sides of the peak. The median over the rays is what
+    a frame's scales are taken from (:func:`pipestitch.pose.fit.fit_pose`): the
+    line's width sets how exactly its centre can be found. NaN with fewer than
+    ``MIN_WIDTH_SAMPLES`` candidates.
+    """
+    if rows.size < MIN_WIDTH_SAMPLES:
+        return float("nan")
+    strong = snr >= np.median(snr)
+    rows, idx = rows[strong], idx[strong]
+    half = max(4, int(np.ceil(8 * sigma_samples)))
+    offsets = np.arange(-half, half + 1)
+    cols = idx[:, None] + offsets[None, :]
+    inside = (cols >= 0) & (cols < polar.shape[1])
+    profile = np.where(inside, polar[rows[:, None], np.clip(cols, 0, polar.shape[1] - 1)],
+                       np.nan)
+    base = np.nanpercentile(profile, 20, axis=1)
+    peak = np.nanmax(profile[:, half - 2:half + 3], axis=1)
+    level = (base + (peak - base) / 2)[:, None]
+    below = ~(profile >= level)   # NaN (outside the frame) counts as below
+    sides = [_crossing(profile[:, half::-1], below[:, half::-1], level),
+             _crossing(profile[:, half:], below[:, half:], level)]
+    fwhm = sides[0] + sides[1]
+    fwhm = fwhm[np.isfinite(fwhm) & (peak > base)]
+    if fwhm.size < MIN_WIDTH_SAMPLES // 2:
+        return float("nan")
+    return float(np.median(fwhm)) / FWHM_PER_SIGMA
+
+
+def _crossing(profile: np.ndarray, below: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Distance (samples) from column 0 to where each row first falls below ``level``,
+    interpolated between the last sample above and the first below; NaN if it never does."""
+    first = np.argmax(below, axis=1)
+    found = below[np.arange(len(first)), first] & (first > 0)
+    first = np.where(found, first, 1)
+    rows = np.arange(len(first))
+    hi, lo = profile[rows, first - 1], profile[rows, first]
+    frac = np.where(hi > lo, (hi - level[:, 0]) / np.where(hi > lo, hi - lo, 1), 0.5)
+    return np.where(found, first - 1 + np.clip(np.nan_to_num(frac, nan=0.5), 0, 1), np.nan)
 
 
 def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:

@@ -26,10 +26,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, rot_x, rot_y
-from pipestitch.pose.fit import Hypothesis, PoseFit, plane_to_world, ring_rms_px
+from pipestitch.geometry import PipeSection, Pose, rot_x, rot_y
+from pipestitch.pose.fit import RESELECT_SIGMAS, Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
-__all__ = ["SectionFit", "fit_section", "oval_if_circle_infeasible", "oval_residuals"]
+__all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_residuals"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,33 +150,31 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
 
 
 # A circle fit whose every hypothesis puts the probe body this far into the wall is
-# not a probe in a circular pipe: the ring's tilt error moves the body's rear end by
-# tenths of a mm, not by one.
+# not the declared probe in a circular pipe: the ring's tilt error moves the body's
+# rear end by tenths of a mm, not by one.
 INFEASIBLE_CLEARANCE_MM = -1.0
 
 
-def oval_if_circle_infeasible(fit: PoseFit, body: BodyEnvelope, camera: CameraModel,
-                              noise_mm: float = 0.05) -> PoseFit:
-    """The frame refitted as an oval pipe (tilt held at 0) when no circle pose fits the body.
+def oval_at_zero_tilt(fit: PoseFit, camera: CameraModel) -> PoseFit:
+    """The frame refitted as an oval pipe with the tilt held at 0.
 
-    An oval pipe read as a circle looks like a strong tilt (5 % ovality ~ 18°) that
-    the probe body cannot take. Such a frame gets model ``"oval/tilt-0"``: offset and
-    section from the ring with the tilt unobserved and held at 0 (the photometric
-    refinement of ``pipestitch run`` then measures it); both hypotheses coincide.
-    Other fits are returned unchanged.
+    For a frame whose circle pose the probe body cannot hold: an oval pipe read as a
+    circle looks like a strong tilt (5 % ovality ~ 18°). The result has model
+    ``"oval/tilt-0"``: offset and section from the ring with the tilt unobserved and
+    held at 0 (the photometric refinement of ``pipestitch run`` then measures it, and
+    keeps the oval only where it is significant); both hypotheses coincide. A fit
+    without ring points is returned unchanged.
     """
     if not fit.ok or fit.ring is None:
-        return fit
-    clearances = [body.clearance_mm(h.pose, h.pipe_section) for h in fit.hypotheses]
-    if max(clearances) >= INFEASIBLE_CLEARANCE_MM:
         return fit
     h = fit.hypotheses[0]
     plane = fit.ring.plane
     centre = plane_to_world(h.pose, plane)[1]   # world (x, y) of the plane centre
     # untilted, the plane centre d·n lands at d·n[:2] + offset: start the offset there
     offset = centre - plane.distance_mm * plane.normal[:2]
+    noise_mm = fit.ring.noise_mm
     sf = fit_section(fit.ring.points_mm, Pose(0.0, 0.0, *offset), h.radius_mm, noise_mm=noise_mm)
-    keep = np.abs(sf.residuals_mm) < max(0.25, 5 * noise_mm)
+    keep = np.abs(sf.residuals_mm) < RESELECT_SIGMAS * noise_mm
     rms_px = ring_rms_px(sf.pose, sf.section.mean_radius_mm,
                          fit.ring.pixels[keep].astype(np.float64),
                          fit.ring.uv[keep].astype(np.float64), sf.residuals_mm[keep], camera,

@@ -13,7 +13,7 @@ pytestmark = pytest.mark.slow   # each smoke run is a benchmark script as a subp
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 
-@pytest.mark.parametrize("script,expect", [
+SMOKE = [   # (script, a line its --quick output must hold)
     ("sensitivity.py", "Delta PX"),
     ("render.py", "pairs/s"),
     ("table1.py", "speed: ours"),
@@ -22,7 +22,15 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
     ("ovality.py", "ours (refined tilt)"),
     ("scale.py", "speed ratio cluster vs sequential"),
     ("calibration_real.py", "calibration vs published"),
-])
+    ("occluders.py", "SSIM - black"),
+]
+
+
+def test_every_benchmark_has_a_smoke_run() -> None:
+    assert {script for script, _ in SMOKE} == {p.name for p in BENCH.glob("*.py")}
+
+
+@pytest.mark.parametrize("script,expect", SMOKE)
 def test_benchmark_smoke(script: str, expect: str) -> None:
     proc = subprocess.run([sys.executable, str(BENCH / script), "--quick"], capture_output=True,
                           text=True, check=False, timeout=600)

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -187,3 +189,32 @@ def test_pose_exit_1_when_no_frame_has_a_ring(small_dataset: Path, tmp_path: Pat
 def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:
     result = runner.invoke(app, ["simulate", "--out", str(small_dataset), "--quiet"])
     assert result.exit_code == 2 and "already holds frames" in result.output
+
+
+def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
+        small_dataset: Path, tmp_path: Path, monkeypatch) -> None:
+    import pipestitch.pipeline.stitching as stitching
+
+    data = tmp_path / "ds"
+    shutil.copytree(small_dataset, data)
+    result = CliRunner().invoke(app, ["mask", str(data), "--out", str(data / "mask.png")])
+    assert result.exit_code == 0, result.output
+    mask = cv2.imread(str(data / "mask.png"), cv2.IMREAD_UNCHANGED)
+    assert mask.shape == (1024, 1224) and set(np.unique(mask)) <= {0, 255}
+    # the lens rim, the mirror mount and the arm: a real share of the image, not all of it
+    assert 0.2 < float(np.mean(mask == 0)) < 0.6
+    # named in probe.toml, the mask is used as it is: nothing is searched for
+    text = (data / "probe.toml").read_text().replace("[pipe]", 'mask = "mask.png"\n\n[pipe]')
+    (data / "probe.toml").write_text(text)
+
+    def no_search(*args, **kwargs):
+        raise AssertionError("the declared mask was not used")
+
+    monkeypatch.setattr(stitching, "find_occluders", no_search)
+    result = CliRunner().invoke(app, ["run", str(data), "--out", str(tmp_path / "out"),
+                                      "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "out" / "mosaic.png").is_file()
+    result = CliRunner().invoke(app, ["mask", str(tmp_path / "nothing"), "--out",
+                                      str(tmp_path / "m.png")])
+    assert result.exit_code == 2 and "not found" in result.output

@@ -181,3 +181,69 @@ def test_export_bad_input_exits_2(tmp_path: Path) -> None:
     result = runner.invoke(app, ["export", str(tmp_path), "--format", "json"])
     assert result.exit_code == 2
     assert "observations.csv" in result.output and "line 2" in result.output
+
+
+def _mosaic_with_a_hole(folder: Path) -> None:
+    """A 360 x 300 mosaic (1 deg, 0.5 mm per pixel) with one dark disc: one hole."""
+    rng = np.random.default_rng(0)
+    img = 100 + 3 * rng.standard_normal((360, 300))
+    yy, xx = np.mgrid[:360, :300]
+    img[(yy - 100) ** 2 + (xx - 150) ** 2 < 15 ** 2] = 10
+    write_mosaic_png(folder / "mosaic.png", mosaic_to_uint8(img)[0])
+    write_json(folder / "mosaic.json", {"mm_per_px_axial": 0.5, "deg_per_px": 1.0,
+                                        "z0_mm": 0.0, "radius_mm": 30.0, "n_cols": 300})
+
+
+OBS_HEADER = "distance_m,code,char1,char2,quant1,quant2,remark,clock_from,clock_to,continuous,ref"
+USER_ROWS = ["1.23456,BDB,,,,,precise distance,,,,mine\n",
+             "0.01,BAF,Z,,,,13 fields,3,,,mine 2,extra,more\n",
+             '0.9,BDB,,,,,"two\nlines, ""quoted""",,,,mine 3\n']
+
+
+def test_measure_keeps_user_rows_byte_for_byte(tmp_path: Path) -> None:
+    """`pipestitch measure` re-codes: the auto: rows are replaced, the user's rows stay
+    exactly as typed (1.23456 is not rounded, the 13-field row keeps its extra fields)."""
+    _mosaic_with_a_hole(tmp_path)
+    (tmp_path / "observations.csv").write_text(
+        OBS_HEADER + "\n0.5,BAC,B,,9,,old hole,3,,,auto:D1 stale\n" + "".join(USER_ROWS))
+    result = runner.invoke(app, ["measure", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    text = (tmp_path / "observations.csv").read_text()
+    assert all(row in text for row in USER_ROWS) and "stale" not in text
+    lines = text.split("\n")
+    assert lines[0] == OBS_HEADER and lines[1] == USER_ROWS[1].rstrip("\n")
+    assert lines[2].startswith("0.07,BAC,B,,15,") and "auto:D1 mosaic" in lines[2]
+    # Measuring again changes nothing.
+    result = runner.invoke(app, ["measure", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "observations.csv").read_text() == text
+
+
+def test_recoding_keeps_crlf_rows_and_header(tmp_path: Path) -> None:
+    earlier = (OBS_HEADER + ",inspector\r\n" + "1.23456,BDB,,,,,note,,,,mine,Ann\r\n").encode()
+    (tmp_path / "observations.csv").write_bytes(earlier)
+    coded = code_run(tmp_path)
+    assert (tmp_path / "observations.csv").read_bytes() == earlier
+    assert [o.distance_m for o in coded.observations] == [1.23]
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    (OBS_HEADER + "\n1.0,BDB,,,,,note,13,,,mine\n", "line 2: clock_from"),
+    ("code,distance_m,ref\nBDB,1.0,mine\n", "line 1: the columns"),
+    (OBS_HEADER + "\n1.0,B-B,,,,,,,,,mine\n", "line 2: code"),
+])
+def test_measure_refuses_user_rows_it_cannot_keep(tmp_path: Path, text: str,
+                                                  message: str) -> None:
+    _mosaic_with_a_hole(tmp_path)
+    (tmp_path / "observations.csv").write_text(text)
+    result = runner.invoke(app, ["measure", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "observations.csv" in result.output and message in result.output
+    assert (tmp_path / "observations.csv").read_text() == text
+
+
+def test_observations_csv_not_utf8_is_named(tmp_path: Path) -> None:
+    (tmp_path / "observations.csv").write_bytes(OBS_HEADER.encode() + b"\n1.0,BDB,,,,,\xe9,,,,x\n")
+    result = runner.invoke(app, ["export", str(tmp_path)])
+    assert result.exit_code == 2 and "observations.csv" in result.output
+    assert "not UTF-8" in result.output

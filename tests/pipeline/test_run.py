@@ -170,7 +170,10 @@ def test_run_exit_1_when_no_frame_can_be_placed(dataset: Path, tmp_path: Path) -
     result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
     assert result.exit_code == 1, result.output
     assert "no mosaic" in result.output
-    assert (tmp_path / "out" / "poses.csv").is_file()      # the poses are still written
+    # A failed run does not replace OUT (empty here): its poses are kept beside it, named.
+    kept = tmp_path / ".out.partial"
+    assert (kept / "poses.csv").is_file() and str(kept) in result.output.replace("\n", "")
+    assert not (tmp_path / "out" / "poses.csv").exists()
 
 
 @pytest.mark.parametrize("scenario", ["hard", "oval"])

@@ -21,6 +21,7 @@ from pipestitch.cli.batch_command import batch
 from pipestitch.cli.calibrate_command import register as register_calibrate
 from pipestitch.cli.export_command import CROWN_HELP
 from pipestitch.cli.export_command import register as register_export
+from pipestitch.cli.mask_command import register as register_mask
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import run_check
 from pipestitch.pipeline.coding import code_run
@@ -214,8 +215,10 @@ def run(
     Writes OUT/poses.csv, mosaic.png, mosaic.json, mosaic.ome.tif + tiles/ + viewer.html
     (zoomable full resolution), defects.csv, profile.csv, observations and report.html.
     Frames that fail are reported and skipped, never dropped silently.
-    A dataset without LED frames gets poses, profile and report only; exit 1 (outputs
-    still written) when no frame has a pose or the LED frames give no mosaic.
+    A dataset without LED frames gets poses, profile and report only. The outputs replace
+    an earlier run's in OUT only when the run succeeds, as one set (files you added are
+    kept); exit 1 when no frame has a pose or the LED frames give no mosaic, OUT left as
+    it was and this run's outputs kept in .OUT.partial beside it.
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """
@@ -294,6 +297,7 @@ def demo(
 app.command(name="batch")(_handle_errors(batch))
 register_export(app, _handle_errors)
 register_calibrate(app, _handle_errors)
+register_mask(app, _handle_errors)
 
 
 def main() -> None:

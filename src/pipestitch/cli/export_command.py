@@ -38,7 +38,9 @@ def export(
     """Export the run's coded observations (OUT/observations.csv, which you may edit).
 
     With --crown-deg or --dataset the run is re-coded first: rows whose ref starts with
-    "auto:" are regenerated, every other row of observations.csv is kept.
+    "auto:" are regenerated, every other row of observations.csv is kept as written.
+    In the CSV files, text cells beginning with =, +, -, @, tab or CR get a leading '
+    (spreadsheets do not run them as formulas); pipestitch reads them back without it.
 
     Example: pipestitch export out/test_piece --format pacp-csv --out survey.csv
     """

@@ -24,6 +24,7 @@ import numpy as np
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.io.images import read_image
+from pipestitch.io.mask import read_mask
 from pipestitch.io.probe_toml import read_probe_toml
 from pipestitch.io.video import VideoReader, classify_laser_frames, pair_frames
 
@@ -105,10 +106,7 @@ def read_frame(path: Path, size: tuple[int, int]) -> np.ndarray:
     DatasetError
         Naming the file: unreadable, wrong size or an unusable number of channels.
     """
-    img = read_image(path)
-    if (img.shape[1], img.shape[0]) != size:
-        raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
-                                 f"{size[0]}x{size[1]}")
+    img = read_image(path, size=size)   # the size checked before decoding (io.images)
     if img.ndim == 3 and img.shape[2] not in (3, 4):
         raise DatasetError(path, f"expected 1, 3 or 4 channels, got {img.shape[2]}")
     return img
@@ -402,5 +400,10 @@ def check_dataset(root: str | Path, *,
             _read_odometry(odo, max(n_pairs, 1))
         except DatasetError as exc:
             problems.append(Problem(odo, exc.problem))
+    if config is not None:
+        try:
+            read_mask(root, config)
+        except DatasetError as exc:
+            problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_truth(root))
     return problems

@@ -1,25 +1,65 @@
-"""Reading and writing frames: 8- or 16-bit, grey or colour, with clear errors."""
+"""Reading and writing frames: 8- or 16-bit, grey or colour, with clear errors.
+
+A frame's size is read from its header before its pixels are decoded (PNG's IHDR, a
+TIFF's first page tags), so a file that declares a size other than the camera's, or
+more pixels than ``MAX_PIXELS``, is refused at the cost of reading a few bytes, whatever
+it would take to decode: a small file declaring 30000 x 30000 pixels never becomes a
+gigabyte of memory. Other formats are decoded by OpenCV within its own pixel limit.
+"""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
 import numpy as np
+import tifffile
 
 from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_bytes
 
-__all__ = ["read_image", "write_image"]
+__all__ = ["MAX_PIXELS", "image_header", "read_image", "write_image"]
+
+MAX_PIXELS = 2**27   # 134 Mpx: 10x a 12 MP sensor; larger frames are refused unread
+_PNG = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}   # IHDR colour type -> channels
 
 
-def read_image(path: str | Path) -> np.ndarray:
+def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
+    """(width, height) an image file declares, read without decoding its pixels.
+
+    PNG and TIFF are read; None for other formats (or a header too short to tell).
+    """
+    head = bytes(data[:33]) if isinstance(data, bytes) else data[:33].tobytes()
+    if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        try:
+            with tifffile.TiffFile(io.BytesIO(bytes(data))) as tif:
+                shape = tif.pages[0].shape
+        except Exception:
+            return None
+        return (int(shape[1]), int(shape[0])) if len(shape) >= 2 else None
+    return None
+
+
+def read_image(path: str | Path, *, size: tuple[int, int] | None = None) -> np.ndarray:
     """Read an image unchanged (dtype and channels as stored; colour as BGR).
+
+    Parameters
+    ----------
+    path : path
+        The image file.
+    size : (int, int), optional
+        The (width, height) the image must have: checked against the file's header
+        before decoding (PNG, TIFF), then against the decoded image.
 
     Raises
     ------
     DatasetError
-        If the file is missing, empty or cannot be decoded.
+        If the file is missing, empty, declares another size or more than
+        ``MAX_PIXELS`` pixels, or cannot be decoded.
     """
     path = Path(path)
     if not path.is_file():
@@ -27,12 +67,32 @@ def read_image(path: str | Path) -> np.ndarray:
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise DatasetError(path, "file is empty")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    declared = image_header(data)
+    if declared is not None:
+        _check_declared(path, declared, size)
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:   # e.g. beyond OpenCV's own pixel limit
+        raise DatasetError(path, f"cannot decode image ({str(exc).strip().splitlines()[-1]})"
+                           ) from None
     if img is None:
         raise DatasetError(path, "cannot decode image (corrupt or not an image)")
     if img.dtype not in (np.uint8, np.uint16):
         raise DatasetError(path, f"expected 8- or 16-bit pixels, got {img.dtype}")
+    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
+                                 f"{size[0]}x{size[1]}")
     return img
+
+
+def _check_declared(path: Path, declared: tuple[int, int], size: tuple[int, int] | None) -> None:
+    width, height = declared
+    if size is not None and (width, height) != tuple(size):
+        raise DatasetError(path, f"image is {width}x{height}, probe.toml says "
+                                 f"{size[0]}x{size[1]} (from its header; not decoded)")
+    if width * height > MAX_PIXELS:
+        raise DatasetError(path, f"image declares {width}x{height} pixels, more than "
+                                 f"{MAX_PIXELS:,} ; not decoded")
 
 
 def write_image(path: str | Path, img: np.ndarray) -> Path:

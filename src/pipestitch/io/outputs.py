@@ -26,7 +26,7 @@ from pipestitch.io.images import read_image, write_image
 from pipestitch.jsonsafe import json_safe
 
 __all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "intensity_scale", "mosaic_from_uint8",
-           "mosaic_to_uint8",
+           "mosaic_meta_problems", "mosaic_to_uint8",
            "read_mosaic", "write_csv", "write_json", "write_mosaic_png"]
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
@@ -98,20 +98,88 @@ def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -
     conversion to float (which takes four times the PNG's pixels in bytes); the image
     then no longer matches the metadata's column scale and origin, and is for per-column
     statistics only. Raises DatasetError naming the file when either is missing or
-    unreadable.
+    unreadable, and naming the key when mosaic.json's scale or origin is impossible
+    (:func:`mosaic_meta_problems`), before the image is read.
     """
     meta_path = Path(out) / "mosaic.json"
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise DatasetError(meta_path, "missing (run `pipestitch run` first)") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:
         raise DatasetError(meta_path, f"unreadable: {exc}") from None
-    missing = [k for k in ("mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm")
-               if not isinstance(meta.get(k), int | float)]
-    if missing:
-        raise DatasetError(meta_path, f"missing or non-numeric: {', '.join(missing)}")
+    problems = mosaic_meta_problems(meta)
+    if problems:
+        raise DatasetError(meta_path, "; ".join(problems))
     image = read_image(Path(out) / "mosaic.png")
     if image.ndim != 2:
         raise DatasetError(Path(out) / "mosaic.png", f"expected a grey image, got {image.shape}")
     return mosaic_from_uint8(image if columns is None else image[:, columns(image.shape[1])]), meta
+
+
+# mosaic.json's grid keys: (key, lower bound, upper bound; None = any finite number).
+_GRID_KEYS = (("mm_per_px_axial", 0.0, math.inf), ("deg_per_px", 0.0, 360.0),
+              ("z0_mm", None, None))
+
+
+def _short(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _number_problem(grid: Mapping[str, object], key: str, where: str, low: float | None,
+                    high: float | None) -> str | None:
+    value = grid.get(key)
+    if key not in grid:
+        return f"missing key {where}{key}"
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return f"{where}{key} = {_short(value)}: expected a number"
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:          # an integer beyond float range
+        finite = False
+    if not finite:
+        return f"{where}{key} = {_short(value)}: expected a finite number"
+    if low is not None and high is not None and not low < value <= high:
+        return f"{where}{key} = {_short(value)}: expected > {low:g}" + (
+            f" and <= {high:g}" if math.isfinite(high) else "")
+    return None
+
+
+def mosaic_meta_problems(meta: object) -> list[str]:
+    """What is impossible in a mosaic.json document (empty when nothing): the scales
+    ``mm_per_px_axial`` (> 0), ``deg_per_px`` (> 0, <= 360), the origin ``z0_mm``
+    (finite) and ``radius_mm`` (> 0), the same of ``full_resolution`` when present
+    (and its ``file``, a relative path inside the run folder), ``n_rows``/``n_cols``
+    (whole numbers >= 0) and ``window_mm`` (two finite numbers) when present. Each
+    names its key."""
+    if not isinstance(meta, dict):
+        return [f"expected a JSON object, got {type(meta).__name__}"]
+    grids: list[tuple[Mapping[str, object], str]] = [(meta, "")]
+    full = meta.get("full_resolution")
+    problems: list[str | None] = []
+    if "full_resolution" in meta:
+        if isinstance(full, dict):
+            grids.append((full, "full_resolution."))
+            file = full.get("file")
+            if (not isinstance(file, str) or not file or Path(file).is_absolute()
+                    or ".." in Path(file).parts):
+                problems.append(f"full_resolution.file = {_short(file)}: expected a file name "
+                                "in the run folder")
+        else:
+            problems.append(f"full_resolution = {_short(full)}: expected an object")
+    for grid, where in grids:
+        for key, low, high in _GRID_KEYS:
+            problems.append(_number_problem(grid, key, where, low, high))
+        for key in ("n_rows", "n_cols"):
+            value = grid.get(key)
+            if key in grid and (isinstance(value, bool) or not isinstance(value, int)
+                                or value < 0):
+                problems.append(f"{where}{key} = {_short(value)}: expected a whole number >= 0")
+    problems.append(_number_problem(meta, "radius_mm", "", 0.0, math.inf))
+    window = meta.get("window_mm")
+    if "window_mm" in meta and not (
+            isinstance(window, list) and len(window) == 2
+            and all(_number_problem({"v": v}, "v", "", None, None) is None for v in window)):
+        problems.append(f"window_mm = {_short(window)}: expected two finite numbers")
+    return [p for p in problems if p]

@@ -1,11 +1,19 @@
 """Pixels of the camera that never show the wall: mirror assembly, laser-holder arm, lens rim.
 
-probe.toml does not describe the probe's occluders, and a dataset made by someone
-else may have its arm anywhere, so they are found from the LED frames themselves:
-they are fixed in the image while the wall moves past. A pixel is occluded when it
-is dark relative to its neighbourhood (arm, mirror edge) or absolutely dark (outside
-the lens' image circle, the mirror's face) in nearly all frames of a sample spread
-over the run (the 85th percentile over frames is dark). Dark wall features (holes,
+Without a mask file (probe.toml ``[probe] mask``), a dataset made by someone else may
+have its arm anywhere and of any brightness, so occluders are found from the LED
+frames themselves, by what makes them occluders: they are fixed in the image while the
+wall moves past. A pixel is occluded when, over a sample of frames spread along the run,
+
+* its brightness changes no more than the sensor's noise does (**static**: black,
+  grey, bright or specular alike). The noise is measured on the frames themselves, as
+  a function of the level: the local variance of each pixel's difference to its 3 x 3
+  mean, taken at the quiet end (10th percentile) of each level's pixels. A wall pixel
+  changes far more, even on a feature-poor wall, since the shading changes with the
+  probe's offset; pixels saturated in most frames carry no evidence and are not taken;
+* or it is dark relative to its neighbourhood (arm, mirror edge) or absolutely dark
+  (outside the lens' image circle, the mirror's face) in nearly all frames (the 85th
+  percentile over frames is dark). Dark wall features (holes,
 stains, the black of a test chart) move between frames and so are dark in only some
 of them: a median would not do, since a wall that is 40 % black is black in most of
 11 frames at a quarter of its pixels. With fewer than 3 frames the mask also covers
@@ -16,15 +24,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from itertools import pairwise
 
 import cv2
 import numpy as np
 
 from pipestitch.mosaic._occluder_kernels import quantile_over_frames
 
-__all__ = ["occluder_mask"]
+__all__ = ["noise_variance", "occluder_mask", "static_pixels"]
 
 NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
+# Static: temporal variance below this many times the sensor noise's, on a 5 x 5 mean
+# (of a pure-noise pixel the ratio is ~1; over 11 frames its 99.9th percentile is ~3).
+STATIC_RATIO = 4.0
+MIN_STATIC_FRAMES = 5   # fewer frames cannot tell a static pixel from a slow wall
 
 
 def _smooth(frame: np.ndarray, sigma: float) -> np.ndarray:
@@ -87,6 +100,52 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     level, typical = quantile_over_frames(stack, virtual, True)
     scale = float(np.median(typical[typical > 0])) if np.any(typical > 0) else 1.0
     mask = (ratio < relative) | (level < absolute * scale)
+    if len(frames) >= MIN_STATIC_FRAMES:
+        mask |= static_pixels(stack, typical)
     margin = max(2, round(height / 200)) if margin_px is None else margin_px
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> np.ndarray:
+    """The sensor's noise variance at each pixel's level, measured on the frames.
+
+    Per frame (up to 4 of them), the variance of each pixel's difference to its 3 x 3
+    mean over a 5 x 5 window, rescaled to the variance of one pixel (x 81/72, white
+    noise); per level bin (``bins`` quantiles of ``level``), the 10th percentile over
+    its pixels: the quiet parts of the image at that level (flat wall, the occluders
+    themselves), where texture adds nothing. Interpolated to every pixel's level.
+    """
+    picks = stack[::max(1, len(stack) // 4)]
+    local = np.median(np.stack([cv2.blur(np.square(f - cv2.blur(f, (3, 3))), (5, 5))
+                                for f in picks]), axis=0) * (81.0 / 72.0)
+    valid = level > 0
+    if np.count_nonzero(valid) < 100:
+        return np.full(level.shape, np.inf, np.float32)
+    edges = np.quantile(level[valid], np.linspace(0.0, 1.0, bins + 1))
+    centres, noise = [], []
+    for lo, hi in pairwise(edges):
+        sel = valid & (level >= lo) & (level <= hi)
+        if np.count_nonzero(sel) >= 100:
+            centres.append(float(np.median(level[sel])))
+            noise.append(float(np.percentile(local[sel], 10)))
+    return np.interp(level, centres, noise).astype(np.float32)
+
+
+def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Pixels whose value changes over the frames no more than the sensor noise.
+
+    ``stack`` (n, H, W) float32 frames spread along the run, ``level`` their per-pixel
+    median. A pixel is static when its temporal variance, averaged over 5 x 5, is
+    below ``STATIC_RATIO`` times the noise variance at its level
+    (:func:`noise_variance`), it is not saturated in most frames, and it belongs to a
+    static region at least 1/100 of the image height across (an opening removes the
+    odd wall pixel that happened to vary little).
+    """
+    temporal = np.var(stack, axis=0, ddof=1)
+    ratio = cv2.blur(temporal / np.maximum(noise_variance(stack, level), 1e-12), (5, 5))
+    saturated = level >= 0.999 * float(stack.max())
+    static = (ratio < STATIC_RATIO) & ~saturated & (level > 0)
+    size = max(3, round(stack.shape[1] / 100)) | 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    return cv2.morphologyEx(static.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)

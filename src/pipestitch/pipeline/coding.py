@@ -6,7 +6,8 @@ when given, the dataset (imu.csv, probe.toml), so it runs after ``pipestitch run
 on its own (``pipestitch export``). Writes, each atomically:
 
 * ``observations.csv``: the coded observations, user-editable; re-coding replaces the
-  rows whose ref starts with ``auto:`` and keeps the others;
+  rows whose ref starts with ``auto:`` and keeps the others byte for byte, as written
+  (a row that does not parse is refused with a DatasetError naming the line);
 * ``ovality.csv``: per profile section the named ovality/deflection figures (%);
 * ``standards.json``: the reference used, the survey header, the dataset and nominal
   diameter (so a later ``export`` needs neither);
@@ -54,10 +55,12 @@ from pipestitch.standards import (
 )
 from pipestitch.standards.invert import invert_columns
 from pipestitch.standards.observations import (
+    ObservationsFile,
     ProfileSection,
-    is_auto,
     observations_from_defects,
     observations_from_profile,
+    read_observations_file,
+    user_rows,
 )
 
 __all__ = ["EXPORTS", "CodedRun", "code_run", "export_run", "resolve_reference"]
@@ -184,16 +187,26 @@ def _nominal(dataset: Path | None, given: float | None, previous: dict) -> float
     return float(value) if isinstance(value, int | float) else math.nan
 
 
-def _kept_rows(out: Path) -> list[Observation]:
-    """Rows of an earlier observations.csv that a user added or took over (not auto:)."""
+def _read_utf8(path: Path) -> str:
+    """A text file as it is (no newline translation: kept rows stay byte for byte)."""
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DatasetError(path, f"not UTF-8 text: {exc}") from None
+
+
+def _earlier_observations(out: Path) -> ObservationsFile | None:
+    """An earlier observations.csv, checked: its user rows (not auto:) can be kept as
+    written. DatasetError naming the file and the line otherwise."""
     path = out / "observations.csv"
     if not path.is_file():
-        return []
+        return None
     try:
-        return [o for o in parse_observations_csv(path.read_text(encoding="utf-8"))
-                if not is_auto(o)]
+        earlier = read_observations_file(_read_utf8(path))
+        user_rows(earlier)
     except ValueError as exc:
         raise DatasetError(path, str(exc)) from None
+    return earlier
 
 
 def code_run(out: str | Path, *, dataset: str | Path | None = None,
@@ -240,10 +253,12 @@ def code_run(out: str | Path, *, dataset: str | Path | None = None,
     auto += observations_from_profile(sections, start_z, threshold_pct=ovality_threshold_pct,
                                       first_continuous=1 + sum(o.continuous.startswith("S")
                                                                for o in auto))
-    observations = sorted(auto + _kept_rows(out), key=lambda o: o.distance_m)
+    earlier = _earlier_observations(out)
+    kept = [r.observation for r in user_rows(earlier)] if earlier is not None else []
+    observations = sorted(auto + kept, key=lambda o: o.distance_m)
     survey = _survey(out, dataset, meta, sections, start_z, nominal, reference)
     coded = CodedRun(reference, survey, observations, defects, sections)
-    _write(out, coded, dataset, nominal, start_z)
+    _write(out, coded, dataset, nominal, start_z, auto, earlier)
     return coded
 
 
@@ -274,10 +289,10 @@ def _survey(out: Path, dataset: Path | None, meta: dict, sections: list[ProfileS
 
 
 def _write(out: Path, coded: CodedRun, dataset: Path | None, nominal: float,
-           start_z: float) -> None:
+           start_z: float, auto: list[Observation], earlier: ObservationsFile | None) -> None:
     paths = coded.paths
-    paths["observations"] = atomic_write_text(out / "observations.csv",
-                                              write_observations_csv(coded.observations))
+    text = write_observations_csv(sorted(auto, key=lambda o: o.distance_m), keep=earlier)
+    paths["observations"] = atomic_write_text(out / "observations.csv", text)
     if coded.defects:
         paths["defects"] = write_defects_csv(out / "defects.csv", coded.defects,
                                              reference=coded.reference.source)
@@ -326,7 +341,7 @@ def export_run(out: str | Path, fmt: str, *, dest: str | Path | None = None,
     state = _read_json(out / "standards.json")
     path = out / "observations.csv"
     try:
-        observations = parse_observations_csv(path.read_text(encoding="utf-8"))
+        observations = parse_observations_csv(_read_utf8(path))
         survey = Survey(**state["survey"])
     except FileNotFoundError:
         raise DatasetError(path, "missing") from None

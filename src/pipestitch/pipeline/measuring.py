@@ -44,7 +44,9 @@ def measure_run(out: str | Path, *, crown_deg: float | None = None) -> tuple[Pat
 
     ``crown_deg``: mosaic theta of 12 o'clock (``--crown-deg``); default relative. The
     standards stage (``pipeline/coding.py``) re-references the clocks when the run
-    has an IMU or a detected invert.
+    has an IMU or a detected invert. An impossible mosaic.json (a scale <= 0, a NaN
+    origin, a missing key) raises DatasetError naming the file and the key before
+    anything is written (:func:`pipestitch.io.outputs.read_mosaic`).
     """
     out = Path(out)
     image, meta = read_mosaic(out)

@@ -39,6 +39,7 @@ from pipestitch.pipeline.posing import (
 )
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
+from pipestitch.pipeline.staging import StagedOutput, check_out_folder
 from pipestitch.pipeline.stitched_output import (
     PYRAMID,
     TILES,
@@ -242,6 +243,8 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     (pipeline/frame_cache.py; 0: never).
     """
     settings = settings or MosaicSettings()
+    out = Path(out)
+    check_out_folder(Path(root), out)
     dataset = CachedLedFrames(open_dataset(root, video=video),
                               budget_bytes=int(led_cache_mb * 2**20))
     try:
@@ -249,10 +252,20 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         # The frames are spread over the workers: OpenCV splitting each call again
         # costs more than it gains (_runtime/threads.py).
         # The ring points wait for the section refits in a temporary file, not in
-        # memory (pipeline/ring_store.py).
-        with opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings:
-            return _run(dataset, Path(out), settings, show_progress, tolerance_pct,
-                        crown_deg, rings)
+        # memory (pipeline/ring_store.py). The outputs are staged and replace the
+        # previous run's only when this one succeeds (pipeline/staging.py).
+        with (opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings,
+              StagedOutput(out) as staged):
+            summary = _run(dataset, staged.path, settings, show_progress, tolerance_pct,
+                           crown_deg, rings)
+            if summary.mosaic_failed:
+                kept = staged.keep()
+                note = (f"the previous outputs in {out} are left as they were; this run's "
+                        f"are in {kept}")
+                report_frame_messages([(-1, note)])
+                return replace(summary, problems=[*summary.problems, (-1, note)])
+            staged.commit()
+            return replace(summary, out=out)
     finally:
         close = getattr(dataset, "close", None)   # a video's decoder
         if close is not None:

@@ -31,6 +31,7 @@ from pipestitch.camera.frames import to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
+from pipestitch.io.mask import read_mask
 from pipestitch.mosaic.blend import (
     Canvas,
     ShadedStrip,
@@ -70,7 +71,7 @@ from pipestitch.pose.fit import RingPoints
 from pipestitch.pose.section import SectionFit, fit_section
 
 __all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "MosaicSink",
-           "build_mosaic"]
+           "build_mosaic", "find_occluders"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
 LINK_SPAN = 2          # each frame is registered to this many following frames
@@ -221,9 +222,10 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
         return to_grey(led, out=out)
 
 
-def _occluders(dataset: Dataset, frames: Sequence[int], count: int,
-               timer: StageTimer, workers: int) -> np.ndarray:
-    """Occluder mask from up to ``count`` readable LED frames spread over ``frames``."""
+def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
+                   timer: StageTimer, workers: int) -> np.ndarray:
+    """Occluder mask (True: never the wall) from up to ``count`` readable LED frames spread
+    over ``frames`` (:func:`pipestitch.mosaic.occluders.occluder_mask`)."""
     picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)})
 
     def read(i: int) -> np.ndarray | None:
@@ -638,8 +640,10 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if not usable:
         raise StageError("no frame has both a pose and an LED frame")
     views = _views(usable, settings.mode, nominal)
-    occluded = _occluders(dataset, sorted(usable), settings.reference_frames, timer,
-                          settings.workers)
+    occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
+    if occluded is None:
+        occluded = find_occluders(dataset, sorted(usable), settings.reference_frames, timer,
+                                  settings.workers)
     with timer("unwrap"):
         windows = _windows(camera, views, radius, mm, settings, occluded)
     window = windows[1]

@@ -52,6 +52,10 @@ class Optics:
     colour: bool = False                 # write BGR frames (red laser, warm LEDs)
     glints: int = 0                      # specular blobs per laser frame
     partial_ring_deg: float = 0.0        # width of a ring sector the laser misses
+    # Brightness of the arm and the mirror assembly in the LED frames (fraction of full
+    # scale at the image centre, rising outward to 1.6x at the image circle, as a metal
+    # part lit by the LEDs is): 0 renders them black (a shadow).
+    occluder_level: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +153,7 @@ class Renderer:
         self._incidence = np.arccos(np.clip(np.nan_to_num(rays[:, 2], nan=-1.0), -1, 1))
         self._incidence = self._incidence.reshape(shape).astype(np.float32)
         self.visibility = self._visibility(rays.reshape(*shape, 3))
+        self.occluder_light = self._occluder_light()
         self._pyramid = self._build_pyramid(wall.albedo.astype(np.float32))
         self._visible_index = np.flatnonzero(self.visibility.ravel() > 0)
         self._rays_visible = self._rays.reshape(-1, 3)[self._visible_index]
@@ -172,6 +177,22 @@ class Renderer:
         vis = lens * mirror * arm
         vis[~np.isfinite(rays[..., 2])] = 0
         return vis.astype(np.float32)
+
+    def _occluder_light(self) -> np.ndarray | None:
+        """What the arm and the mirror assembly show in an LED frame (None: nothing).
+
+        They sit where the image circle shows something but not the wall; a metal part
+        lit by the LEDs is brighter towards its far end, where the wall is darker.
+        """
+        o = self.optics
+        if o.occluder_level <= 0:
+            return None
+        inc_deg = np.rad2deg(self._incidence)
+        pixel_deg = np.rad2deg(1.0 / max(self.camera.width, self.camera.height)) * 4
+        lens = np.clip((o.fov_deg / 2 - inc_deg) / pixel_deg + 0.5, 0, 1)
+        outward = 1.0 + 0.6 * np.clip(inc_deg / (o.fov_deg / 2), 0, 1)
+        hidden = lens * (1.0 - self.visibility / np.maximum(lens, 1e-6))
+        return (o.occluder_level * outward * np.clip(hidden, 0, 1)).astype(np.float32)
 
     def _build_pyramid(self, albedo: np.ndarray) -> list[np.ndarray]:
         levels = [albedo]
@@ -296,6 +317,8 @@ class Renderer:
         o = self.optics
         vignette = 1 - o.vignetting * (self._incidence / np.deg2rad(o.fov_deg / 2)) ** 2
         led = o.led_gain * albedo * tr["light"] * vignette * self.visibility
+        if self.occluder_light is not None:
+            led = led + self.occluder_light
         laser = self._laser_signal(tr, albedo, rng) * self.visibility
         return (self._colourise(laser, (0.08, 0.12, 1.0), rng),
                 self._colourise(led, (0.85, 1.0, 1.05), rng))

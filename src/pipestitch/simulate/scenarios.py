@@ -61,6 +61,12 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
     Scenario("aluminium", "feature-poor brushed aluminium 65 mm pipe with an odometer that "
              "slips", n_pairs=30, texture="aluminium", odometer=True,
              odometer_slip_probability=0.1),
+    Scenario("grey_arm", "the test piece seen past a dark grey laser-holder arm and mirror "
+             "mount (22-40 DN, brighter outward)", n_pairs=32, texture="aluminium",
+             defects="test_piece", optics=Optics(occluder_level=0.09)),
+    Scenario("lit_arm", "the test piece seen past a metal arm and mirror mount lit by the "
+             "LEDs, brighter than the far wall", n_pairs=32, texture="aluminium",
+             defects="test_piece", optics=Optics(occluder_level=0.45)),
     Scenario("oval", "oval 65 mm pipe (ovality 5 %), corrosion texture", n_pairs=20,
              ovality=0.05, defects="random"),
     Scenario("hard", "16-bit colour frames, glints, partial rings, strong noise",

@@ -16,17 +16,30 @@ carries the clock reference).
 The parser reads any field order and separator the ``#A`` lines declare, ignores
 fields it does not know (e.g. K joint, N video reference) and returns one
 (Survey, observations) pair per inspection.
+
+Field values cannot break the file's structure (the format is line based: a line
+beginning with ``#`` is a control line, fields are split at the A3 separator):
+
+* control characters (C0 and C1, tab, CR and LF included) and the Unicode line and
+  paragraph separators in a value are written as spaces: the only lossy step, and the
+  only one needed, since the format has no escape for a line break;
+* a value holding the separator ``;`` or the quote character ``"`` is quoted with the
+  A5 quote character (quotes doubled), the format's own mechanism, read back exactly;
+* a value that begins with ``#`` (after spaces) is quoted too, so no line begins with
+  ``#`` unless it is one of the writer's control lines; read back exactly.
+
+So any text without control characters round-trips exactly.
 """
 
 from __future__ import annotations
 
 import csv
-import io
+import re
 from collections.abc import Sequence
 
 from pipestitch.standards.observations import Observation, Survey, parse_int
 
-__all__ = ["parse_en13508", "write_en13508"]
+__all__ = ["field_text", "parse_en13508", "write_en13508"]
 
 OBS_FIELDS = {"I": "distance_m", "A": "code", "B": "char1", "C": "char2", "D": "quant1",
               "E": "quant2", "F": "remark", "G": "clock_from", "H": "clock_to",
@@ -37,11 +50,27 @@ REFERENCE_PREFIX = "clock reference: "
 FILE_HEADER = {"A1": "ISO-8859-1", "A2": "en", "A3": ";", "A4": ".", "A5": '"', "A6": "2010"}
 
 
+# C0 and C1 control characters, the Unicode line and paragraph separators -> space.
+_LINE_SAFE = str.maketrans({c: " " for c in [*range(0x20), *range(0x7F, 0xA0), 0x2028, 0x2029]})
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+
+
+def field_text(value: str) -> str:
+    """``value`` as a field may hold it: control characters and line separators become
+    spaces (see the module docstring)."""
+    return value.translate(_LINE_SAFE)
+
+
 def _line(values: Sequence[str], sep: str, quote: str) -> str:
-    buffer = io.StringIO()
-    csv.writer(buffer, delimiter=sep, quotechar=quote, lineterminator="",
-               quoting=csv.QUOTE_MINIMAL).writerow(values)
-    return buffer.getvalue()
+    """One line of fields: cleaned by :func:`field_text`, quoted when they hold ``sep``
+    or ``quote`` or begin with ``#`` (quotes doubled)."""
+    cells = []
+    for value in values:
+        value = field_text(value)
+        if sep in value or quote in value or value.lstrip().startswith("#"):
+            value = quote + value.replace(quote, quote * 2) + quote
+        cells.append(value)
+    return sep.join(cells)
 
 
 def _num(value: float | int | None, decimal: str) -> str:
@@ -75,7 +104,11 @@ def write_en13508(surveys: Sequence[tuple[Survey, Sequence[Observation]]]) -> st
 
 
 def _split(line: str, sep: str, quote: str) -> list[str]:
-    return next(csv.reader([line], delimiter=sep, quotechar=quote or None))
+    try:
+        return next(csv.reader([line], delimiter=sep, quotechar=quote or None,
+                               quoting=csv.QUOTE_MINIMAL if quote else csv.QUOTE_NONE))
+    except (csv.Error, TypeError) as exc:   # e.g. a declared separator of two characters
+        raise ValueError(f"cannot split with separator {sep!r}, quote {quote!r}: {exc}") from None
 
 
 def _survey(header: dict[str, str], dec: str) -> Survey:
@@ -115,8 +148,7 @@ def parse_en13508(text: str) -> list[tuple[Survey, list[Observation]]]:
     letters: list[str] | None = None
     pending: str | None = None          # "B" after a #B line, expecting its values
     observations: list[Observation] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.rstrip("\r")
+    for lineno, line in enumerate(_LINE_BREAK.split(text), start=1):
         if not line.strip():
             continue
         try:
@@ -124,6 +156,8 @@ def parse_en13508(text: str) -> list[tuple[Survey, list[Observation]]]:
                 key, value = line[1:].split("=", 1)
                 meta[key] = value
             elif line.startswith("#B"):
+                if "=" not in line:
+                    raise ValueError(f"header code line without '=': {line[:40]!r}")
                 codes, pending = line.split("=", 1)[1], "B"
                 header_codes = _split(codes, meta["A3"], meta["A5"])
             elif pending == "B":

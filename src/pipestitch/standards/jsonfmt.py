@@ -25,21 +25,45 @@ def write_json_text(survey: Survey, observations: Sequence[Observation],
     return json.dumps(json_safe(doc), indent=2, ensure_ascii=False) + "\n"
 
 
+def _checked(record: object, cls: type, what: str) -> dict[str, object]:
+    """``record``'s fields of ``cls`` with the types the dataclass declares (an int where
+    a float is declared is fine; booleans are not numbers); ValueError otherwise."""
+    if not isinstance(record, dict):
+        raise ValueError(f"{what}: expected an object, got {type(record).__name__}")
+    out = {}
+    for f in fields(cls):
+        if f.name not in record:
+            continue
+        value, kinds = record[f.name], _KINDS.get(str(f.type), (object,))
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            raise ValueError(f"{what}: {f.name} = {value!r} is not {str(f.type)!r}")
+        out[f.name] = value
+    return out
+
+
+_KINDS: dict[str, tuple[type, ...]] = {
+    "str": (str,), "float": (int, float), "int": (int,), "int | None": (int, type(None)),
+}
+
+
 def parse_json(text: str) -> tuple[Survey, list[Observation]]:
     """Read the JSON export back; ValueError says what is wrong."""
     try:
         doc = json.loads(text)
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:
         raise ValueError(f"not JSON: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ValueError(f"expected format {FORMAT!r}")
-    survey = dict(doc.get("survey") or {})
-    if survey.get("length_m") is None:
-        survey["length_m"] = math.nan
-    names = {f.name for f in fields(Observation)}
+    survey = doc.get("survey") or {}
+    if isinstance(survey, dict) and survey.get("length_m") is None:
+        survey = {**survey, "length_m": math.nan}        # NaN is written as null
+    survey = _checked(survey, Survey, "survey")
+    records = doc.get("observations", [])
+    if not isinstance(records, list):
+        raise ValueError("observations: expected a list")
     try:
-        return (Survey(**survey),
-                [Observation(**{k: v for k, v in o.items() if k in names})
-                 for o in doc.get("observations", [])])
+        return (Survey(**survey),   # type: ignore[arg-type]
+                [Observation(**_checked(o, Observation, f"observation {k}"))  # type: ignore[arg-type]
+                 for k, o in enumerate(records, start=1)])
     except TypeError as exc:
         raise ValueError(f"bad record: {exc}") from None

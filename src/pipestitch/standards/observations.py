@@ -12,6 +12,20 @@ hole -> BAC (break/collapse) char. B (missing pieces), quantity = size in mm;
 spot -> BAF (surface damage) char. Z (other, described in the remark), size in mm;
 out-of-round section -> BAA (deformation), quantity = deflection in %;
 sediment band (invert reference) -> BBC (settled deposits) char. Z.
+
+CSV files (observations.csv here, the PACP-style CSV in :mod:`.pacp`) are opened in
+spreadsheets, so text cells are written against CSV/formula injection as OWASP's
+guidance says: a text cell that begins with ``=``, ``+``, ``-``, ``@``, tab or CR gets
+a single quote ``'`` in front and is quoted (:func:`neutralise_cell`). A cell that
+already begins with quotes followed by one of those gets one more quote, so the
+encoding is reversible: the parsers take exactly one ``'`` off such cells
+(:func:`restore_cell`) and read back the original text. Numeric columns (distance,
+quantities, clock) are written from numbers, as plain numbers (a negative quantity
+stays ``-3``), and are never prefixed; their parsers accept a prefixed number too.
+
+Re-coding keeps the user's rows of observations.csv (ref not ``auto:``) as written,
+byte for byte (:func:`read_observations_file`, ``write_observations_csv(keep=...)``):
+only the ``auto:`` rows are regenerated.
 """
 
 from __future__ import annotations
@@ -19,16 +33,18 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, fields
 from typing import Protocol
 
 from pipestitch.standards.ovality import SectionFigures
 from pipestitch.standards.roll_reference import RollReference, clock_hour
 
-__all__ = ["AUTO_PREFIX", "CONTINUOUS_MIN_M", "OBSERVATION_COLUMNS", "Observation",
-           "ProfileSection", "Survey", "is_auto", "observations_from_defects",
-           "observations_from_profile", "parse_observations_csv", "write_observations_csv"]
+__all__ = ["AUTO_PREFIX", "CONTINUOUS_MIN_M", "FORMULA_TRIGGERS", "OBSERVATION_COLUMNS",
+           "Observation", "ObservationRow", "ObservationsFile", "ProfileSection", "Survey",
+           "csv_record", "csv_records", "is_auto", "neutralise_cell", "observations_from_defects",
+           "observations_from_profile", "parse_observations_csv", "read_observations_file",
+           "restore_cell", "user_rows", "write_observations_csv"]
 
 CONTINUOUS_MIN_M = 0.3          # longer features are coded as start/finish pairs
 AUTO_PREFIX = "auto:"
@@ -53,7 +69,11 @@ class Observation:
     ref: str = ""
 
     def __post_init__(self) -> None:
-        if not math.isfinite(self.distance_m) or self.distance_m < 0:
+        try:
+            finite = math.isfinite(self.distance_m)
+        except OverflowError:       # an int beyond float range (e.g. from JSON)
+            finite = False
+        if not finite or self.distance_m < 0:
             raise ValueError(f"distance_m: expected a finite distance >= 0, got {self.distance_m}")
         object.__setattr__(self, "distance_m", round(float(self.distance_m), 2))
         if not self.code or not self.code.isalnum():
@@ -225,14 +245,101 @@ def format_cell(value: object) -> str:
     return "" if value is None else (f"{value:.2f}" if isinstance(value, float) else str(value))
 
 
-def write_observations_csv(observations: Iterable[Observation]) -> str:
-    """observations.csv text: one row per observation, ``OBSERVATION_COLUMNS``."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(OBSERVATION_COLUMNS)
-    for o in observations:
-        writer.writerow([format_cell(getattr(o, c)) for c in OBSERVATION_COLUMNS])
-    return buffer.getvalue()
+# --- CSV text cells: formula injection and the raw records ---------------------------------
+
+FORMULA_TRIGGERS = ("=", "+", "-", "@", "\t", "\r")   # OWASP "CSV Injection"
+TEXT_COLUMNS = frozenset({"code", "char1", "char2", "remark", "continuous", "ref"})
+
+
+def _formula_like(text: str) -> bool:
+    return text.lstrip("'").startswith(FORMULA_TRIGGERS)
+
+
+def neutralise_cell(text: str) -> str:
+    """``text`` safe to open in a spreadsheet: ``'`` in front when it begins (after any
+    quotes) with ``=``, ``+``, ``-``, ``@``, tab or CR; else unchanged. Write the result
+    quoted (:func:`csv_record` with its index in ``quoted``)."""
+    return "'" + text if _formula_like(text) else text
+
+
+def restore_cell(text: str) -> str:
+    """The inverse of :func:`neutralise_cell`: ``restore_cell(neutralise_cell(t)) == t``
+    for every ``t``; a cell :func:`neutralise_cell` would not have written is unchanged."""
+    return text[1:] if text.startswith("'") and _formula_like(text[1:]) else text
+
+
+def csv_record(cells: Sequence[str], quoted: Collection[int] = (), newline: str = "\n") -> str:
+    """One CSV record: cells holding a comma, a double quote, CR or LF are quoted (quotes
+    doubled), and so are the cells at the indices ``quoted``; ``newline`` at the end.
+
+    (csv.writer with ``lineterminator="\n"`` leaves a lone CR unquoted before Python
+    3.13, which splits the row when it is read back.)
+    """
+    out = []
+    for i, cell in enumerate(cells):
+        if i in quoted or any(c in cell for c in ',"\r\n'):
+            cell = '"' + cell.replace('"', '""') + '"'
+        out.append(cell)
+    return ",".join(out) + newline
+
+
+def _text_row(cells: Sequence[str], text_columns: Collection[int],
+              newline: str = "\n") -> str:
+    """A record whose cells at ``text_columns`` are neutralised (and then quoted)."""
+    quoted = {i for i in text_columns if _formula_like(cells[i])}
+    return csv_record([neutralise_cell(c) if i in quoted else c for i, c in enumerate(cells)],
+                      quoted, newline)
+
+
+def csv_records(text: str) -> Iterator[tuple[int, str, list[str]]]:
+    """(first line number, the record's text as written with its line end, its cells)
+    for each CSV record of ``text``, blank lines included (no cells); ValueError names
+    the line of a record the csv module cannot read."""
+    consumed: list[str] = []
+
+    def lines() -> Iterator[str]:
+        for line in io.StringIO(text, newline=""):
+            consumed.append(line)
+            yield line
+
+    reader = csv.reader(lines())
+    first = 1
+    while True:
+        consumed.clear()
+        try:
+            cells = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise ValueError(f"line {first}: {exc}") from None
+        yield first, "".join(consumed), cells
+        first = reader.line_num + 1
+
+
+def write_observations_csv(observations: Iterable[Observation], *,
+                           keep: ObservationsFile | None = None) -> str:
+    """observations.csv text: one row per observation, ``OBSERVATION_COLUMNS``.
+
+    ``keep``: an earlier observations.csv (:func:`read_observations_file`) whose user
+    rows (:func:`user_rows`) are kept as they are written there, byte for byte, under
+    that file's own header line (and its line ends for the new rows); all rows are then
+    in distance order (new before kept at equal distances). ValueError as
+    :func:`user_rows` raises it.
+    """
+    kept = user_rows(keep) if keep is not None else []
+    header, newline = csv_record(OBSERVATION_COLUMNS), "\n"
+    if kept and keep is not None:
+        header = keep.header
+        newline = header[len(header.rstrip("\r\n")):] or "\n"
+    text_columns = [i for i, c in enumerate(OBSERVATION_COLUMNS) if c in TEXT_COLUMNS]
+    rows = [(o.distance_m, _text_row([format_cell(getattr(o, c)) for c in OBSERVATION_COLUMNS],
+                                     text_columns, newline)) for o in observations]
+    if kept:
+        rows = sorted(rows + [(r.observation.distance_m, r.text if r.text.endswith(("\n", "\r"))
+                               else r.text + newline) for r in kept], key=lambda row: row[0])
+    if not header.endswith(("\n", "\r")):
+        header += newline
+    return header + "".join(text for _, text in rows)
 
 
 def parse_int(text: str, name: str) -> int | None:
@@ -263,18 +370,62 @@ def observation_from_fields(values: dict[str, str]) -> Observation:
                        (values.get("ref") or ""))
 
 
+@dataclass(frozen=True)
+class ObservationRow:
+    """One observations.csv record: the observation, the record's text exactly as it is
+    in the file (line end included) and the line it begins on."""
+
+    observation: Observation
+    text: str
+    line: int
+
+
+@dataclass(frozen=True)
+class ObservationsFile:
+    """An observations.csv as read: its header record as written (a UTF-8 BOM and the
+    line end included), the column names and the rows (blank rows left out)."""
+
+    header: str
+    columns: tuple[str, ...]
+    rows: tuple[ObservationRow, ...]
+
+
+def read_observations_file(text: str) -> ObservationsFile:
+    """Read observations.csv text, keeping each record's text; ValueError names the
+    line and the problem. Cells :func:`neutralise_cell` wrote are read back restored;
+    a leading UTF-8 BOM (a spreadsheet's "CSV UTF-8") is ignored."""
+    bom = "\ufeff" if text.startswith("\ufeff") else ""
+    records = csv_records(text[len(bom):])
+    header_line, header, columns = next(records, (1, "", []))
+    missing = [c for c in ("distance_m", "code") if c not in columns]
+    if missing:
+        raise ValueError(f"line {header_line}: missing column(s) {', '.join(missing)}; "
+                         f"header is {columns}")
+    rows = []
+    for line, raw, cells in records:
+        if not any(c.strip() for c in cells):
+            continue
+        values = dict(zip(columns, (restore_cell(c) for c in cells), strict=False))
+        try:
+            rows.append(ObservationRow(observation_from_fields(values), raw, line))
+        except ValueError as exc:
+            raise ValueError(f"line {line}: {exc}") from None
+    return ObservationsFile(bom + header, tuple(columns), tuple(rows))
+
+
 def parse_observations_csv(text: str) -> list[Observation]:
     """Read observations.csv text back; ValueError names the line and the problem."""
-    reader = csv.DictReader(io.StringIO(text))
-    missing = [c for c in ("distance_m", "code") if c not in (reader.fieldnames or [])]
-    if missing:
-        raise ValueError(f"missing column(s) {', '.join(missing)}; header is {reader.fieldnames}")
-    out = []
-    for row in reader:
-        if not any((v or "").strip() for v in row.values()):
-            continue
-        try:
-            out.append(observation_from_fields(row))
-        except ValueError as exc:
-            raise ValueError(f"line {reader.line_num}: {exc}") from None
-    return out
+    return [row.observation for row in read_observations_file(text).rows]
+
+
+def user_rows(file: ObservationsFile) -> list[ObservationRow]:
+    """The rows re-coding keeps (ref not ``auto:``). ValueError when there are some and
+    the header does not begin with ``OBSERVATION_COLUMNS`` in that order: new rows
+    would not match the columns of rows kept as written."""
+    kept = [r for r in file.rows if not is_auto(r.observation)]
+    if kept and file.columns[:len(OBSERVATION_COLUMNS)] != OBSERVATION_COLUMNS:
+        raise ValueError(
+            f"line 1: the columns {list(file.columns)} are not the ones pipestitch writes "
+            f"({', '.join(OBSERVATION_COLUMNS)}, then any of your own), so the rows you added "
+            f"(line {kept[0].line}, ...) cannot be kept as written; restore that header")
+    return kept

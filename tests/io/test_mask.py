@@ -1,0 +1,59 @@
+"""The occluder mask file (SPEC ``[probe] mask``): read, validated, written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.errors import DatasetError
+from pipestitch.io.dataset import check_dataset
+from pipestitch.io.mask import read_mask, write_mask
+from pipestitch.io.probe_toml import read_probe_toml
+
+
+def _with_mask(root: Path, image: np.ndarray | None, name: str = "mask.png") -> Path:
+    with (root / "probe.toml").open("a", encoding="utf-8") as handle:
+        handle.write(f'\n[probe]\nmask = "{name}"\n')
+    if image is not None:
+        cv2.imwrite(str(root / name), image)
+    return root
+
+
+@pytest.fixture()
+def dataset(tmp_path: Path, simulate_small) -> Path:
+    # the Table-1 scenario declares no [probe] body, so a [probe] section can be added
+    return simulate_small(tmp_path / "ds", "--scenario", "table1_65", "--pairs", "2")
+
+
+def test_mask_round_trip_and_convention(dataset: Path) -> None:
+    cfg = read_probe_toml(dataset / "probe.toml")
+    occluded = np.zeros((cfg.camera.height, cfg.camera.width), bool)
+    occluded[:, :40] = True
+    write_mask(dataset / "mask.png", occluded)
+    assert set(np.unique(cv2.imread(str(dataset / "mask.png"), cv2.IMREAD_UNCHANGED))) == {0, 255}
+    _with_mask(dataset, None)
+    np.testing.assert_array_equal(read_mask(dataset, read_probe_toml(dataset / "probe.toml")),
+                                  occluded)
+    assert not [p for p in check_dataset(dataset) if p.severity == "error"]
+
+
+@pytest.mark.parametrize(("image", "message"), [
+    (None, "file not found"),
+    (np.full((10, 12), 255, np.uint8), "mask is 12x10"),
+    (np.zeros((1, 1, 3), np.uint8), "expected a grey image"),
+    ("zeros", "0 everywhere"),
+])
+def test_bad_masks_are_named(dataset: Path, image, message: str) -> None:
+    cfg = read_probe_toml(dataset / "probe.toml")
+    if isinstance(image, str):
+        image = np.zeros((cfg.camera.height, cfg.camera.width), np.uint8)
+    _with_mask(dataset, image)
+    cfg = read_probe_toml(dataset / "probe.toml")
+    with pytest.raises(DatasetError, match=message) as info:
+        read_mask(dataset, cfg)
+    assert info.value.path == dataset / "mask.png"
+    problems = check_dataset(dataset)
+    assert any(p.path == dataset / "mask.png" and message in p.message for p in problems)

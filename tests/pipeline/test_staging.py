@@ -1,0 +1,120 @@
+"""A run's outputs replace the previous run's only as a whole set, and only on success;
+the output folder can neither be the input nor hold it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+from pathlib import Path
+
+import pytest
+
+import pipestitch.pipeline.run as run_module
+import pipestitch.pipeline.staging as staging
+from pipestitch.errors import DatasetError
+from pipestitch.pipeline.run import run_dataset
+from pipestitch.pipeline.staging import StagedOutput, check_out_folder
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory, simulate_small) -> Path:
+    return simulate_small(tmp_path_factory.mktemp("staging") / "ds", "--pairs", "3",
+                          "--seed", "2")
+
+
+@pytest.fixture()
+def previous(dataset: Path, tmp_path: Path) -> Path:
+    """OUT holding a good run, and a file the user put there."""
+    out = tmp_path / "out"
+    run_dataset(dataset, out, show_progress=False)
+    (out / "my_notes.txt").write_text("the user's own file")
+    return out
+
+
+def test_out_inside_the_dataset_or_around_it_is_refused(dataset: Path, tmp_path: Path) -> None:
+    for bad in (dataset, dataset / "truth", dataset / "frames" / "x"):
+        with pytest.raises(DatasetError, match="inside the dataset"):
+            check_out_folder(dataset, bad)
+    with pytest.raises(DatasetError, match="is inside the output folder"):
+        check_out_folder(dataset, dataset.parent)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(DatasetError, match="existing file"):
+        check_out_folder(dataset, tmp_path / "file")
+    with pytest.raises(DatasetError, match="inside the dataset"):
+        run_dataset(dataset, dataset / "truth", show_progress=False)
+    assert not (dataset / "truth" / "report.html").exists()
+
+
+def test_a_failed_run_leaves_the_previous_run_as_it_was(dataset: Path, previous: Path,
+                                                        tmp_path: Path) -> None:
+    before = _snapshot(previous)
+    bad = tmp_path / "bad"
+    shutil.copytree(dataset, bad)
+    toml = (bad / "probe.toml").read_text().replace("width = 1224", "width = 1000")
+    (bad / "probe.toml").write_text(toml)   # no frame matches: no pose, no mosaic
+    summary = run_dataset(bad, previous, show_progress=False)
+    assert summary.mosaic_failed
+    assert _snapshot(previous) == before
+    kept = previous.parent / f".{previous.name}.partial"
+    assert summary.out == kept and (kept / "poses.csv").is_file()
+    assert any(str(kept) in message for _, message in summary.problems)
+
+
+def test_an_interrupted_run_leaves_the_previous_run_as_it_was(dataset: Path, previous: Path,
+                                                              monkeypatch) -> None:
+    before = _snapshot(previous)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    for stage in ("write_poses_csv", "render_report", "_coded"):   # early, late, last
+        with monkeypatch.context() as patch:
+            patch.setattr(run_module, stage, interrupted)
+            with pytest.raises(KeyboardInterrupt):
+                run_dataset(dataset, previous, show_progress=False)
+        assert _snapshot(previous) == before
+        assert not (previous.parent / f".{previous.name}.partial").exists()
+
+
+def test_a_good_run_replaces_the_set_and_keeps_the_users_files(dataset: Path,
+                                                               previous: Path) -> None:
+    (previous / "mosaic.tif").write_bytes(b"an output of an older version")
+    (previous / "tiles" / "stale.png").write_bytes(b"a tile of the previous run")
+    summary = run_dataset(dataset, previous, show_progress=False)
+    assert summary.out == previous and not summary.mosaic_failed
+    assert (previous / "my_notes.txt").read_text() == "the user's own file"
+    assert not (previous / "mosaic.tif").exists()
+    assert not (previous / "tiles" / "stale.png").exists()
+    for name in ("poses.csv", "mosaic.png", "report.html", "tiles", "viewer.html"):
+        assert (previous / name).exists()
+    assert not (previous.parent / f".{previous.name}.partial").exists()
+
+
+def test_ctrl_c_while_outputs_are_put_in_place_waits_for_the_whole_set(tmp_path: Path,
+                                                                      monkeypatch) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "poses.csv").write_text("old")
+    (out / "report.html").write_text("old")
+    replace = staging._replace
+    calls: list[str] = []
+
+    def interrupted_replace(src: Path, dest: Path) -> None:
+        calls.append(dest.name)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)   # Ctrl-C after the first file
+        replace(src, dest)
+
+    monkeypatch.setattr(staging, "_replace", interrupted_replace)
+    with pytest.raises(KeyboardInterrupt), StagedOutput(out) as staged:
+        (staged.path / "poses.csv").write_text("new")
+        (staged.path / "report.html").write_text("new")
+        staged.commit()
+    assert calls == ["poses.csv", "report.html"]
+    assert (out / "poses.csv").read_text() == (out / "report.html").read_text() == "new"

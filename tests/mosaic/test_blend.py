@@ -4,7 +4,6 @@ blocks, overview, vignetting.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -13,22 +12,8 @@ from pipestitch.mosaic.unwrap import (
     Strip,
     StripGrid,
 )
-from pipestitch.simulate.textures import WallGrid, make_wall
 
 R = 32.5
-
-
-@pytest.fixture(scope="module")
-
-
-def wall() -> tuple[WallGrid, np.ndarray]:
-    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
-    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
-
-
-def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
 
 
 def test_frame_grid_places_frames_by_z_and_roll() -> None:
@@ -39,11 +24,11 @@ def test_frame_grid_places_frames_by_z_and_roll() -> None:
     assert grid.z0_mm >= -5.0 and grid.z0_mm + (grid.n_cols - 1) * 0.1 <= 30.0
 
 
-def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> None:
+def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain(texture) -> None:
     grid = StripGrid(1.0, 0.1, 0.0, 120)
     canvas = Canvas(grid)
     level = np.ones(80)
-    wall = _texture((360, 120), seed=5)
+    wall = texture((360, 120), seed=5)
     ones = np.ones((360, 80), np.float32)
     canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0, level)
     gain = canvas.add(Strip(2.0 * wall[:, 40:120], ones, ones), 40, level)
@@ -57,11 +42,11 @@ def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain() -> No
     assert feather[100, 0] < 0.1
 
 
-def test_canvas_released_in_blocks_equals_the_whole_canvas() -> None:
+def test_canvas_released_in_blocks_equals_the_whole_canvas(texture) -> None:
     """Streaming: columns released as soon as no later strip reaches them give exactly
     the mosaic of a canvas held whole, and the window stays the width of the strips."""
     grid = StripGrid(1.0, 0.1, 0.0, 2000)
-    wall = _texture((360, 2000), seed=7)
+    wall = texture((360, 2000), seed=7)
     ones = np.ones((360, 300), np.float32)
     starts = list(range(0, 1701, 100))
     whole, streamed = Canvas(grid), Canvas(grid)

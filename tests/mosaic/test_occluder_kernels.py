@@ -14,8 +14,6 @@ RNG = np.random.default_rng(7)
 
 
 @pytest.mark.parametrize("q", [0.85, 0.5, 0.1])
-
-
 def test_frame_quantiles_are_numpy_quantiles(n: int, q: float) -> None:
     stack = RNG.random((n, 9, 13)).astype(np.float32)
     stack[:, 0, 0] = 0.5                       # ties

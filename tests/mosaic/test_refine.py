@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
-import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose
@@ -13,7 +11,6 @@ from pipestitch.mosaic.unwrap import (
     StripGrid,
     unwrap_maps,
 )
-from pipestitch.simulate.textures import WallGrid, make_wall
 
 R = 32.5
 
@@ -21,30 +18,10 @@ R = 32.5
 CAMERA = default_camera("half")
 
 
-@pytest.fixture(scope="module")
-
-
-def wall() -> tuple[WallGrid, np.ndarray]:
-    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
-    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
-
-
-def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
-
-
-def _shifted(img: np.ndarray, d_rows: float, d_cols: float) -> np.ndarray:
-    """img(x + d), rows wrapping (as the pipe does)."""
-    rows, cols = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(np.float32)
-    return cv2.remap(img, cols + d_cols, rows + d_rows, cv2.INTER_CUBIC,
-                     borderMode=cv2.BORDER_WRAP)
-
-
-def test_patch_shifts_measure_local_motion() -> None:
-    wall = _texture((400, 400), seed=2)
+def test_patch_shifts_measure_local_motion(texture, shifted) -> None:
+    wall = texture((400, 400), seed=2)
     first = wall[:, :300] - 0.5
-    second = (_shifted(wall, 3.0, 20.25)[:, :300] - 0.5).astype(np.float32)
+    second = (shifted(wall, 3.0, 20.25)[:, :300] - 0.5).astype(np.float32)
     valid = np.ones_like(first, bool)
     found = patch_shifts(first, valid, second, valid, (3.0, 20.0), 0, 1)
     assert len(found.nodes) > 10

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
@@ -21,36 +20,15 @@ from pipestitch.mosaic.unwrap import (
     Strip,
     StripGrid,
 )
-from pipestitch.simulate.textures import WallGrid, make_wall
 
 R = 32.5
 
 
-@pytest.fixture(scope="module")
-
-
-def wall() -> tuple[WallGrid, np.ndarray]:
-    grid = WallGrid.square(R, 0.07, -40.0, 160.0)
-    return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
-
-
-def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return (0.5 + cv2.GaussianBlur(rng.random(shape), (0, 0), 1.5)).astype(np.float32)
-
-
-def _shifted(img: np.ndarray, d_rows: float, d_cols: float) -> np.ndarray:
-    """img(x + d), rows wrapping (as the pipe does)."""
-    rows, cols = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(np.float32)
-    return cv2.remap(img, cols + d_cols, rows + d_rows, cv2.INTER_CUBIC,
-                     borderMode=cv2.BORDER_WRAP)
-
-
-def test_registration_recovers_axial_shift_and_roll() -> None:
+def test_registration_recovers_axial_shift_and_roll(texture, shifted) -> None:
     grid = StripGrid(360 / 720, 0.1, 0.0, 300)
-    wall = _texture((720, 420))
+    wall = texture((720, 420))
     first = wall[:, :300]
-    second = _shifted(wall, 13.4, 37.3)[:, :300]     # frame j: 3.73 mm on, 6.7 deg of roll
+    second = shifted(wall, 13.4, 37.3)[:, :300]     # frame j: 3.73 mm on, 6.7 deg of roll
     images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),
                                  np.ones_like(s)) for s in (first, second)]
     link = measure_shift(images[0], images[1], grid, 0, 1)
@@ -61,16 +39,14 @@ def test_registration_recovers_axial_shift_and_roll() -> None:
 
 
 @pytest.mark.parametrize("shape", [(720, 300), (675, 300), (720, 243), (675, 243)])
-
-
-def test_registration_with_a_motion_prior_on_strips_of_any_parity(
-        shape: tuple[int, int]) -> None:
+def test_registration_with_a_motion_prior_on_strips_of_any_parity(shape: tuple[int, int],
+                                                                  texture, shifted) -> None:
     # The correlation runs on packed spectra, whose layout depends on the parity of
     # both sizes; the prior (odometer-like, 0.3 mm and 0.5 deg off) must not bias it.
     n_rows, n_cols = shape
     grid = StripGrid(360 / n_rows, 0.1, 0.0, n_cols)
-    wall = _texture((n_rows, n_cols + 120), seed=1)
-    second = _shifted(wall, 13.4, 37.3)[:, :n_cols]
+    wall = texture((n_rows, n_cols + 120), seed=1)
+    second = shifted(wall, 13.4, 37.3)[:, :n_cols]
     images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),
                                  np.ones_like(s)) for s in (wall[:, :n_cols], second)]
     droll = 13.4 * grid.deg_per_px

@@ -17,8 +17,6 @@ RNG = np.random.default_rng(7)
 
 
 @pytest.mark.parametrize("shape", [(64, 48), (63, 48), (64, 47), (63, 47), (2, 9)])
-
-
 def test_packed_cross_power_equals_the_complex_form(shape: tuple[int, int]) -> None:
     # The packed layout has special rows and columns that depend on the parity of each size.
     a = RNG.normal(size=shape).astype(np.float32)
@@ -45,8 +43,6 @@ def test_gradient_moments_are_numpy_gradient_sums() -> None:
 
 
 @pytest.mark.parametrize(("d_rows", "d_cols"), [(0, 0), (3, -7), (-12, 20), (30, -44)])
-
-
 def test_residual_moments_read_a_whole_pixel_shift_as_the_warp_gives_it(
         d_rows: int, d_cols: int) -> None:
     img = RNG.normal(size=(31, 45)).astype(np.float32)
@@ -69,8 +65,6 @@ def test_residual_moments_read_a_whole_pixel_shift_as_the_warp_gives_it(
 
 
 @pytest.mark.parametrize("weighted", [True, False])
-
-
 def test_shifted_residual_moments_are_the_cubic_warp_s(dx: float, dy: float,
                                                        weighted: bool) -> None:
     """The fused kernel equals cv2.warpAffine (INTER_CUBIC, wrapping) + residual_moments,

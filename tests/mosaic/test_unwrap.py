@@ -31,16 +31,12 @@ CAMERA = default_camera("half")
 
 
 @pytest.fixture(scope="module")
-
-
 def wall() -> tuple[WallGrid, np.ndarray]:
     grid = WallGrid.square(R, 0.07, -40.0, 160.0)
     return grid, make_wall("chart", grid, rng=np.random.default_rng(3))
 
 
 @pytest.fixture(scope="module")
-
-
 def renderer(wall: tuple[WallGrid, np.ndarray]) -> Renderer:
     grid, albedo = wall
     texture = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)

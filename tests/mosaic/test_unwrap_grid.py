@@ -19,22 +19,9 @@ from pipestitch.mosaic.unwrap import (
     unwrap_with_quality,
 )
 from pipestitch.pose.ring import prepare_laser_frame
-from pipestitch.simulate.render import Optics, Renderer, WallTexture
-from pipestitch.simulate.textures import Defect, WallGrid, make_wall
+from pipestitch.simulate.render import Renderer
 
 R = 32.5
-
-
-@pytest.fixture(scope="module")
-
-
-def renderer() -> Renderer:
-    grid = WallGrid.square(R, 0.07, -40.0, 200.0)
-    albedo = make_wall("corrosion", grid, rng=np.random.default_rng(0),
-                       defects=[Defect("hole", 60.0, 200.0, 6.0)])
-    wall = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
-    return Renderer(default_camera("half"), PipeSection.circle(2 * R), wall, 16.0,
-                    Optics(full_well_e=1e9))
 
 
 def test_strip_grid_validation() -> None:
@@ -44,11 +31,11 @@ def test_strip_grid_validation() -> None:
         StripGrid(0.7, 0.5, 0.0, 10)
 
 
-def test_unwrapped_hole_lands_at_its_wall_position(renderer: Renderer) -> None:
+def test_unwrapped_hole_lands_at_its_wall_position(holed_renderer: Renderer) -> None:
     pose = Pose.from_degrees(2.5, -1.5, 3.0, -2.0, 0.0, 20.0)
-    _, led = renderer.render_pair(pose, np.random.default_rng(1))
+    _, led = holed_renderer.render_pair(pose, np.random.default_rng(1))
     grid = StripGrid.window(R, 0.1, 20.0, 70.0)
-    strip = unwrap(prepare_laser_frame(led), renderer.camera, pose, PipeSection(R), grid)
+    strip = unwrap(prepare_laser_frame(led), holed_renderer.camera, pose, PipeSection(R), grid)
     # The hole at theta = 200°, world z = 60 mm is 40 mm ahead of the camera (roll 0).
     row, col = round(200.0 / grid.deg_per_px), round((40.0 - grid.z0_mm) / grid.mm_per_px)
     patch = strip[row - 60:row + 61, col - 60:col + 61]

@@ -32,8 +32,6 @@ def _bilinear(nodes: np.ndarray, step: int, n_rows: int, n_cols: int) -> np.ndar
 
 
 @pytest.mark.parametrize(("n_rows", "n_cols", "step"), [(37, 29, 4), (40, 33, 4), (21, 22, 3)])
-
-
 def test_upsampled_maps_are_bilinear_and_masked_where_any_node_is_invalid(
         n_rows: int, n_cols: int, step: int) -> None:
     n_r, n_c = -(-(n_rows - 1) // step) + 1, -(-(n_cols - 1) // step) + 1

@@ -3,11 +3,7 @@
 Why hand-written: one pass instead of numpy's four temporaries over a mosaic that can
 be hundreds of megapixels (``cv2.convertScaleAbs`` has no NaN-to-0 rule).
 
-Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
-(``nogil``) so the worker threads run them side by side; the tests compare every
-kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
-the numpy code it replaces was float32, in the same order, so results are bitwise the
-same; sums are accumulated in float64.
+How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
 
 from __future__ import annotations

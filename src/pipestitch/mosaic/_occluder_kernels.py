@@ -4,11 +4,7 @@ Why hand-written: numpy's quantile over a frame stack sorts with one partition p
 pixel; this sorts a row of pixels' values at once (an odd-even transposition sort,
 branch-free and contiguous over the row).
 
-Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
-(``nogil``) so the worker threads run them side by side; the tests compare every
-kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
-the numpy code it replaces was float32, in the same order, so results are bitwise the
-same; sums are accumulated in float64.
+How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
 
 from __future__ import annotations

@@ -5,11 +5,7 @@ Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectr
 and the polish reads a cubic-shifted patch in one pass instead of warping a copy
 (the same weights as ``cv2.warpAffine``'s cubic, to float32 rounding).
 
-Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
-(``nogil``) so the worker threads run them side by side; the tests compare every
-kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
-the numpy code it replaces was float32, in the same order, so results are bitwise the
-same; sums are accumulated in float64.
+How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
 
 from __future__ import annotations

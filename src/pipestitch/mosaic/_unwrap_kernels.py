@@ -7,12 +7,9 @@ numpy expressions each pass allocates and walks the array again and most of the 
 goes to memory traffic. OpenCV's resize/remap quantise interpolation weights to 1/32
 (see :func:`pipestitch.mosaic.unwrap.unwrap_maps`), so they cannot stand in.
 
-Each kernel is one plain loop, arrays in and arrays out, and releases the GIL
-(``nogil``) so the worker threads run them side by side; the tests compare every
-kernel with the numpy/OpenCV expression it replaces. Float32 arithmetic is kept where
-the numpy code it replaces was float32, in the same order, so results are bitwise the
-same; sums are accumulated in float64. :func:`upsample_maps` is the one plain-Python
-wrapper: it names the fields :func:`upsample_masked` takes and gives as a stack.
+How the compiled kernels are written and tested: docs/conventions.md, "Compiled
+kernels". :func:`upsample_maps` is the one plain-Python wrapper: it names the fields
+:func:`upsample_masked` takes and gives as a stack.
 """
 
 from __future__ import annotations

@@ -367,21 +367,24 @@ def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
     neighbouring candidates, in azimuth order): the direction in which the detector
     localises the line. NaN when no candidate meets the plane.
     """
-    best = detection.rank == 0
-    order = np.argsort(detection.azimuth[best], kind="stable")
-    ring = _as_points(detection.pixels[best][order])
-    if ring.shape[0] < 3:
+    best = np.flatnonzero(detection.rank == 0)   # in azimuth order (detect_ring's)
+    n = best.size
+    if n < 3:
         return math.nan
-    tangent = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
-    take = slice(None, None, max(1, ring.shape[0] // n_points))
-    ring, tangent = ring[take], tangent[take]
-    length = np.linalg.norm(tangent, axis=1, keepdims=True)
-    normal = np.divide(tangent[:, ::-1] * [1.0, -1.0], length, out=np.zeros_like(tangent),
+    k = np.arange(0, n, max(1, n // n_points))
+    pixels = detection.pixels
+    at = pixels[best[k]]
+    tangent = pixels[best[(k + 1) % n]] - pixels[best[k - 1]]
+    length = np.hypot(tangent[:, 0], tangent[:, 1])[:, None]
+    normal = np.divide(tangent[:, ::-1] * (1.0, -1.0), length, out=np.zeros_like(tangent),
                        where=length > 0)
-    uv = _plane_coords(np.concatenate([ring, ring + normal]), camera, plane)[0]
-    step = np.linalg.norm(uv[len(ring):] - uv[:len(ring)], axis=1)
-    step = step[np.isfinite(step) & (length[:, 0] > 0)]
-    return float(np.median(step)) if step.size else math.nan
+    uv = _plane_coords(_as_points(np.concatenate([at, at + normal])), camera, plane)[0]
+    step = np.hypot(*(uv[len(at):] - uv[:len(at)]).T)[length[:, 0] > 0].tolist()
+    step = sorted(s for s in step if math.isfinite(s))   # a few dozen: sorted() is cheapest
+    if not step:
+        return math.nan
+    mid = len(step) // 2
+    return step[mid] if len(step) % 2 else 0.5 * (step[mid - 1] + step[mid])
 
 
 def frame_noise_mm(detection: RingDetection, camera: CameraModel, plane: LaserPlane) -> float:
@@ -556,6 +559,12 @@ def _rms_stride(n: int) -> int:
 
 def _plane_coords(pixels: np.ndarray, camera: CameraModel,
                   plane: LaserPlane) -> tuple[np.ndarray, np.ndarray]:
-    """In-plane coordinates of each pixel's ray (NaN where it misses the plane), and the mask."""
-    rays = _as_points(camera.unproject(pixels))
+    """In-plane coordinates of each pixel's ray (NaN where it misses the plane), and the mask.
+
+    A camera with a compiled unprojection (``ray_kernel``) is unprojected by it (a few
+    points cost its per-call overhead, not the model's array set-up).
+    """
+    kernel = getattr(camera, "ray_kernel", None)
+    rays = (_k.rays_of(kernel[0], _as_points(pixels), *kernel[1:]) if kernel is not None
+            else _as_points(camera.unproject(pixels)))
     return _k.rays_to_plane(rays, plane.distance_mm, plane.normal, plane.basis)

@@ -318,3 +318,57 @@ def test_measure_refuses_a_mosaic_json_that_is_no_object(run_folder: Path, text:
     result = runner.invoke(app, ["measure", str(run_folder)])
     assert result.exit_code == 2 and "mosaic.json" in result.output, result.output
     assert (run_folder / "defects.csv").read_bytes() == defects
+
+
+# --- odometry.csv and imu.csv: `check` and the stages read them with the same readers ---
+
+_CSV_CELLS = st.one_of(st.sampled_from(["0", "1", "2", "1.5", "-1", "nan", "inf", "", " 2",
+                                        "abc", "1e3", "\ufeff0"]),
+                       st.text(alphabet="0123456789.-e, \"\ufeff", max_size=4))
+
+
+@pytest.fixture()
+def tiny_dataset(tmp_path: Path) -> Path:
+    import cv2
+
+    from pipestitch.camera import default_camera
+    from pipestitch.io.probe_toml import format_probe_toml, probe_config_for
+
+    cfg = probe_config_for(default_camera("half"), plane_distance_mm=16.0,
+                           pipe_diameter_mm=65.0)
+    text = format_probe_toml(cfg).replace("width = 1224", "width = 32")
+    (tmp_path / "probe.toml").write_text(text.replace("height = 1024", "height = 24"))
+    (tmp_path / "frames").mkdir()
+    for i in range(3):
+        for kind in ("laser", "led"):
+            cv2.imwrite(str(tmp_path / "frames" / f"{kind}_{i:05d}.png"),
+                        np.zeros((24, 32), np.uint8))
+    return tmp_path
+
+
+@FUZZ
+@given(st.sampled_from(["odometry.csv", "imu.csv"]), st.booleans(),
+       st.sampled_from(["frame,z_mm", "frame,roll_deg", "frame,z_mm,roll_deg", "frame"]),
+       st.lists(st.lists(_CSV_CELLS, min_size=1, max_size=3), max_size=5))
+def test_check_agrees_with_the_readers_of_the_stages(tiny_dataset: Path, name: str, bom: bool,
+                                                     header: str, rows: list) -> None:
+    from pipestitch.errors import DatasetError
+    from pipestitch.io.dataset import check_dataset, open_dataset
+    from pipestitch.io.imu import read_imu
+
+    for other in ("odometry.csv", "imu.csv"):
+        (tiny_dataset / other).unlink(missing_ok=True)
+    text = "\n".join([header, *(",".join(r) for r in rows)]) + "\n"
+    (tiny_dataset / name).write_bytes((b"\xef\xbb\xbf" if bom else b"") + text.encode())
+    try:
+        open_dataset(tiny_dataset)
+        read_imu(tiny_dataset)
+        stage_error = None
+    except DatasetError as exc:   # anything else is a bug
+        stage_error = exc
+    errors = [p for p in check_dataset(tiny_dataset) if p.severity == "error"]
+    if stage_error is None:
+        assert errors == []
+    else:
+        assert [(p.path, p.message) for p in errors] == [(stage_error.path,
+                                                          stage_error.problem)]

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import typer
 from typer.testing import CliRunner
 
 from pipestitch.cli.app import app
@@ -218,3 +219,219 @@ def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
     result = CliRunner().invoke(app, ["mask", str(tmp_path / "nothing"), "--out",
                                       str(tmp_path / "m.png")])
     assert result.exit_code == 2 and "not found" in result.output
+
+
+# --- usage and output-path errors: exit 2, one line naming the option or the path ---
+
+PROC = Path("/proc/pipestitch-test/nowhere")   # cannot be created, even by root
+needs_proc = pytest.mark.skipif(not Path("/proc/self").exists(), reason="no /proc")
+
+
+def _one_error_line(result, *needles: str) -> None:
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2, result.output
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.output
+    for needle in needles:
+        assert needle in lines[0], result.output
+    assert "processing failed" not in result.output and "Traceback" not in result.output
+
+
+@pytest.fixture()
+def places(tmp_path: Path) -> dict[str, Path]:
+    (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "folder").mkdir()
+    return {"file": tmp_path / "afile", "under_file": tmp_path / "afile" / "x.txt",
+            "folder": tmp_path / "folder"}
+
+
+@pytest.mark.parametrize("command,where,needles", [
+    (["simulate", "--size", "half", "--out", "{file}"], "file", ["--out", "afile"]),
+    (["simulate", "--size", "half", "--out", "{under_file}"], "under_file",
+     ["--out", "afile is a file"]),
+    (["pose", "{ds}", "--out", "{file}"], "file", ["--out", "afile"]),
+    (["run", "{ds}", "--out", "{under_file}"], "under_file", ["--out", "afile is a file"]),
+    (["demo", "--out", "{file}"], "file", ["--out", "afile"]),
+    (["batch", "{ds}", "--out", "{file}"], "file", ["--out", "afile"]),
+    (["export", "{ds}", "--out", "{folder}"], "folder", ["--out", "folder", "a folder"]),
+    (["export", "{ds}", "--out", "{under_file}"], "under_file", ["--out", "afile is a file"]),
+    (["mask", "{ds}", "--out", "{folder}"], "folder", ["--out", "a folder"]),
+    (["calibrate", "camera", "{img}", "--board", "8x6", "--square-mm", "10", "--out",
+      "{folder}"], "folder", ["--out", "a folder"]),
+    (["calibrate", "camera", "{img}", "--board", "8x6", "--square-mm", "10", "--plot",
+      "{under_file}"], "under_file", ["--plot", "afile is a file"]),
+    (["calibrate", "laser", "{img}", "--probe", "{folder}", "--pipe-diameter-mm", "65"],
+     "folder", ["--probe", "a folder"]),
+    (["calibrate", "import", "{ds}/probe.toml", "--out", "{folder}"], "folder",
+     ["--out", "a folder"]),
+    (["calibrate", "export", "{ds}/probe.toml", "--out", "{folder}/"], "folder",
+     ["--out", "a folder"]),
+])
+def test_output_path_errors_exit_2_naming_the_path(small_dataset: Path, places, command,
+                                                   where: str, needles: list[str]) -> None:
+    names = {**{k: str(v) for k, v in places.items()}, "ds": str(small_dataset),
+             "img": str(small_dataset / "frames" / "laser_00000.png")}
+    args = [a.format(**names) for a in command]
+    result = runner.invoke(app, [*args, "--quiet"] if command[0] in (
+        "simulate", "pose", "run", "demo", "batch") else args)
+    _one_error_line(result, str(places[where]), *needles)
+    assert sorted(p.name for p in places["folder"].iterdir()) == []
+
+
+@needs_proc
+@pytest.mark.parametrize("command", [
+    ["simulate", "--size", "half", "--quiet", "--out", "{proc}"],
+    ["pose", "{ds}", "--quiet", "--out", "{proc}"],
+    ["run", "{ds}", "--quiet", "--out", "{proc}"],
+    ["demo", "--quiet", "--out", "{proc}"],
+    ["batch", "{ds}", "--quiet", "--out", "{proc}"],
+    ["export", "{ds}", "--out", "{proc}/x.txt"],
+    ["mask", "{ds}", "--out", "{proc}/mask.png"],
+    ["calibrate", "export", "{ds}/probe.toml", "--out", "{proc}/x.txt"],
+    ["calibrate", "import", "{ds}/probe.toml", "--out", "{proc}/probe.toml"],
+])
+def test_output_paths_that_cannot_be_created_exit_2(small_dataset: Path, command) -> None:
+    args = [a.format(ds=small_dataset, proc=PROC) for a in command]
+    _one_error_line(runner.invoke(app, args), str(PROC), "--out", "cannot create")
+
+
+def test_pose_refuses_an_output_folder_inside_the_dataset(small_dataset: Path) -> None:
+    result = runner.invoke(app, ["pose", str(small_dataset), "--out",
+                                 str(small_dataset / "frames"), "--quiet"])
+    _one_error_line(result, "inside the dataset")
+    assert not (small_dataset / "frames" / "poses.csv").exists()
+
+
+@pytest.mark.parametrize("board,square,needle", [
+    ("8y6", "10", "--board"), ("0x0", "10", "--board"), ("8x6", "-1", "--square-mm"),
+    ("8x6", "nan", "--square-mm"),
+])
+def test_calibrate_camera_bad_board_options_exit_2(small_dataset: Path, tmp_path: Path,
+                                                   board: str, square: str,
+                                                   needle: str) -> None:
+    result = runner.invoke(app, ["calibrate", "camera",
+                                 str(small_dataset / "frames" / "laser_00000.png"),
+                                 "--board", board, "--square-mm", square,
+                                 "--out", str(tmp_path / "probe.toml")])
+    _one_error_line(result, needle)
+    assert not (tmp_path / "probe.toml").exists()
+
+
+def test_bad_parameter_in_a_command_body_is_one_line_exit_2(
+        monkeypatch: pytest.MonkeyPatch, small_dataset: Path, tmp_path: Path) -> None:
+    import pipestitch.cli.app as cli
+
+    def bad(*args: object, **kwargs: object) -> None:
+        raise typer.BadParameter("--workers: too many")
+
+    monkeypatch.setattr(cli, "run_pose", bad)
+    result = runner.invoke(app, ["pose", str(small_dataset), "--out", str(tmp_path / "o")])
+    _one_error_line(result, "--workers: too many")
+
+
+@pytest.mark.parametrize("command,option", [
+    (["run", "{ds}", "--out", "{tmp}/o", "--quiet", "--crown-deg", "nan"], "--crown-deg"),
+    (["measure", "{tmp}", "--crown-deg", "inf"], "--crown-deg"),
+    (["export", "{tmp}", "--crown-deg", "nan"], "--crown-deg"),
+    (["demo", "--out", "{tmp}/d", "--size", "quarter", "--quiet"], "--size"),
+    (["calibrate", "laser", "{ds}/frames/laser_00000.png", "--probe", "{ds}/probe.toml",
+      "--pipe-diameter-mm", "nan"], "--pipe-diameter-mm"),
+])
+def test_non_finite_and_bad_options_exit_2(small_dataset: Path, tmp_path: Path,
+                                           command: list[str], option: str) -> None:
+    args = [a.format(ds=small_dataset, tmp=tmp_path) for a in command]
+    _one_error_line(runner.invoke(app, args), option)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "d").exists()
+
+
+# --- check validates imu.csv and odometry.csv as run reads them ---
+
+@pytest.mark.parametrize("text,needle", [
+    ("frame,roll_deg\n0,abc\n1,2\n", "line 2: roll_deg = 'abc' is not a finite number"),
+    ("frame,roll_deg\n0,nan\n1,2\n", "line 2: roll_deg = 'nan' is not a finite number"),
+    ("frame,roll_deg\n0,1\n0,2\n", "line 3: frame 0 is listed more than once"),
+])
+def test_check_and_run_refuse_the_same_bad_imu_csv(small_dataset: Path, tmp_path: Path,
+                                                   text: str, needle: str) -> None:
+    data = tmp_path / "imu"
+    shutil.copytree(small_dataset, data)
+    (data / "imu.csv").write_text(text)
+    result = runner.invoke(app, ["check", str(data), "--quiet"])
+    assert result.exit_code == 2 and f"imu.csv: {needle}" in result.output, result.output
+    result = runner.invoke(app, ["run", str(data), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code == 2 and f"imu.csv: {needle}" in result.output, result.output
+
+
+def test_check_accepts_a_byte_order_mark(small_dataset: Path, tmp_path: Path) -> None:
+    data = tmp_path / "bom"
+    shutil.copytree(small_dataset, data)
+    (data / "imu.csv").write_bytes(b"\xef\xbb\xbfframe,roll_deg\r\n0,1.5\r\n1,2.5\r\n")
+    odometry = (data / "odometry.csv").read_bytes()
+    (data / "odometry.csv").write_bytes(b"\xef\xbb\xbf" + odometry)
+    result = runner.invoke(app, ["check", str(data), "--quiet"])
+    assert result.exit_code == 0 and "OK (0 warning(s))" in result.output, result.output
+
+
+def test_check_and_run_refuse_a_frame_listed_twice_in_odometry(small_dataset: Path,
+                                                                tmp_path: Path) -> None:
+    data = tmp_path / "odo"
+    shutil.copytree(small_dataset, data)
+    (data / "odometry.csv").write_text("frame,z_mm\n0,0.0\n1,5.0\n1,6.0\n")
+    for args in (["check", str(data)], ["run", str(data), "--out", str(tmp_path / "o")]):
+        result = runner.invoke(app, [*args, "--quiet"])
+        assert result.exit_code == 2, result.output
+        assert "odometry.csv: line 4: frame 1 is listed more than once" in result.output
+
+
+def test_check_warns_about_a_missing_odometry_row(small_dataset: Path, tmp_path: Path) -> None:
+    data = tmp_path / "gap"
+    shutil.copytree(small_dataset, data)
+    (data / "odometry.csv").write_text("frame,z_mm\n0,0.0\n")
+    result = runner.invoke(app, ["check", str(data), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "warning: " in result.output and "odometry.csv: no row for 1 frame(s) (1)" in \
+        result.output
+
+
+def test_check_with_a_video_reads_imu_and_odometry_as_run_does(small_dataset: Path,
+                                                               tmp_path: Path) -> None:
+    from pipestitch.io.video import write_video
+
+    frames = [cv2.imread(str(small_dataset / "frames" / f"{kind}_{i:05d}.png"),
+                         cv2.IMREAD_UNCHANGED) for i in range(2) for kind in ("laser", "led")]
+    video = write_video(tmp_path / "v.avi", frames)
+    root = tmp_path / "ds"
+    root.mkdir()
+    shutil.copy(small_dataset / "probe.toml", root / "probe.toml")
+    check = ["check", str(root), "--video", str(video), "--quiet"]
+    (root / "odometry.csv").write_text("frame,z_mm\n0,0.0\n")
+    result = runner.invoke(app, check)
+    assert result.exit_code == 0 and "odometry.csv: no row for 1 frame(s)" in result.output
+    (root / "imu.csv").write_bytes(b"\xef\xbb\xbfframe,roll_deg\n0,nan\n")
+    result = runner.invoke(app, check)
+    assert result.exit_code == 2, result.output
+    assert "imu.csv: line 2: roll_deg = 'nan' is not a finite number" in result.output
+    (root / "imu.csv").unlink()
+    (root / "odometry.csv").write_text("frame,z_mm\n0,0.0\n0,1.0\n1,2.0\n")
+    result = runner.invoke(app, check)
+    assert result.exit_code == 2 and "odometry.csv: line 3: frame 0 is listed more than once" \
+        in result.output
+
+
+@pytest.mark.parametrize("exc,code,needle", [
+    (PermissionError(13, "Permission denied", "/data/out/poses.csv"), 2,
+     "error: /data/out/poses.csv: Permission denied"),
+    (OSError(28, "No space left on device", "/data/out/poses.csv"), 1, "processing failed"),
+])
+def test_os_errors_naming_a_path_are_bad_input(small_dataset: Path, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch, exc: OSError,
+                                               code: int, needle: str) -> None:
+    import pipestitch.cli.app as cli
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise exc
+
+    monkeypatch.setattr(cli, "run_pose", fail)
+    monkeypatch.delenv("PIPESTITCH_DEBUG", raising=False)
+    result = runner.invoke(app, ["pose", str(small_dataset), "--out", str(tmp_path / "o")])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == code and len(lines) == 1 and needle in lines[0], result.output

@@ -237,3 +237,76 @@ def test_probe_section_is_optional_and_means_no_body() -> None:
     assert "[probe]" not in format_probe_toml(cfg)
     body = parse_probe_toml(SPEC_EXAMPLE).probe.envelope()
     assert (body.length_mm, body.diameter_mm) == (145.0, 45.0)
+
+
+def test_csv_reader_accepts_a_byte_order_mark(tmp_path: Path) -> None:
+    path = tmp_path / "x.csv"
+    path.write_bytes(b"\xef\xbb\xbfframe,z_mm\r\n0,1.5\r\n")
+    cols = read_csv_columns(path, ("frame", "z_mm"))
+    assert list(cols["frame"]) == [0.0] and list(cols["z_mm"]) == [1.5]
+
+
+def test_odometry_frame_listed_twice_is_an_error_naming_the_line(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,0.0\n\n1,5.0\n1,6.0\n2,9.0\n")
+    message = "line 5: frame 1 is listed more than once (first on line 4)"
+    with pytest.raises(DatasetError, match=re.escape(message)) as info:
+        open_dataset(tmp_path)
+    assert info.value.path == tmp_path / "odometry.csv"
+    errors = [str(p) for p in check_dataset(tmp_path) if p.severity == "error"]
+    assert errors == [f"error: {tmp_path / 'odometry.csv'}: {message}"]
+
+
+@pytest.mark.parametrize("rows,warning", [
+    ("0,0.0\n2,9.0\n", "no row for 1 frame(s) (1): their z comes from registration alone"),
+    ("0,0.0\n1,5.0\n2,3.0\n", "z_mm is not monotonic: it goes back from frame 1 (5 mm) to "
+                              "frame 2 (3 mm)"),
+])
+def test_odometry_gaps_and_reversals_are_warnings(tmp_path: Path, rows: str, warning: str,
+                                                  caplog: pytest.LogCaptureFixture) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n" + rows)
+    problems = check_dataset(tmp_path)
+    assert [(p.path.name, p.message, p.severity) for p in problems] == [
+        ("odometry.csv", warning, "warning")]
+    with caplog.at_level("WARNING"):
+        ds = open_dataset(tmp_path)
+    assert ds.odometry_notes == [warning]
+    assert any(warning in r.getMessage() and "odometry.csv" in r.getMessage()
+               for r in caplog.records)
+
+
+def test_odometry_pulled_back_is_monotonic(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,9.0\n1,5.0\n2,5.0\n")
+    assert check_dataset(tmp_path) == []
+    assert open_dataset(tmp_path).odometry_notes == []
+
+
+@pytest.mark.parametrize("text,message", [
+    ("frame,roll_deg\n0,abc\n", "line 2: roll_deg = 'abc' is not a finite number"),
+    ("frame,roll_deg\n0,nan\n", "line 2: roll_deg = 'nan' is not a finite number"),
+    ("frame,roll_deg\n0,1\n1,2\n0,3\n", "line 4: frame 0 is listed more than once"),
+    ("frame,roll_deg\n1.5,1\n", "frame numbers must be whole numbers >= 0 (line 2: frame 1.5)"),
+    ("frame,roll_deg\n", "no rows"),
+    ("frame,roll\n0,1\n", "missing column(s) roll_deg"),
+])
+def test_check_reads_imu_csv_as_the_run_does(tmp_path: Path, text: str, message: str) -> None:
+    from pipestitch.io.imu import read_imu
+
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "imu.csv").write_text(text)
+    with pytest.raises(DatasetError, match=re.escape(message)):
+        read_imu(tmp_path)
+    problems = [p for p in check_dataset(tmp_path) if p.severity == "error"]
+    assert len(problems) == 1 and problems[0].path == tmp_path / "imu.csv"
+    assert message in problems[0].message
+
+
+def test_imu_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
+    from pipestitch.io.imu import read_imu
+
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "imu.csv").write_bytes(b"\xef\xbb\xbfframe,roll_deg\n0,1.5\n2,-3\n")
+    assert read_imu(tmp_path) == {0: 1.5, 2: -3.0}
+    assert check_dataset(tmp_path) == []

@@ -105,3 +105,67 @@ def test_retries_and_crashes_on_an_existing_scheduler(tmp_path: Path, scheduler,
 def test_output_names_are_unique() -> None:
     assert output_names([Path("a/run"), Path("b/run"), Path("c/x"), Path("d/run")]) == [
         "run", "run_2", "x", "run_3"]
+
+
+def test_a_crash_is_one_console_line_and_its_traceback_goes_to_the_log(
+        tmp_path: Path, scheduler, monkeypatch) -> None:
+    import logging
+
+    def fake_run(root, out, **_kw):
+        if Path(root).name == "broken":
+            raise RuntimeError("always fails")
+        return SimpleNamespace(mosaic_failed=False, n_frames=3, n_placed=3, n_failed=0,
+                               no_mosaic="")
+
+    class Records(logging.Handler):
+        def __init__(self) -> None:
+            super().__init__(logging.DEBUG)
+            self.messages: list[str] = []
+
+        def emit(self, record: logging.LogRecord) -> None:
+            self.messages.append(record.getMessage())
+
+    seen = Records()   # what reaches the handlers of the dask worker's logger
+    worker_logger = logging.getLogger("distributed.worker")
+    worker_logger.addHandler(seen)
+    monkeypatch.setattr(batch_module, "run_dataset", fake_run)
+    for name in ("broken", "fine"):
+        (tmp_path / name).mkdir()
+    out = tmp_path / "out"
+    try:
+        result = CliRunner().invoke(app, ["batch", str(tmp_path / "broken"),
+                                          str(tmp_path / "fine"), "--out", str(out),
+                                          "--scheduler", scheduler, "--retries", "0",
+                                          "--quiet"])
+    finally:
+        worker_logger.removeHandler(seen)
+    assert result.exit_code == 1, result.output
+    assert not [m for m in seen.messages if "Compute Failed" in m], seen.messages
+    assert "Traceback" not in result.output
+    failed = [line for line in result.output.splitlines() if line.startswith("failed:")]
+    assert failed == [f"failed: broken: crashed: RuntimeError('always fails') "
+                      f"(log: {out / 'broken' / 'run.log'})"], result.output
+    log = (out / "broken" / "run.log").read_text()
+    assert "Traceback" in log and "RuntimeError: always fails" in log
+
+
+def test_batch_output_folders_are_checked_before_anything_runs(tmp_path: Path) -> None:
+    runner = CliRunner()
+    data = tmp_path / "in"
+    (data / "a").mkdir(parents=True)
+    (tmp_path / "afile").write_text("x")
+    cases = [
+        (tmp_path / "afile", str(tmp_path / "afile"), "an existing file"),
+        (tmp_path / "afile" / "sub", str(tmp_path / "afile" / "sub"), "afile is a file"),
+        (data, str(data / "a"), "inside the dataset"),   # OUT/a would be the dataset a
+    ]
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "a").write_text("x")                 # where OUT/a goes
+    cases.append((tmp_path / "out", str(tmp_path / "out" / "a"), "existing file"))
+    for out, path, needle in cases:
+        result = runner.invoke(app, ["batch", str(data / "a"), "--out", str(out), "--quiet"])
+        lines = [line for line in result.output.splitlines() if line.strip()]
+        assert result.exit_code == 2, result.output
+        assert len(lines) == 1 and path in lines[0] and needle in lines[0], result.output
+    assert sorted(p.name for p in data.iterdir()) == ["a"]
+    assert not (data / "a" / "a").exists() and not (data / "a" / "run.log").exists()

@@ -6,13 +6,15 @@ problem), 1 processing failure. No traceback reaches the user for expected error
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, TypeVar
+from typing import Annotated, NoReturn, TypeVar
 
+import click
 import typer
 from rich.markup import escape
 
@@ -23,13 +25,14 @@ from pipestitch.cli.export_command import CROWN_HELP
 from pipestitch.cli.export_command import register as register_export
 from pipestitch.cli.mask_command import register as register_mask
 from pipestitch.errors import PipestitchError
-from pipestitch.pipeline.check import run_check
+from pipestitch.pipeline.check import check_finite, check_out_file, check_out_folder_path, run_check
 from pipestitch.pipeline.coding import code_run
 from pipestitch.pipeline.measuring import measure_run
 from pipestitch.pipeline.posing import run_pose
 from pipestitch.pipeline.progress import console
 from pipestitch.pipeline.run import RunSummary, run_dataset
 from pipestitch.pipeline.simulating import simulate_dataset
+from pipestitch.pipeline.staging import check_out_folder
 from pipestitch.pipeline.stitching import MosaicSettings
 from pipestitch.simulate.scenarios import SCENARIOS
 
@@ -48,30 +51,73 @@ VIDEO_HELP = ("Video of alternating laser/LED frames to read instead of DATASET/
               "(probe.toml and odometry.csv still from DATASET).")
 
 
+# OSErrors about a path the user gave (a missing input, an output where a folder or a
+# file is in the way, a read-only place): bad input, exit 2. Others (a full disk) exit 1.
+_PATH_ERRNOS = {errno.ENOENT, errno.EEXIST, errno.ENOTDIR, errno.EISDIR, errno.EACCES,
+                errno.EPERM, errno.EROFS, errno.ENAMETOOLONG}
+
+
+def _error(message: str, code: int) -> typer.Exit:
+    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    return typer.Exit(code)
+
+
 def _handle_errors(func: F) -> F:
-    """Turn pipestitch errors into a one-line message and the SPEC exit code."""
+    """Turn pipestitch errors into a one-line message and the SPEC exit code.
+
+    Also a usage error raised in a command's body (``typer.BadParameter``: exit 2) and an
+    OSError naming a path the user gave (exit 2): one line, never a traceback.
+    """
     @functools.wraps(func)
     def wrapper(*args: object, **kwargs: object) -> object:
         try:
             return func(*args, **kwargs)
         except PipestitchError as exc:
-            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
-                          soft_wrap=True)
-            raise typer.Exit(exc.exit_code) from None
+            raise _error(str(exc), exc.exit_code) from None
         except KeyboardInterrupt:
             console.print("[bold red]interrupted[/]")
             raise typer.Exit(130) from None
         except (typer.Exit, typer.Abort):
             raise
+        except (click.ClickException, typer.TyperException) as exc:
+            # typer.BadParameter (typer's own click) or click's: usage errors, exit 2
+            message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+            raise _error(" ".join(message.split()), getattr(exc, "exit_code", 2)) from None
+        except OSError as exc:
+            if exc.errno not in _PATH_ERRNOS or not exc.filename:
+                _unexpected(exc)
+            raise _error(f"{exc.filename}: {exc.strerror}", 2) from None
         except Exception as exc:
-            # A bug or an unexpected failure: exit 1 with one line; the traceback is
-            # there for developers with PIPESTITCH_DEBUG=1.
-            if os.environ.get("PIPESTITCH_DEBUG"):
-                raise
-            console.print(f"[bold red]processing failed:[/] {escape(repr(exc))} "
-                          "(set PIPESTITCH_DEBUG=1 for the traceback)", soft_wrap=True)
-            raise typer.Exit(1) from None
+            _unexpected(exc)
     return wrapper  # type: ignore[return-value]
+
+
+def _unexpected(exc: Exception) -> NoReturn:
+    # A bug or an unexpected failure: exit 1 with one line; the traceback is there for
+    # developers with PIPESTITCH_DEBUG=1.
+    if os.environ.get("PIPESTITCH_DEBUG"):
+        raise exc
+    console.print(f"[bold red]processing failed:[/] {escape(repr(exc))} "
+                  "(set PIPESTITCH_DEBUG=1 for the traceback)", soft_wrap=True)
+    raise typer.Exit(1) from None
+
+
+def _checked(files: dict[str, str] | None = None,
+             finite: dict[str, str] | None = None) -> Callable[[F], F]:
+    """An error handler (as ``_handle_errors``) that first checks the command's output
+    file options (parameter name -> option) and its options that must be finite: for
+    the commands registered from other modules (export, mask)."""
+    def handle(func: F) -> F:
+        @functools.wraps(func)
+        def wrapper(*args: object, **kwargs: object) -> object:
+            for name, option in (finite or {}).items():
+                check_finite(kwargs.get(name), option)  # type: ignore[arg-type]
+            for name, option in (files or {}).items():
+                if kwargs.get(name) is not None:
+                    check_out_file(kwargs[name], option)  # type: ignore[arg-type]
+            return func(*args, **kwargs)
+        return _handle_errors(wrapper)  # type: ignore[arg-type]
+    return handle
 
 
 def _version(value: bool) -> None:
@@ -120,6 +166,7 @@ def simulate(
     if workers < 1:
         console.print(f"[bold red]error:[/] --workers: expected at least 1, got {workers}")
         raise typer.Exit(2)
+    check_out_folder_path(out)
     run = simulate_dataset(SCENARIOS[scenario], out, seed=seed, size=size, n_pairs=pairs,
                            show_progress=not quiet, workers=workers)
     typer.echo(f"wrote {len(run.poses)} pairs of scenario {scenario!r} to {out}")
@@ -178,6 +225,8 @@ def pose(
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """
+    check_out_folder(dataset, out)   # not inside the dataset, not an existing file
+    check_out_folder_path(out)
     summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers),
                        video=video)
     typer.echo(f"wrote {summary.path}: {summary.n_frames} frames, {summary.n_failed} failed, "
@@ -230,6 +279,9 @@ def run(
     except ValueError as exc:
         console.print(f"[bold red]error:[/] {escape(str(exc))}")
         raise typer.Exit(2) from None
+    check_finite(crown_deg, "--crown-deg")
+    check_out_folder(dataset, out)
+    check_out_folder_path(out)
     summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet,
                           tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg)
     _print_run(summary)
@@ -261,6 +313,7 @@ def measure(
 
     Example: pipestitch measure out/test_piece
     """
+    check_finite(crown_deg, "--crown-deg")
     path, defects = measure_run(out, crown_deg=crown_deg)
     coded = code_run(out, crown_deg=crown_deg)  # clocks by the best reference, observations
     typer.echo(f"clock reference: {coded.reference.source}; "
@@ -282,6 +335,10 @@ def demo(
 
     Example: pipestitch demo --out /tmp/pipestitch-demo
     """
+    if size not in ("full", "half"):
+        raise _error(f"--size: expected full or half, got {size!r}", 2)
+    if out is not None:
+        check_out_folder_path(out)
     root = out if out is not None else Path(tempfile.mkdtemp(prefix="pipestitch-demo-"))
     dataset = root / "dataset"
     run = simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
@@ -295,9 +352,9 @@ def demo(
 
 
 app.command(name="batch")(_handle_errors(batch))
-register_export(app, _handle_errors)
+register_export(app, _checked(files={"dest": "--out"}, finite={"crown_deg": "--crown-deg"}))
 register_calibrate(app, _handle_errors)
-register_mask(app, _handle_errors)
+register_mask(app, _checked(files={"out": "--out"}))
 
 
 def main() -> None:

@@ -39,8 +39,10 @@ def batch(
     """Run many datasets end to end on a dask.distributed cluster (`run` on each).
 
     Each dataset's outputs and log go to OUT/<name>/ (run.log); a failed dataset never
-    stops the others; OUT/batch_summary.csv and a table summarise them. Exit 0 when
-    all succeeded, 1 when any failed.
+    stops the others; OUT/batch_summary.csv and a table summarise them, and each failed
+    dataset gets one line with its reason (a crash's traceback is in its run.log). Exit 0
+    when all succeeded, 1 when any failed, 2 for bad input or an output folder that
+    cannot be written.
 
     Example: pipestitch batch data/run1 data/run2 --out out/night --workers 2
     """
@@ -55,19 +57,24 @@ def batch(
                             retries=retries, threads=threads,
                             on_done=lambda _r: progress.advance(task))
     console.print(summary_table(results))
+    for r in results:   # one line each, never wrapped: the reason stays whole and greppable
+        if r.status != "ok":
+            console.print(f"[bold red]failed:[/] {escape(r.dataset)}: "
+                          f"{escape(' '.join(r.message.split()) or r.status)} "
+                          f"(log: {escape(r.log)})", soft_wrap=True, highlight=False)
     typer.echo(f"summary: {Path(out) / 'batch_summary.csv'}")
     if any(r.status != "ok" for r in results):
         raise typer.Exit(1)
 
 
 def summary_table(results: list[BatchResult]) -> Table:
-    """The rich table printed at the end of a batch."""
+    """The rich table printed at the end of a batch (the reasons of failures follow it,
+    one line each)."""
     table = Table(title="pipestitch batch")
-    for name in ("dataset", "status", "attempts", "seconds", "pairs", "placed", "message"):
-        table.add_column(name, justify="right" if name in ("attempts", "seconds", "pairs",
-                                                           "placed") else "left")
+    for name in ("dataset", "status", "attempts", "seconds", "pairs", "placed"):
+        table.add_column(name, justify="left" if name in ("dataset", "status") else "right")
     for r in results:
         colour = "green" if r.status == "ok" else "red"
         table.add_row(escape(r.dataset), f"[{colour}]{r.status}[/]", str(r.attempts),
-                      f"{r.seconds:.1f}", str(r.pairs), str(r.placed), escape(r.message))
+                      f"{r.seconds:.1f}", str(r.pairs), str(r.placed))
     return table

@@ -17,6 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from pipestitch.calibrate import Board, parse_board
+from pipestitch.errors import ConfigError
 from pipestitch.pipeline.calibrating import (
     FORMATS,
     CameraRun,
@@ -26,6 +27,7 @@ from pipestitch.pipeline.calibrating import (
     run_camera_calibration,
     run_laser_calibration,
 )
+from pipestitch.pipeline.check import check_out_file
 
 __all__ = ["register"]
 
@@ -60,13 +62,19 @@ def camera(
     """
     try:
         cols, rows = parse_board(board)
-        spec = Board(cols, rows, square_mm)
-        if model not in ("ocam", "opencv_fisheye"):
-            raise ValueError(f"--model: expected ocam or opencv_fisheye, got {model!r}")
-        if min_views < 3:
-            raise ValueError(f"--min-views: expected at least 3, got {min_views}")
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc)) from None
+    except ValueError:
+        raise ConfigError(None, f"--board: expected COLSxROWS inner corners, at least 2x2 "
+                                f"(such as 8x6), got {board!r}") from None
+    if not (np.isfinite(square_mm) and square_mm > 0):
+        raise ConfigError(None, f"--square-mm: expected a positive size in mm, got {square_mm}")
+    if model not in ("ocam", "opencv_fisheye"):
+        raise ConfigError(None, f"--model: expected ocam or opencv_fisheye, got {model!r}")
+    if min_views < 3:
+        raise ConfigError(None, f"--min-views: expected at least 3, got {min_views}")
+    spec = Board(cols, rows, square_mm)
+    check_out_file(out, "--out")
+    if plot is not None:
+        check_out_file(plot, "--plot")
     result = run_camera_calibration(images, board=spec, model=model, out=out, plot=plot,
                                     min_views=min_views, show_progress=not quiet)
     _print_camera(result)
@@ -108,6 +116,10 @@ def laser(
 
     Example: pipestitch calibrate laser frames/laser_*.png --probe probe.toml --pipe-diameter-mm 65
     """
+    if not (np.isfinite(pipe_diameter_mm) and pipe_diameter_mm > 0):
+        raise ConfigError(None, f"--pipe-diameter-mm: expected a positive diameter in mm, got "
+                                f"{pipe_diameter_mm}")
+    check_out_file(probe if out is None else out, "--probe" if out is None else "--out")
     result = run_laser_calibration(frames, probe=probe, pipe_diameter_mm=pipe_diameter_mm,
                                    out=out, show_progress=not quiet)
     _print_laser(result)
@@ -136,6 +148,7 @@ def import_(
 
     Example: pipestitch calibrate import calib_results.txt --out probe.toml
     """
+    check_out_file(out, "--out")
     cam, fmt, updated = import_calibration(source, out=out, fmt=fmt)
     verb = "updated \\[camera] of" if updated else "wrote"
     _out.print(f"read {fmt} {escape(str(source))} ({type(cam).__name__} "
@@ -151,6 +164,7 @@ def export(
 
     Example: pipestitch calibrate export probe.toml --out intrinsics.json --format matlab
     """
+    check_out_file(out, "--out")
     fmt = export_calibration(probe, out, fmt=fmt)
     _out.print(f"wrote {fmt} {escape(str(out))}")
 

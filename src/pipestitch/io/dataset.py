@@ -34,14 +34,19 @@ __all__ = [
     "Problem",
     "VideoDataset",
     "check_dataset",
+    "check_frame_column",
+    "check_odometry_and_imu",
     "count_frame_files",
     "open_dataset",
     "read_csv_columns",
+    "read_csv_lines",
     "read_frame",
+    "read_odometry",
 ]
 
 IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 _FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
+ODOMETRY_FILE = "odometry.csv"
 TRUTH_POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
 
 
@@ -66,6 +71,7 @@ class Dataset:
     laser_paths: list[Path]
     led_paths: list[Path | None] = field(default_factory=list)
     odometry_mm: dict[int, float] | None = None
+    odometry_notes: list[str] = field(default_factory=list)   # warnings about odometry.csv
 
     @property
     def n_pairs(self) -> int:
@@ -139,15 +145,23 @@ def _numbering_problems(kind: str, frames: dict[int, Path], frames_dir: Path) ->
 def read_csv_columns(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
     """Read a numeric CSV with a header; every required column must be present.
 
+    A UTF-8 byte-order mark (what spreadsheets write) is accepted.
+
     Raises
     ------
     DatasetError
         Naming the file and the line for missing columns or non-numeric values.
     """
+    return read_csv_lines(path, required)[0]
+
+
+def read_csv_lines(path: Path, required: tuple[str, ...]
+                   ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """:func:`read_csv_columns` and the line number (1-based) of every row read."""
     try:
-        with path.open(newline="", encoding="utf-8") as handle:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
             rows = list(csv.reader(handle))
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise DatasetError(path, f"cannot read: {exc}") from exc
     if not rows:
         raise DatasetError(path, "empty file (expected a header line)")
@@ -156,6 +170,7 @@ def read_csv_columns(path: Path, required: tuple[str, ...]) -> dict[str, np.ndar
     if missing:
         raise DatasetError(path, f"missing column(s) {', '.join(missing)}; header is {header}")
     cols: dict[str, list[float]] = {c: [] for c in header}
+    lines: list[int] = []
     for lineno, row in enumerate(rows[1:], start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
@@ -169,15 +184,75 @@ def read_csv_columns(path: Path, required: tuple[str, ...]) -> dict[str, np.ndar
             if value is None or (name in required and not math.isfinite(value)):
                 raise DatasetError(path, f"line {lineno}: {name} = {cell!r} is not a finite number")
             cols[name].append(value)
-    return {k: np.asarray(v) for k, v in cols.items()}
+        lines.append(lineno)
+    return {k: np.asarray(v) for k, v in cols.items()}, np.asarray(lines, dtype=np.int64)
 
 
-def _read_odometry(path: Path, n_pairs: int) -> dict[int, float]:
-    cols = read_csv_columns(path, ("frame", "z_mm"))
-    frames = cols["frame"]
-    if np.any(frames != np.round(frames)) or np.any((frames < 0) | (frames >= n_pairs)):
-        raise DatasetError(path, f"frame numbers must be integers in 0..{n_pairs - 1}")
-    return {int(f): float(z) for f, z in zip(frames, cols["z_mm"], strict=True)}
+def check_frame_column(path: Path, frames: np.ndarray, lines: np.ndarray,
+                       n_pairs: int | None = None) -> None:
+    """Frame numbers of a per-frame CSV: whole numbers >= 0 (below ``n_pairs`` when
+    given), each listed once.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file and the first line at fault.
+    """
+    top = math.inf if n_pairs is None else n_pairs
+    bad = np.flatnonzero((frames != np.round(frames)) | (frames < 0) | (frames >= top))
+    if bad.size:
+        k = int(bad[0])
+        expected = "whole numbers >= 0" if n_pairs is None else f"integers in 0..{n_pairs - 1}"
+        raise DatasetError(path, f"frame numbers must be {expected} (line {lines[k]}: "
+                                 f"frame {frames[k]:g})")
+    first_line: dict[int, int] = {}
+    for frame, line in zip(frames.astype(np.int64).tolist(), lines.tolist(), strict=True):
+        if frame in first_line:
+            raise DatasetError(path, f"line {line}: frame {frame} is listed more than once "
+                                     f"(first on line {first_line[frame]})")
+        first_line[frame] = line
+
+
+def read_odometry(path: Path, n_pairs: int | None) -> tuple[dict[int, float], list[str]]:
+    """``odometry.csv``: z per frame, and the warnings about it.
+
+    The one reader of the file (``open_dataset`` for every stage, ``check_dataset``).
+    Warnings: frames without a row (their z comes from registration alone) and z that
+    does not move one way along the run. ``n_pairs`` None (the frames are unknown):
+    frame numbers are not compared with the frames.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file (and the line): missing columns, values that are not finite
+        numbers, frame numbers outside 0..n_pairs-1, a frame listed twice, no rows.
+    """
+    cols, lines = read_csv_lines(path, ("frame", "z_mm"))
+    frames, z = cols["frame"], cols["z_mm"]
+    if not len(frames):
+        raise DatasetError(path, "no rows (expected frame,z_mm per frame)")
+    check_frame_column(path, frames, lines, n_pairs)
+    odometry = {int(f): float(v) for f, v in zip(frames, z, strict=True)}
+    return odometry, _odometry_notes(odometry, n_pairs)
+
+
+def _odometry_notes(odometry: dict[int, float], n_pairs: int | None) -> list[str]:
+    notes = []
+    missing = sorted(set(range(n_pairs or 0)) - set(odometry))
+    if missing:
+        shown = ", ".join(str(i) for i in missing[:10])
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        notes.append(f"no row for {len(missing)} frame(s) ({shown}{more}): their z comes from "
+                     "registration alone")
+    frames = sorted(odometry)
+    steps = np.diff([odometry[f] for f in frames])
+    if np.any(steps > 0) and np.any(steps < 0):
+        ahead = np.sum(steps > 0) >= np.sum(steps < 0)
+        k = int(np.flatnonzero(steps < 0 if ahead else steps > 0)[0])
+        notes.append(f"z_mm is not monotonic: it goes {'back' if ahead else 'forward'} from "
+                     f"frame {frames[k]} ({odometry[frames[k]]:g} mm) to frame "
+                     f"{frames[k + 1]} ({odometry[frames[k + 1]]:g} mm)")
+    return notes
 
 
 class VideoDataset:
@@ -205,6 +280,7 @@ class VideoDataset:
         self.notes = list(self.pairs.messages)
         self.timestamps_s = reader.index.time_s[self.pairs.laser]
         self.odometry_mm = odometry_mm
+        self.odometry_notes: list[str] = []
         self.laser_paths = [self._name(k) for k in self.pairs.laser]
         self.led_paths = [self._name(k) if k >= 0 else None for k in self.pairs.led]
 
@@ -285,18 +361,25 @@ def open_dataset(root: str | Path, video: str | Path | None = None, *,
         raise DatasetError(frames_dir, "no laser frames (expected frames/laser_00000.png, ...)")
     lasers = [found["laser"][i] for i in range(len(found["laser"]))]
     leds = [found["led"].get(i) for i in range(len(lasers))]
-    odo_path = root / "odometry.csv"
-    odometry = _read_odometry(odo_path, len(lasers)) if odo_path.is_file() else None
-    return Dataset(root=root, config=config, laser_paths=lasers,
-                   led_paths=leds, odometry_mm=odometry)
+    dataset = Dataset(root=root, config=config, laser_paths=lasers, led_paths=leds)
+    _attach_odometry(dataset)
+    return dataset
+
+
+def _attach_odometry(dataset: Dataset | VideoDataset) -> None:
+    """Read ``odometry.csv`` (when present) into the dataset; log its warnings."""
+    path = dataset.root / ODOMETRY_FILE
+    if not path.is_file():
+        return
+    dataset.odometry_mm, dataset.odometry_notes = read_odometry(path, dataset.n_pairs)
+    for note in dataset.odometry_notes:
+        logging.getLogger(__name__).warning("%s: %s", path, note)
 
 
 def _open_video(root: Path, config: ProbeConfig, video: Path,
                 progress: Callable[[], None] | None) -> VideoDataset:
     dataset = VideoDataset(root, config, VideoReader(video, progress=progress))
-    odo_path = root / "odometry.csv"
-    if odo_path.is_file():
-        dataset.odometry_mm = _read_odometry(odo_path, dataset.n_pairs)
+    _attach_odometry(dataset)
     for note in dataset.notes:
         logging.getLogger(__name__).warning("%s: %s", video, note)
     return dataset
@@ -362,6 +445,27 @@ def _check_truth(root: Path) -> Iterator[Problem]:
             yield Problem(wall_json, f"malformed JSON: {exc}")
 
 
+def check_odometry_and_imu(root: Path, n_pairs: int | None) -> list[Problem]:
+    """odometry.csv and imu.csv read by the readers every stage uses: their errors, and
+    the odometry warnings (missing rows, z not monotonic). ``n_pairs``: the number of
+    frame pairs, None when unknown (no frames)."""
+    from pipestitch.io.imu import IMU_FILE, read_imu  # imu reads its CSV with this module
+
+    problems = []
+    odo = root / ODOMETRY_FILE
+    if odo.is_file():
+        try:
+            _, notes = read_odometry(odo, n_pairs)
+            problems.extend(Problem(odo, note, "warning") for note in notes)
+        except DatasetError as exc:
+            problems.append(Problem(odo, exc.problem))
+    try:
+        read_imu(root)
+    except DatasetError as exc:
+        problems.append(Problem(exc.path or root / IMU_FILE, exc.problem))
+    return problems
+
+
 def count_frame_files(root: str | Path) -> int:
     """How many frame images ``check_dataset`` will decode (for a progress bar)."""
     frames_dir = Path(root) / "frames"
@@ -392,14 +496,10 @@ def check_dataset(root: str | Path, *,
     except DatasetError as exc:
         problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_frames(root, config, progress))
-    odo = root / "odometry.csv"
-    if odo.is_file():
-        frames_dir = root / "frames"
-        n_pairs = len(_frame_files(frames_dir)[0]["laser"]) if frames_dir.is_dir() else 0
-        try:
-            _read_odometry(odo, max(n_pairs, 1))
-        except DatasetError as exc:
-            problems.append(Problem(odo, exc.problem))
+    frames_dir = root / "frames"
+    lasers = _frame_files(frames_dir)[0]["laser"] if frames_dir.is_dir() else {}
+    # pairs as numbered (a gap in the numbering is reported with the frames)
+    problems.extend(check_odometry_and_imu(root, max(lasers) + 1 if lasers else None))
     if config is not None:
         try:
             read_mask(root, config)

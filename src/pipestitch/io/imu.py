@@ -11,10 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from pipestitch.errors import DatasetError
-from pipestitch.io.dataset import read_csv_columns
+from pipestitch.io.dataset import check_frame_column, read_csv_lines
 
 __all__ = ["IMU_FILE", "read_imu"]
 
@@ -27,18 +25,16 @@ def read_imu(dataset: str | Path) -> dict[int, float] | None:
     Raises
     ------
     DatasetError
-        Naming the file: missing columns, non-numeric values, frame numbers that are
-        not whole numbers >= 0, or repeated frames.
+        Naming the file (and the line): missing columns, values that are not finite
+        numbers, frame numbers that are not whole numbers >= 0, repeated frames, no rows.
+        A UTF-8 byte-order mark is accepted.
     """
     path = Path(dataset) / IMU_FILE
     if not path.is_file():
         return None
-    cols = read_csv_columns(path, ("frame", "roll_deg"))
+    cols, lines = read_csv_lines(path, ("frame", "roll_deg"))
     frames = cols["frame"]
-    if np.any(frames != np.round(frames)) or np.any(frames < 0):
-        raise DatasetError(path, "frame numbers must be whole numbers >= 0")
-    if len(np.unique(frames)) != len(frames):
-        raise DatasetError(path, "a frame is listed more than once")
     if not len(frames):
         raise DatasetError(path, "no rows (expected frame,roll_deg per frame)")
+    check_frame_column(path, frames, lines)
     return {int(f): float(r) for f, r in zip(frames, cols["roll_deg"], strict=True)}

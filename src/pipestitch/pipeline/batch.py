@@ -7,7 +7,9 @@ threads would only compete for the same cores); an address uses an existing
 scheduler. A dataset that fails never stops the others: bad input (a
 :class:`PipestitchError`) is recorded at once, anything else (a crash, a lost
 worker) is retried up to ``retries`` times by dask. ``OUT/batch_summary.csv`` lists
-every dataset. It does not split one dataset across workers.
+every dataset. It does not split one dataset across workers. A crash's traceback goes
+to the dataset's run.log, not to the console (the worker's "Compute Failed" log
+record of a pipestitch task is dropped).
 """
 
 from __future__ import annotations
@@ -22,12 +24,36 @@ from pathlib import Path
 
 from pipestitch.errors import DatasetError, PipestitchError
 from pipestitch.io.outputs import write_csv
+from pipestitch.pipeline.check import check_out_folder_path
 from pipestitch.pipeline.run import run_dataset
+from pipestitch.pipeline.staging import check_out_folder
 from pipestitch.pipeline.stitching import MosaicSettings
 
 __all__ = ["BatchResult", "output_names", "run_batch", "run_one", "write_batch_summary"]
 
 ATTEMPT_MARK = "=== pipestitch batch: attempt started"
+TASK_PREFIX = "pipestitch-"   # the dask keys of batch tasks
+
+
+class _QuietTaskFailures(logging.Filter):
+    """Drop dask's "Compute Failed" record (with its traceback) for a batch task: the
+    traceback is in the dataset's run.log and the batch reports the failure in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg, args = record.msg, record.args
+        return not (isinstance(msg, str) and msg.startswith("Compute Failed")
+                    and isinstance(args, tuple) and bool(args)
+                    and str(args[0]).startswith(TASK_PREFIX))
+
+
+_QUIET = _QuietTaskFailures()
+
+
+def _quiet_task_failures() -> None:
+    """Install the filter on this (worker) process's dask worker logger, once."""
+    worker_logger = logging.getLogger("distributed.worker")
+    if _QUIET not in worker_logger.filters:
+        worker_logger.addFilter(_QUIET)
 
 
 @dataclass(frozen=True)
@@ -96,6 +122,7 @@ def run_one(root: str | Path, out: str | Path, *, threads: int = 1) -> BatchResu
     root, out = Path(root), Path(out)
     log = out / "run.log"
     start = time.perf_counter()
+    _quiet_task_failures()
     with _logging_to(log):
         try:
             summary = run_dataset(root, out, settings=MosaicSettings(workers=threads),
@@ -103,6 +130,10 @@ def run_one(root: str | Path, out: str | Path, *, threads: int = 1) -> BatchResu
         except PipestitchError as exc:
             logging.getLogger(__name__).error("%s", exc)
             return _result(root, out, "failed", start, message=str(exc))
+        except Exception:
+            # the traceback for the log; the scheduler retries the task
+            logging.getLogger(__name__).exception("run crashed")
+            raise
     ok = not summary.mosaic_failed
     return _result(root, out, "ok" if ok else "failed", start, pairs=summary.n_frames,
                    placed=summary.n_placed, failed_frames=summary.n_failed,
@@ -118,8 +149,9 @@ def _result(root: Path, out: Path, status: str, start: float, *, pairs: int = 0,
 
 def _crashed(root: Path, out: Path, exc: BaseException) -> BatchResult:
     log = out / "run.log"
+    message = " ".join(f"crashed: {exc!r}".split())   # one line
     return BatchResult(root.name, "failed", _attempts(log), 0.0, 0, 0, 0, str(out), str(log),
-                       f"crashed: {exc!r}")
+                       message)
 
 
 def _check_roots(roots: Sequence[Path]) -> None:
@@ -128,6 +160,20 @@ def _check_roots(roots: Sequence[Path]) -> None:
     for root in roots:
         if not Path(root).is_dir():
             raise DatasetError(root, "dataset folder not found")
+
+
+def _check_outputs(out_dir: Path, roots: Sequence[Path], outs: Sequence[Path]) -> None:
+    """Every dataset's output folder can be written and is no dataset's folder, nor
+    inside one (the outputs would overwrite or mix with the input)."""
+    check_out_folder_path(out_dir)
+    inputs = {Path(root).resolve(): Path(root) for root in roots}
+    for root, out in zip(roots, outs, strict=True):
+        check_out_folder(Path(root), out)   # also: an existing file where OUT/<name> goes
+        target = out.resolve()
+        for place in (target, *target.parents):
+            if place in inputs:
+                raise DatasetError(out, f"the output folder is inside the dataset "
+                                        f"{inputs[place]}: choose --out outside it")
 
 
 @contextlib.contextmanager
@@ -169,22 +215,24 @@ def run_batch(roots: Sequence[str | Path], out_dir: str | Path, *,
     Raises
     ------
     DatasetError
-        If a dataset folder does not exist (nothing is run).
+        If a dataset folder does not exist, or an output folder cannot be written or
+        would be a dataset or inside one (nothing is run).
     """
-    from distributed import as_completed
-
     roots = [Path(r) for r in roots]
     _check_roots(roots)
     if workers < 1 or retries < 0 or threads < 1:
         raise ValueError(f"expected workers >= 1, retries >= 0, threads >= 1; got {workers}, "
                          f"{retries}, {threads}")
     outs = [Path(out_dir) / name for name in output_names(roots)]
+    _check_outputs(Path(out_dir), roots, outs)
+    from distributed import as_completed  # here: importing dask takes a while
+
     results: dict[int, BatchResult] = {}
     token = uuid.uuid4().hex[:8]  # task keys unique on a scheduler shared by batches
     with _client(scheduler, workers) as client:
         futures = {client.submit(run_one, str(root), str(out), threads=threads,
                                  retries=retries, pure=False,
-                                 key=f"pipestitch-{token}-{k}-{out.name}"): k
+                                 key=f"{TASK_PREFIX}{token}-{k}-{out.name}"): k
                    for k, (root, out) in enumerate(zip(roots, outs, strict=True))}
         for future in as_completed(futures):
             k = futures[future]

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from pipestitch.cli.app import app
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
+from pipestitch.pipeline.run import run_dataset
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -313,3 +314,14 @@ def test_profile_flags_diameters_out_of_tolerance(dataset: Path, tmp_path: Path)
     assert result.exit_code == 0, result.output
     profile = read_csv_columns(tmp_path / "profile.csv", ("within_tolerance",))
     assert np.all(profile["within_tolerance"] == 0)
+
+
+def test_odometry_warnings_are_reported_with_the_run(dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    rows = "".join(f"{i},{5.0 * i if i != 3 else 1.0}\n" for i in range(6))
+    (copy / "odometry.csv").write_text("frame,z_mm\n" + rows)   # z goes back at frame 3
+    summary = run_dataset(copy, tmp_path / "out", show_progress=False)
+    notes = [m for i, m in summary.problems if i == -1 and m.startswith("odometry.csv")]
+    assert notes and "not monotonic" in notes[0]
+    assert "not monotonic" in (tmp_path / "out" / "report.html").read_text()

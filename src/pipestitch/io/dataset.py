@@ -367,13 +367,12 @@ def open_dataset(root: str | Path, video: str | Path | None = None, *,
 
 
 def _attach_odometry(dataset: Dataset | VideoDataset) -> None:
-    """Read ``odometry.csv`` (when present) into the dataset; log its warnings."""
+    """Read ``odometry.csv`` (when present) into the dataset, its warnings into
+    ``odometry_notes`` (the passes report them with the run's other messages)."""
     path = dataset.root / ODOMETRY_FILE
     if not path.is_file():
         return
     dataset.odometry_mm, dataset.odometry_notes = read_odometry(path, dataset.n_pairs)
-    for note in dataset.odometry_notes:
-        logging.getLogger(__name__).warning("%s: %s", path, note)
 
 
 def _open_video(root: Path, config: ProbeConfig, video: Path,

@@ -333,7 +333,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                 dataset.config.pipe.inner_diameter_mm, tolerance_pct))
     problems = _problems(frames, result, choices, no_mosaic)
     # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
-    problems = [(-1, f"video: {note}") for note in getattr(dataset, "notes", [])] + problems
+    problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
+                + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes] + problems)
     with timer("standards"):
         coded = _coded(out, dataset, crown_deg, problems)
     report_frame_messages(problems)

@@ -935,7 +935,7 @@ def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold
     if status == FOUND and hit < min_hit:
         status = LOW_COVERAGE
     if status != FOUND:
-        return _no_fit(status, hit, n_free)
+        return no_fit(status, hit, n_free)
     start = starts[0].copy()
     if n_free == 4:
         start[4] = radius
@@ -946,7 +946,7 @@ def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _no_fit(status: int, hit: int, n_free: int) -> tuple:
+def no_fit(status: int, hit: int, n_free: int) -> tuple:
     """:func:`fit_frame`'s result without a fit: the status and empty arrays."""
     ring = np.empty((0, 2), np.float32)
     return (status, hit, 0, np.empty((0, SUMMARY_SIGMA + n_free)), 0.0, 0.0,
@@ -970,7 +970,7 @@ def fit_pixels(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, n_azim
     """
     query, stride, found = ring_query(pixels, azimuth, rank, n_azimuths)
     if pixels.shape[0] < MIN_CANDIDATES or found < min_coverage:
-        return found, _no_fit(NO_RING, 0, n_free)
+        return found, no_fit(NO_RING, 0, n_free)
     rays = rays_of(kind, query, cam_a, cam_b, cam_c, cam_d, cam_index)
     return found, fit_frame(rays, azimuth, rank, threshold, reselect_threshold, uniforms,
                             distance, normal, basis, min_hit, radius, n_free, f_scale, stride,

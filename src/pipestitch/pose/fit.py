@@ -28,6 +28,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -337,25 +338,26 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     try:
         if noise_mm is not None:
             noise = float(noise_mm)
-            found, out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+            out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
         else:
-            noise, found, out = _fit_scaled(detection, camera, plane, seed, min_coverage, radius)
+            noise, out = _fit_scaled(detection, camera, plane, seed, min_coverage, radius)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=detection.coverage)
-    if out[0] == _k.NO_RING:
-        return PoseFit(False, f"ring not found (coverage {found:.0%})", coverage=found)
-    status, rays_hit = out[0], out[1]
-    coverage = rays_hit / detection.n_azimuths
-    if status != _k.FOUND:
+    if out.status == _k.NO_RING:
+        return PoseFit(False, f"ring not found (coverage {out.coverage:.0%})",
+                       coverage=out.coverage)
+    coverage = out.rays_hit / detection.n_azimuths
+    if out.status != _k.FOUND:
         reason = {_k.NO_ELLIPSE: "no ellipse found among ring candidates",
                   _k.NOT_A_SECTION: "ring is not the section of a cylinder"}.get(
-            status, f"too few ring points fit ({coverage:.0%} of the ring)")
-        return PoseFit(False, reason, coverage=coverage if status == _k.LOW_COVERAGE
-                       else found)
+            out.status, f"too few ring points fit ({coverage:.0%} of the ring)")
+        return PoseFit(False, reason, coverage=coverage if out.status == _k.LOW_COVERAGE
+                       else out.coverage)
     # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
-    return PoseFit(True, "", _hypotheses(*out[3:7]), out[2], coverage, "circle",
-                   RingPoints(out[7], out[8], plane, noise))
+    return PoseFit(True, "", _hypotheses(out.summary, out.cost, out.rms_px, out.information),
+                   out.n_kept, coverage, "circle",
+                   RingPoints(out.ring_uv, out.ring_pixels, plane, noise))
 
 
 def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
@@ -398,8 +400,8 @@ def frame_noise_mm(detection: RingDetection, camera: CameraModel, plane: LaserPl
 
 
 def _fit_scaled(detection: RingDetection, camera: CameraModel, plane: LaserPlane, seed: int,
-                min_coverage: float, radius: float) -> tuple[float, float, tuple]:
-    """(noise, coverage, kernel result) with the noise taken from the frame.
+                min_coverage: float, radius: float) -> tuple[float, KernelFit]:
+    """(noise, the fit) with the noise taken from the frame.
 
     Starts from :func:`frame_noise_mm`; a fit with too few inliers is tried once more
     with a three times wider gate, and while the inliers' rms exceeds
@@ -409,22 +411,22 @@ def _fit_scaled(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     """
     noise = frame_noise_mm(detection, camera, plane)
     if not math.isfinite(noise):   # no candidate meets the plane: nothing to fit
-        return 0.05, *_fit_kernel(detection, camera, plane, 0.05, seed, min_coverage, radius)
-    found, out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
-    if out[0] in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
-        wider = 3.0 * noise
-        found_w, out_w = _fit_kernel(detection, camera, plane, wider, seed, min_coverage, radius)
-        if out_w[0] == _k.FOUND:
-            noise, found, out = wider, found_w, out_w
+        noise = 0.05
+        return noise, _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+    out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+    if out.status in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
+        wider = _fit_kernel(detection, camera, plane, 3.0 * noise, seed, min_coverage, radius)
+        if wider.status == _k.FOUND:
+            noise, out = 3.0 * noise, wider
     for _ in range(RESCALE_ROUNDS):
-        if out[0] != _k.FOUND or out[3][0, _k.SUMMARY_RMS] <= RESCALE_RMS * noise:
+        if out.status != _k.FOUND or out.rms_mm <= RESCALE_RMS * noise:
             break
-        wider = 1.3 * float(out[3][0, _k.SUMMARY_RMS])
-        found_w, out_w = _fit_kernel(detection, camera, plane, wider, seed, min_coverage, radius)
-        if out_w[0] != _k.FOUND:
+        scale = 1.3 * out.rms_mm
+        wider = _fit_kernel(detection, camera, plane, scale, seed, min_coverage, radius)
+        if wider.status != _k.FOUND:
             break
-        noise, found, out = wider, found_w, out_w
-    return noise, found, out
+        noise, out = scale, wider
+    return noise, out
 
 
 @functools.lru_cache(maxsize=64)
@@ -439,10 +441,30 @@ def _min_rays(min_coverage: float, n_azimuths: int) -> int:
     return hit
 
 
+class KernelFit(NamedTuple):
+    """The fit kernel's result for a frame (:func:`pipestitch.pose._fit_kernels.fit_frame`),
+    by name; the arrays are empty unless ``status`` is FOUND."""
+
+    coverage: float           # of the detection: rays with a candidate
+    status: int               # _fit_kernels.FOUND, NO_RING, NO_ELLIPSE, ...
+    rays_hit: int             # rays with a kept ring point
+    n_kept: int               # ring points kept
+    summary: np.ndarray       # (2, ...): each hypothesis' pose, rms_mm, ok flag, sigmas
+    cost: float
+    rms_px: float
+    information: np.ndarray   # (2, 4, 4)
+    ring_uv: np.ndarray       # the kept points (subsampled), plane coordinates, float32
+    ring_pixels: np.ndarray   # ... and their image pixels
+
+    @property
+    def rms_mm(self) -> float:
+        """The optimum's wall rms (mm); NaN without a fit."""
+        return float(self.summary[0, _k.SUMMARY_RMS]) if self.status == _k.FOUND else math.nan
+
+
 def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane,
-                noise_mm: float, seed: int, min_coverage: float,
-                radius: float) -> tuple[float, tuple]:
-    """(detection coverage, :func:`pipestitch.pose._fit_kernels.fit_frame`'s result) of a frame.
+                noise_mm: float, seed: int, min_coverage: float, radius: float) -> KernelFit:
+    """The fit kernel's result for a frame (:class:`KernelFit`).
 
     What is unprojected (:func:`pipestitch.pose._fit_kernels.ring_query`): the candidates,
     then every ``stride``-th one moved one column, then one row
@@ -477,7 +499,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
                                  uniforms, *rest, 720)
         query, stride, found = _k.ring_query(pixels, azimuth, rank, n_az)
         if pixels.shape[0] < _k.MIN_CANDIDATES or found < min_coverage:
-            return found, (_k.NO_RING,)
+            return found, _k.no_fit(_k.NO_RING, 0, n_free)
         rays = _as_points(camera.unproject(query))
         return found, _k.fit_frame(rays, azimuth, rank, *fit, uniforms, *rest, stride,
                                    pixels, 720)
@@ -485,7 +507,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     found, out = run(np.empty((0, 5)))
     if out[0] == _k.NEEDS_SAMPLES:
         found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
-    return found, out
+    return KernelFit(found, *out)
 
 
 def _hypotheses(summary: np.ndarray, cost: float, rms_px: float,

@@ -301,7 +301,9 @@ def via_command(n: int, size: str) -> None:
             strict = success(chosen, true_vec)
             mirror = strict | success(other, true_vec)
             posed = np.all(np.isfinite(chosen), axis=1)
-            flagged = posed & ((poses["ambiguous"] == 1) | (poses["warning"] != ""))
+            warning = poses["warning"]   # all empty: read_table makes it a NaN column
+            warned = (warning != "") if warning.dtype.kind == "U" else np.zeros(len(warning), bool)
+            flagged = posed & ((poses["ambiguous"] == 1) | warned)
             silent = posed & ~strict & ~flagged
             print(f"  {label:28} {strict.mean():8.1%} {mirror.mean():8.1%} {flagged.mean():8.1%} "
                   f"{int(silent.sum()):14d} {int((~posed).sum()):8d} {seconds:8.1f}")

@@ -103,6 +103,10 @@ class RunResult:
         Frames reported and skipped, with the reason (frame -1: the run as a whole).
     no_mosaic : str
         Why there is no mosaic ("" when there is one).
+    failed : bool
+        The run failed (no frame has a pose, or the LED frames gave no mosaic): ``out``
+        is then the folder its outputs were kept in; the previous run's outputs in the
+        requested folder are left as they were.
     """
 
     out: Path
@@ -113,6 +117,7 @@ class RunResult:
     seconds: float
     problems: list[tuple[int, str]]
     no_mosaic: str
+    failed: bool = False
 
     @property
     def mosaic_png(self) -> Path | None:
@@ -244,7 +249,7 @@ def run(dataset: str | Path, out: str | Path, *, video: str | Path | None = None
                           video=None if video is None else Path(video), crown_deg=crown_deg)
     return RunResult(Path(summary.out), summary.n_frames, summary.n_failed,
                      summary.n_ambiguous, summary.n_placed, summary.seconds,
-                     list(summary.problems), summary.no_mosaic)
+                     list(summary.problems), summary.no_mosaic, summary.mosaic_failed)
 
 
 def measure(out: str | Path, *, crown_deg: float | None = None) -> MeasureResult:

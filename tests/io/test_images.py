@@ -80,3 +80,10 @@ def test_a_bomb_frame_is_one_reported_skipped_frame_of_a_run(tmp_path: Path,
     assert "laser_00001.png" in result.output and "not decoded" in result.output
     poses = (tmp_path / "out" / "poses.csv").read_text().splitlines()
     assert len(poses) == 4 and "not decoded" in poses[2]
+
+
+def test_header_of_a_planar_tiff_is_its_image_size(tmp_path: Path) -> None:
+    img = np.zeros((3, 48, 64), np.uint8)   # samples first, as a planar TIFF stores them
+    tifffile.imwrite(tmp_path / "planar.tif", img, planarconfig="separate", photometric="rgb")
+    assert image_header((tmp_path / "planar.tif").read_bytes()) == (64, 48)
+    assert read_image(tmp_path / "planar.tif", size=(64, 48)).shape[:2] == (48, 64)

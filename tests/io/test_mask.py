@@ -57,3 +57,20 @@ def test_bad_masks_are_named(dataset: Path, image, message: str) -> None:
     assert info.value.path == dataset / "mask.png"
     problems = check_dataset(dataset)
     assert any(p.path == dataset / "mask.png" and message in p.message for p in problems)
+
+
+def test_a_mask_outside_the_dataset_is_refused(dataset: Path) -> None:
+    _with_mask(dataset, None, name="../mask.png")
+    with pytest.raises(DatasetError, match="inside the dataset"):
+        read_mask(dataset, read_probe_toml(dataset / "probe.toml"))
+
+
+def test_run_with_a_bad_mask_exits_2_before_the_work(dataset: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from pipestitch.cli.app import app
+
+    _with_mask(dataset, np.zeros((10, 10), np.uint8))
+    result = CliRunner().invoke(app, ["run", str(dataset), "--out", str(tmp_path / "o"), "-q"])
+    assert result.exit_code == 2 and "mask.png" in result.output
+    assert not (tmp_path / "o" / "poses.csv").exists()

@@ -75,3 +75,26 @@ def test_noise_variance_is_the_sensors() -> None:
     # the 10th percentile of local variances over 25 pixels: within 25 % of the truth
     ratio = got[:, 10:-10] / sigma[:, 10:-10]
     assert 0.75 < np.median(ratio) < 1.1
+
+
+def test_too_few_lit_pixels_to_measure_the_noise_mark_nothing_static() -> None:
+    stack = np.zeros((8, 200, 200), np.float32)
+    rng = np.random.default_rng(4)
+    stack[:, 50:70, 50:100] = rng.random((8, 20, 50))   # 1000 lit pixels, changing
+    level = np.median(stack, axis=0)
+    assert not np.any(np.isfinite(noise_variance(stack, level)))
+    assert not static_pixels(stack, level).any()
+    assert occluder_mask(list(stack)).shape == (200, 200)   # no crash; the dark rules only
+
+
+def test_a_steady_arm_below_full_scale_is_static_however_bright() -> None:
+    """The brightest steady thing is not taken for saturation: full scale is 1."""
+    rng = np.random.default_rng(5)
+    frames = []
+    for k in range(9):
+        f = 0.1 + 0.4 * cv2.GaussianBlur(rng.random((150, 200)), (0, 0), 2) * (1 + 0.05 * k)
+        f = np.round((f + rng.normal(0, 0.003, f.shape)) * 255) / 255
+        f[:, 80:100] = 180 / 255                # a lit arm, noise-free, 8-bit
+        frames.append(f.astype(np.float32))
+    stack = np.stack(frames)
+    assert static_pixels(stack, np.median(stack, axis=0))[:, 84:96].mean() > 0.99

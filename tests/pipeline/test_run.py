@@ -171,8 +171,8 @@ def test_run_exit_1_when_no_frame_can_be_placed(dataset: Path, tmp_path: Path) -
     result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
     assert result.exit_code == 1, result.output
     assert "no mosaic" in result.output
-    # A failed run does not replace OUT (empty here): its poses are kept beside it, named.
-    kept = tmp_path / ".out.partial"
+    # A failed run does not replace OUT's outputs: its poses are kept in a named folder.
+    kept = next((tmp_path / "out").glob(".pipestitch-partial-*"))
     assert (kept / "poses.csv").is_file() and str(kept) in result.output.replace("\n", "")
     assert not (tmp_path / "out" / "poses.csv").exists()
 
@@ -325,3 +325,27 @@ def test_odometry_warnings_are_reported_with_the_run(dataset: Path, tmp_path: Pa
     notes = [m for i, m in summary.problems if i == -1 and m.startswith("odometry.csv")]
     assert notes and "not monotonic" in notes[0]
     assert "not monotonic" in (tmp_path / "out" / "report.html").read_text()
+
+
+def test_a_frame_the_refinement_never_reaches_keeps_its_ring_fit_flagged(
+        tmp_path: Path) -> None:
+    """In an oval pipe `run` starts the frames the body cannot hold as ovals at tilt 0;
+    one without an LED frame is never refined, so it keeps its ring's circle fit, flagged
+    (SPEC: never replaced by a guess)."""
+    from pipestitch.pipeline.simulating import simulate_dataset
+    from pipestitch.simulate.scenarios import SCENARIOS
+
+    simulate_dataset(SCENARIOS["oval"], tmp_path / "ds", seed=0, size="half", n_pairs=4,
+                     show_progress=False)
+    (tmp_path / "ds" / "frames" / "led_00002.png").unlink()
+    run_dataset(tmp_path / "ds", tmp_path / "out", show_progress=False)
+    poses = read_csv_columns(tmp_path / "out" / "poses.csv", ("frame",))
+    text = (tmp_path / "out" / "poses.csv").read_text().splitlines()
+    header = text[0].split(",")
+    rows = {int(float(r.split(",")[0])): r for r in text[1:]}
+    assert len(poses["frame"]) == 4
+    unrefined = dict(zip(header, next(csv.reader([rows[2]])), strict=True))
+    assert unrefined["model"] == "circle" and "cannot hold this pose" in unrefined["warning"]
+    assert unrefined["chosen_by"] == "infeasible" and unrefined["ambiguous"] == "1"
+    refined = dict(zip(header, next(csv.reader([rows[1]])), strict=True))
+    assert refined["model"].endswith("refined-tilt")

@@ -12,14 +12,20 @@ import pytest
 
 import pipestitch.pipeline.run as run_module
 import pipestitch.pipeline.staging as staging
-from pipestitch.errors import DatasetError
+from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.staging import StagedOutput, check_out_folder
+from pipestitch.pipeline.staging import STAGING_PREFIX, StagedOutput, check_out_folder
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file of ``folder`` but a failed run's kept staging folder."""
     return {str(p.relative_to(folder)): p.read_bytes()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+            for p in sorted(folder.rglob("*"))
+            if p.is_file() and not p.relative_to(folder).parts[0].startswith(STAGING_PREFIX)}
+
+
+def _staging(out: Path) -> Path:
+    return out / f"{STAGING_PREFIX}{os.getpid()}"
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +52,9 @@ def test_out_inside_the_dataset_or_around_it_is_refused(dataset: Path, tmp_path:
     (tmp_path / "file").write_text("x")
     with pytest.raises(DatasetError, match="existing file"):
         check_out_folder(dataset, tmp_path / "file")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(DatasetError, match="link to nothing"):
+        check_out_folder(dataset, tmp_path / "dangling")
     with pytest.raises(DatasetError, match="inside the dataset"):
         run_dataset(dataset, dataset / "truth", show_progress=False)
     assert not (dataset / "truth" / "report.html").exists()
@@ -61,7 +70,7 @@ def test_a_failed_run_leaves_the_previous_run_as_it_was(dataset: Path, previous:
     summary = run_dataset(bad, previous, show_progress=False)
     assert summary.mosaic_failed
     assert _snapshot(previous) == before
-    kept = previous.parent / f".{previous.name}.partial"
+    kept = _staging(previous)
     assert summary.out == kept and (kept / "poses.csv").is_file()
     assert any(str(kept) in message for _, message in summary.problems)
 
@@ -79,7 +88,7 @@ def test_an_interrupted_run_leaves_the_previous_run_as_it_was(dataset: Path, pre
             with pytest.raises(KeyboardInterrupt):
                 run_dataset(dataset, previous, show_progress=False)
         assert _snapshot(previous) == before
-        assert not (previous.parent / f".{previous.name}.partial").exists()
+        assert not _staging(previous).exists()
 
 
 def test_a_good_run_replaces_the_set_and_keeps_the_users_files(dataset: Path,
@@ -93,7 +102,7 @@ def test_a_good_run_replaces_the_set_and_keeps_the_users_files(dataset: Path,
     assert not (previous / "tiles" / "stale.png").exists()
     for name in ("poses.csv", "mosaic.png", "report.html", "tiles", "viewer.html"):
         assert (previous / name).exists()
-    assert not (previous.parent / f".{previous.name}.partial").exists()
+    assert not _staging(previous).exists()
 
 
 def test_ctrl_c_while_outputs_are_put_in_place_waits_for_the_whole_set(tmp_path: Path,
@@ -118,3 +127,22 @@ def test_ctrl_c_while_outputs_are_put_in_place_waits_for_the_whole_set(tmp_path:
         staged.commit()
     assert calls == ["poses.csv", "report.html"]
     assert (out / "poses.csv").read_text() == (out / "report.html").read_text() == "new"
+
+
+def test_outputs_that_cannot_be_put_in_place_are_kept_and_named(tmp_path: Path,
+                                                               monkeypatch) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "poses.csv").write_text("old")
+
+    def failing(src: Path, dest: Path) -> None:
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(staging, "_replace", failing)
+    with pytest.raises(StageError, match="could not all be put in place") as info, \
+            StagedOutput(out) as staged:
+        (staged.path / "poses.csv").write_text("new")
+        staged.commit()
+    assert str(staged.path) in str(info.value)
+    assert (staged.path / "poses.csv").read_text() == "new"
+    assert (out / "poses.csv").read_text() == "old"

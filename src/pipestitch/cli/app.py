@@ -266,8 +266,8 @@ def run(
     Frames that fail are reported and skipped, never dropped silently.
     A dataset without LED frames gets poses, profile and report only. The outputs replace
     an earlier run's in OUT only when the run succeeds, as one set (files you added are
-    kept); exit 1 when no frame has a pose or the LED frames give no mosaic, OUT left as
-    it was and this run's outputs kept in .OUT.partial beside it.
+    kept); exit 1 when no frame has a pose or the LED frames give no mosaic, OUT's outputs
+    left as they were and this run's kept in OUT/.pipestitch-partial-PID.
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """

@@ -37,10 +37,10 @@ def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
     if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
         try:
             with tifffile.TiffFile(io.BytesIO(bytes(data))) as tif:
-                shape = tif.pages[0].shape
-        except Exception:
+                page = tif.pages[0]   # its tags (planar or volume layouts alike)
+                return int(page.imagewidth), int(page.imagelength)
+        except Exception:   # any malformed TIFF: the decoder says so
             return None
-        return (int(shape[1]), int(shape[0])) if len(shape) >= 2 else None
     return None
 
 

@@ -40,6 +40,8 @@ def read_mask(root: str | Path, config: ProbeConfig) -> np.ndarray | None:
     path = mask_path(root, config)
     if path is None:
         return None
+    if Path(config.probe.mask).is_absolute() or ".." in Path(config.probe.mask).parts:
+        raise DatasetError(path, "mask: expected a file inside the dataset folder (SPEC)")
     image = read_image(path)
     if image.ndim != 2:
         raise DatasetError(path, f"mask: expected a grey image, got {image.shape[2]} channels")

@@ -114,14 +114,16 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
     mean over a 5 x 5 window, rescaled to the variance of one pixel (x 81/72, white
     noise); per level bin (``bins`` quantiles of ``level``), the 10th percentile over
     its pixels: the quiet parts of the image at that level (flat wall, the occluders
-    themselves), where texture adds nothing. Interpolated to every pixel's level.
+    themselves), where texture adds nothing. Interpolated to every pixel's level; NaN
+    (unknown) where too few pixels measure it.
     """
     picks = stack[::max(1, len(stack) // 4)]
     local = np.median(np.stack([cv2.blur(np.square(f - cv2.blur(f, (3, 3))), (5, 5))
                                 for f in picks]), axis=0) * (81.0 / 72.0)
     valid = level > 0
+    none = np.full(level.shape, np.nan, np.float32)   # no measure of the noise
     if np.count_nonzero(valid) < 100:
-        return np.full(level.shape, np.inf, np.float32)
+        return none
     edges = np.quantile(level[valid], np.linspace(0.0, 1.0, bins + 1))
     centres, noise = [], []
     for lo, hi in pairwise(edges):
@@ -129,6 +131,8 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
         if np.count_nonzero(sel) >= 100:
             centres.append(float(np.median(level[sel])))
             noise.append(float(np.percentile(local[sel], 10)))
+    if len(centres) < 2:
+        return none
     return np.interp(level, centres, noise).astype(np.float32)
 
 
@@ -138,14 +142,19 @@ def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
     ``stack`` (n, H, W) float32 frames spread along the run, ``level`` their per-pixel
     median. A pixel is static when its temporal variance, averaged over 5 x 5, is
     below ``STATIC_RATIO`` times the noise variance at its level
-    (:func:`noise_variance`), it is not saturated in most frames, and it belongs to a
+    (:func:`noise_variance`; nothing is static where the noise could not be measured),
+    it is not at full scale (saturated) in most frames, and it belongs to a
     static region at least 1/100 of the image height across (an opening removes the
     odd wall pixel that happened to vary little).
     """
+    noise = noise_variance(stack, level)
+    if not np.any(np.isfinite(noise)):
+        return np.zeros(level.shape, bool)
     temporal = np.var(stack, axis=0, ddof=1)
-    ratio = cv2.blur(temporal / np.maximum(noise_variance(stack, level), 1e-12), (5, 5))
-    saturated = level >= 0.999 * float(stack.max())
-    static = (ratio < STATIC_RATIO) & ~saturated & (level > 0)
+    ratio = cv2.blur(temporal / np.maximum(noise, 1e-12), (5, 5))
+    # full scale: 1 for frames scaled to [0, 1] (camera.frames.to_grey), else their maximum
+    saturated = level >= 0.999 * max(1.0, float(stack.max()))
+    static = (ratio < STATIC_RATIO) & np.isfinite(noise) & ~saturated & (level > 0)
     size = max(3, round(stack.shape[1] / 100)) | 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     return cv2.morphologyEx(static.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)

@@ -48,7 +48,8 @@ def run_mask(root: str | Path, out: str | Path, *, video: Path | None = None,
                                                   "the LED frames")
     if frames < 1:
         raise DatasetError(Path(root), f"--frames: expected at least 1, got {frames}")
-    pairs = [i for i in range(dataset.n_pairs) if i not in set(dataset.led_missing())]
+    missing = set(dataset.led_missing())
+    pairs = [i for i in range(dataset.n_pairs) if i not in missing]
     occluded = find_occluders(dataset, pairs, min(frames, len(pairs)), StageTimer(), workers)
     path = write_mask(out, occluded)
     return MaskSummary(path, float(np.mean(occluded)), min(frames, len(pairs)),

@@ -69,6 +69,10 @@ class FramePose:
     strips: StripPair | None = None
     warning: str = ""
     stored_ring: StoredRing | RingPoints | None = field(default=None, compare=False)
+    body_infeasible: bool = False   # the declared body can hold neither hypothesis
+    # run's oval start replaced the ring's circle fit: that fit (without its ring points)
+    # and its warning, for frames the LED refinement then never reaches
+    circle_fallback: tuple[PoseFit, str] | None = field(default=None, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -76,6 +80,7 @@ class FramePose:
         return self.stored_ring if self.stored_ring is not None else self.fit.ring
 
 
+INFEASIBLE_COST = 1e3   # above resolve_run's infeasible_cost: the frame is flagged infeasible
 BODY_WARNING = ("the declared probe body cannot hold this pose (it would cross the wall by "
                 "{clearance:.1f} mm in either mirror): ring fit kept as measured; an oval pipe "
                 "or a wrong probe.toml would explain it (`pipestitch run` tests the oval)")
@@ -156,19 +161,22 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
-    warning = ""
+    warning, infeasible, fallback = "", False, None
     if fit.ok and settings.body is not None:
         clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
                         for h in fit.hypotheses)
         if clearance < INFEASIBLE_CLEARANCE_MM:
+            infeasible = True
+            warning = BODY_WARNING.format(clearance=-clearance)
             if settings.oval_start:
+                fallback = (replace(fit, ring=None), warning)
                 fit = oval_at_zero_tilt(fit, settings.camera)
                 warning = OVAL_TILT_WARNING
-            else:
-                warning = BODY_WARNING.format(clearance=-clearance)
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning)
+    return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
+                     body_infeasible=infeasible and fit.model == "circle",
+                     circle_fallback=fallback)
 
 
 def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
@@ -225,7 +233,10 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
             frame = replace(frame, fit=replace(frame.fit, ring=None),
                             stored_ring=None if drop_rings else rings.put(frame.fit.ring))
         frames.append(replace(frame, strips=None))
-    unary = np.array([envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2) for f in frames])
+    # a frame the body cannot hold in either mirror is infeasible, whatever its costs
+    unary = np.array([np.full(2, INFEASIBLE_COST) if f.body_infeasible
+                      else envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2)
+                      for f in frames])
     return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
 
 

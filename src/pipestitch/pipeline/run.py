@@ -25,6 +25,7 @@ from pipestitch.errors import PipestitchError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
+from pipestitch.io.mask import read_mask
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
 from pipestitch.mosaic.unwrap import StripGrid
@@ -151,6 +152,25 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     return out
 
 
+def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
+                          views: dict[int, FrameView]
+                          ) -> tuple[list[FramePose], list[Choice]]:
+    """Frames started as an oval at tilt 0 (the body could not hold their circle pose) that
+    the LED refinement never reached get their ring's circle fit back, flagged: the
+    tilt-0 start is a guess that only the refinement turns into a measurement (SPEC)."""
+    out_frames, out_choices = [], []
+    for frame, choice in zip(frames, choices, strict=True):
+        view = views.get(frame.index)
+        if frame.circle_fallback is not None and not (view is not None and view.refined):
+            fit, warning = frame.circle_fallback
+            frame = replace(frame, fit=fit, warning=warning, body_infeasible=True,
+                            circle_fallback=None)
+            choice = Choice(0, True, "infeasible", 0.0)
+        out_frames.append(frame)
+        out_choices.append(choice)
+    return out_frames, out_choices
+
+
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
                   plane_distance_mm: float, nominal_mm: float,
                   tolerance_pct: float) -> list[list[object]]:
@@ -248,7 +268,8 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     dataset = CachedLedFrames(open_dataset(root, video=video),
                               budget_bytes=int(led_cache_mb * 2**20))
     try:
-        read_imu(dataset.root)   # a bad imu.csv is bad input: say so before the work
+        read_imu(dataset.root)   # a bad imu.csv or mask is bad input: say so before the work
+        read_mask(dataset.root, dataset.config)
         # The frames are spread over the workers: OpenCV splitting each call again
         # costs more than it gains (_runtime/threads.py).
         # The ring points wait for the section refits in a temporary file, not in
@@ -319,6 +340,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     else:
         # Poses and the profile still; z from the odometer.
         z, roll = dict(dataset.odometry_mm or {}), {}
+    frames, choices = _unrefined_ovals_back(frames, choices,
+                                            result.views if result is not None else {})
     # Defects were measured while the mosaic was written, on the 8-bit values that
     # mosaic.ome.tif holds, so `pipestitch measure OUT` finds exactly the same ones.
     defects: list[Defect] = written.defects if written is not None else []

@@ -1,12 +1,14 @@
 """A run's outputs as one set: written into a staging folder, put in place only on success.
 
-``pipestitch run DATASET --out OUT`` writes into ``.OUT.partial`` beside OUT. When
+``pipestitch run DATASET --out OUT`` writes into ``OUT/.pipestitch-partial-PID`` (inside
+OUT, so that putting the outputs in place is a rename on one filesystem). When
 the run succeeds its outputs replace the previous run's, name by name (a folder such
 as ``tiles/`` as a whole), and the previous run's outputs this run did not make are
 removed, so the report always belongs to the mosaic next to it. Files a user added to
 OUT are never touched. A run that fails, or is interrupted, leaves OUT exactly as it
 was: its staging folder is removed, or kept (and named) when the failure is one whose
-partial outputs are worth a look. Ctrl-C while the outputs are being put in place is
+partial outputs are worth a look; so is one whose outputs could not all be put in place
+(the error names both folders). Ctrl-C while the outputs are being put in place is
 held until they all are.
 """
 
@@ -20,9 +22,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipestitch.errors import DatasetError
+from pipestitch.errors import DatasetError, StageError
 
-__all__ = ["RUN_OUTPUTS", "StagedOutput", "check_out_folder"]
+__all__ = ["RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_out_folder"]
 
 # Everything `pipestitch run` may write into OUT (and earlier versions wrote).
 RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.json",
@@ -30,6 +32,7 @@ RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.
                "observations.csv", "standards.json", "ovality.csv")
 # What a new run reads of the previous one in OUT (the user's observation rows).
 CARRIED = ("observations.csv", "standards.json")
+STAGING_PREFIX = ".pipestitch-partial-"
 
 
 def check_out_folder(dataset: Path, out: Path) -> None:
@@ -51,6 +54,8 @@ def check_out_folder(dataset: Path, out: Path) -> None:
                                 "--out elsewhere")
     if target.exists() and not target.is_dir():
         raise DatasetError(out, "--out is an existing file, not a folder")
+    if out.is_symlink() and not out.exists():
+        raise DatasetError(out, "--out is a symbolic link to nothing")
 
 
 class StagedOutput:
@@ -63,12 +68,12 @@ class StagedOutput:
 
     def __init__(self, out: str | Path) -> None:
         self.out = Path(out)
-        self.path = self.out.parent / f".{self.out.name}.partial"
+        self.path = self.out / f"{STAGING_PREFIX}{os.getpid()}"
         self._done = False
 
     def __enter__(self) -> StagedOutput:
         try:
-            self.out.parent.mkdir(parents=True, exist_ok=True)
+            self.out.mkdir(parents=True, exist_ok=True)
             shutil.rmtree(self.path, ignore_errors=True)
             self.path.mkdir()
             for name in CARRIED:   # the user's rows survive the re-coding, as in place
@@ -86,13 +91,17 @@ class StagedOutput:
     def commit(self) -> None:
         """Put the staged outputs in place of the previous run's, as one set."""
         with _interrupts_held():
-            self.out.mkdir(parents=True, exist_ok=True)
             made = {p.name for p in self.path.iterdir()}
-            for name in sorted(made):
-                _replace(self.path / name, self.out / name)
-            for name in RUN_OUTPUTS:
-                if name not in made:
-                    _remove(self.out / name)
+            try:
+                for name in sorted(made):
+                    _replace(self.path / name, self.out / name)
+                for name in RUN_OUTPUTS:
+                    if name not in made:
+                        _remove(self.out / name)
+            except OSError as exc:
+                kept = self.keep()
+                raise StageError(f"the outputs could not all be put in place in {self.out} "
+                                 f"({exc}); those not moved are in {kept}") from None
             shutil.rmtree(self.path, ignore_errors=True)
             self._done = True
 

@@ -435,3 +435,11 @@ def test_os_errors_naming_a_path_are_bad_input(small_dataset: Path, tmp_path: Pa
     result = runner.invoke(app, ["pose", str(small_dataset), "--out", str(tmp_path / "o")])
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert result.exit_code == code and len(lines) == 1 and needle in lines[0], result.output
+
+
+@pytest.mark.parametrize("command", ["pose", "run"])
+def test_fewer_than_one_worker_is_refused(small_dataset: Path, tmp_path: Path,
+                                          command: str) -> None:
+    result = CliRunner().invoke(app, [command, str(small_dataset), "--out", str(tmp_path / "o"),
+                                      "--workers", "0"])
+    assert result.exit_code == 2 and "--workers" in result.output

@@ -146,3 +146,23 @@ def test_outputs_that_cannot_be_put_in_place_are_kept_and_named(tmp_path: Path,
     assert str(staged.path) in str(info.value)
     assert (staged.path / "poses.csv").read_text() == "new"
     assert (out / "poses.csv").read_text() == "old"
+
+
+def test_a_termination_request_waits_for_the_whole_set_too(tmp_path: Path,
+                                                          monkeypatch) -> None:
+    out = tmp_path / "out"
+    resent: list[int] = []
+    monkeypatch.setattr(staging.os, "kill", lambda pid, sig: resent.append(sig))
+    replace = staging._replace
+
+    def terminated_replace(src: Path, dest: Path) -> None:
+        signal.raise_signal(signal.SIGTERM)   # held: recorded, not acted on
+        replace(src, dest)
+
+    monkeypatch.setattr(staging, "_replace", terminated_replace)
+    with StagedOutput(out) as staged:
+        (staged.path / "poses.csv").write_text("new")
+        (staged.path / "report.html").write_text("new")
+        staged.commit()
+    assert (out / "poses.csv").read_text() == (out / "report.html").read_text() == "new"
+    assert resent == [signal.SIGTERM]   # sent again once the set is in place

@@ -25,7 +25,13 @@ from pipestitch.cli.export_command import CROWN_HELP
 from pipestitch.cli.export_command import register as register_export
 from pipestitch.cli.mask_command import register as register_mask
 from pipestitch.errors import PipestitchError
-from pipestitch.pipeline.check import check_finite, check_out_file, check_out_folder_path, run_check
+from pipestitch.pipeline.check import (
+    check_finite,
+    check_out_file,
+    check_out_folder_path,
+    check_workers,
+    run_check,
+)
 from pipestitch.pipeline.coding import code_run
 from pipestitch.pipeline.measuring import measure_run
 from pipestitch.pipeline.posing import run_pose
@@ -227,7 +233,8 @@ def pose(
     """
     check_out_folder(dataset, out)   # not inside the dataset, not an existing file
     check_out_folder_path(out)
-    summary = run_pose(dataset, out, show_progress=not quiet, workers=max(1, workers),
+    check_workers(workers)
+    summary = run_pose(dataset, out, show_progress=not quiet, workers=workers,
                        video=video)
     typer.echo(f"wrote {summary.path}: {summary.n_frames} frames, {summary.n_failed} failed, "
                f"{summary.n_ambiguous} ambiguous")
@@ -273,7 +280,8 @@ def run(
     """
     try:
         make = MosaicSettings.fine if fine_registration else MosaicSettings
-        settings = make(mm_per_px=mm_per_px, mode=unwrap, workers=max(1, workers))
+        check_workers(workers)
+        settings = make(mm_per_px=mm_per_px, mode=unwrap, workers=workers)
         if not 0 <= tolerance_pct < 100:
             raise ValueError(f"--diameter-tolerance-pct: expected 0 to 100, got {tolerance_pct}")
     except ValueError as exc:

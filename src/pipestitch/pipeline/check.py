@@ -77,6 +77,12 @@ def run_check(root: str | Path, *, show_progress: bool = True,
         return check_dataset(root, progress=lambda: progress.advance(task))
 
 
+def check_workers(value: int, option: str = "--workers") -> None:
+    """Refuse fewer than one worker given to ``option`` (exit 2, naming it)."""
+    if value < 1:
+        raise ConfigError(None, f"{option}: expected at least 1, got {value}")
+
+
 def check_finite(value: float | None, option: str) -> None:
     """Refuse a NaN or infinite value given to ``option`` (None: not given).
 

@@ -50,7 +50,13 @@ def run_mask(root: str | Path, out: str | Path, *, video: Path | None = None,
         raise DatasetError(Path(root), f"--frames: expected at least 1, got {frames}")
     missing = set(dataset.led_missing())
     pairs = [i for i in range(dataset.n_pairs) if i not in missing]
-    occluded = find_occluders(dataset, pairs, min(frames, len(pairs)), StageTimer(), workers)
+    try:
+        occluded = find_occluders(dataset, pairs, min(frames, len(pairs)), StageTimer(),
+                                  workers)
+    finally:
+        close = getattr(dataset, "close", None)   # a video's decoder
+        if close is not None:
+            close()
     path = write_mask(out, occluded)
     return MaskSummary(path, float(np.mean(occluded)), min(frames, len(pairs)),
                        mask_path(root, dataset.config))

@@ -324,10 +324,15 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
              workers: int = 2, video: Path | None = None) -> PoseSummary:
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
     dataset = open_dataset(root, video=video)
-    with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
-        # poses.csv reads no ring points: not kept (~11.5 kB a frame)
-        frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                         workers=workers, drop_rings=True)
+    try:
+        with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
+            # poses.csv reads no ring points: not kept (~11.5 kB a frame)
+            frames, choices = estimate_poses(dataset, show_progress=show_progress,
+                                             workers=workers, drop_rings=True)
+    finally:
+        close = getattr(dataset, "close", None)   # a video's decoder
+        if close is not None:
+            close()
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])

@@ -132,15 +132,20 @@ def _remove(path: Path) -> None:
 
 @contextmanager
 def _interrupts_held() -> Iterator[None]:
-    """Hold SIGINT for the block (main thread only) and raise it after."""
+    """Hold SIGINT and SIGTERM for the block (main thread only); after it, an interrupt
+    is raised as KeyboardInterrupt and a termination request re-sent to the process."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-    if caught:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if signal.SIGTERM in caught:
+        os.kill(os.getpid(), signal.SIGTERM)
+    if signal.SIGINT in caught:
         raise KeyboardInterrupt

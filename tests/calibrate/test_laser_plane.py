@@ -141,9 +141,12 @@ def test_cli_calibrate_laser_updates_probe_toml(frames, tmp_path) -> None:
     assert bad.exit_code == 2 and "at least 3" in bad.output
     broken = tmp_path / "laser_broken.png"
     broken.write_bytes(b"\x89PNG truncated")
-    bad = CliRunner().invoke(app, ["calibrate", "laser", str(broken), *paths, "--probe",
-                                   str(probe), "--pipe-diameter-mm", "65", "--quiet"])
-    assert bad.exit_code == 2 and "laser_broken.png" in bad.output
+    # an unreadable frame is one reported, skipped frame: the others still calibrate
+    with_broken = CliRunner().invoke(app, ["calibrate", "laser", str(broken), *paths,
+                                           "--probe", str(probe), "--pipe-diameter-mm", "65",
+                                           "--quiet"])
+    assert with_broken.exit_code == 0, with_broken.output
+    assert "laser_broken.png" in with_broken.output
 
 
 def test_laser_normal_in_probe_toml() -> None:

@@ -87,3 +87,16 @@ def test_header_of_a_planar_tiff_is_its_image_size(tmp_path: Path) -> None:
     tifffile.imwrite(tmp_path / "planar.tif", img, planarconfig="separate", photometric="rgb")
     assert image_header((tmp_path / "planar.tif").read_bytes()) == (64, 48)
     assert read_image(tmp_path / "planar.tif", size=(64, 48)).shape[:2] == (48, 64)
+
+
+def test_a_jpeg_declaring_a_huge_size_is_refused_from_its_header(tmp_path: Path) -> None:
+    _, buf = cv2.imencode(".jpg", np.zeros((16, 16), np.uint8))
+    data = bytearray(buf.tobytes())
+    sof = data.index(b"\xff\xc0")             # baseline frame header: height, width at +5
+    data[sof + 5:sof + 9] = struct.pack(">HH", 30000, 30000)
+    (tmp_path / "bomb.jpg").write_bytes(bytes(data))
+    assert image_header(bytes(data)) == (30000, 30000)
+    with pytest.raises(DatasetError, match=r"30000x30000.*not decoded"):
+        read_image(tmp_path / "bomb.jpg", size=(16, 16))
+    with pytest.raises(DatasetError, match="more than"):
+        read_image(tmp_path / "bomb.jpg")

@@ -206,3 +206,14 @@ def test_check_with_a_video(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "probe.toml says" in result.output
     result = runner.invoke(app, ["check", str(root), "--video", str(tmp_path / "no.avi")])
     assert result.exit_code == 2 and "video file not found" in result.output
+
+
+def test_a_video_declaring_more_pixels_than_the_budget_is_not_decoded(tmp_path: Path,
+                                                                     monkeypatch) -> None:
+    import pipestitch.io.images as images
+
+    path = write_video(tmp_path / "v.vid", _interleaved(2), fps=25.0)
+    height, width = _interleaved(1)[0].shape[:2]
+    monkeypatch.setattr(images, "MAX_PIXELS", width * height - 1)   # one pixel short
+    with pytest.raises(DatasetError, match=r"declares .* pixels a frame.*not decoded"):
+        VideoReader(path)

@@ -14,7 +14,12 @@ import pipestitch.pipeline.run as run_module
 import pipestitch.pipeline.staging as staging
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.staging import STAGING_PREFIX, StagedOutput, check_out_folder
+from pipestitch.pipeline.staging import (
+    RUN_OUTPUTS,
+    STAGING_PREFIX,
+    StagedOutput,
+    check_out_folder,
+)
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -94,12 +99,15 @@ def test_an_interrupted_run_leaves_the_previous_run_as_it_was(dataset: Path, pre
 def test_a_good_run_replaces_the_set_and_keeps_the_users_files(dataset: Path,
                                                                previous: Path) -> None:
     (previous / "mosaic.tif").write_bytes(b"an output of an older version")
-    (previous / "tiles" / "stale.png").write_bytes(b"a tile of the previous run")
+    (previous / "tiles" / "my_tile_notes.txt").write_text("the user's file in tiles/")
+    stale = next((previous / "tiles" / "mosaic_files").rglob("*.png"))
+    stale.write_bytes(b"a tile of the previous run")
     summary = run_dataset(dataset, previous, show_progress=False)
     assert summary.out == previous and not summary.mosaic_failed
     assert (previous / "my_notes.txt").read_text() == "the user's own file"
     assert not (previous / "mosaic.tif").exists()
-    assert not (previous / "tiles" / "stale.png").exists()
+    assert (previous / "tiles" / "my_tile_notes.txt").read_text() == "the user's file in tiles/"
+    assert stale.read_bytes() != b"a tile of the previous run"   # the new run's tile
     for name in ("poses.csv", "mosaic.png", "report.html", "tiles", "viewer.html"):
         assert (previous / name).exists()
     assert not _staging(previous).exists()
@@ -166,3 +174,39 @@ def test_a_termination_request_waits_for_the_whole_set_too(tmp_path: Path,
         staged.commit()
     assert (out / "poses.csv").read_text() == (out / "report.html").read_text() == "new"
     assert resent == [signal.SIGTERM]   # sent again once the set is in place
+
+
+@pytest.mark.slow   # real processes, killed at several points of their run
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
+def test_a_killed_run_leaves_the_previous_run_byte_identical(dataset: Path, previous: Path,
+                                                             sig: signal.Signals) -> None:
+    import subprocess
+    import sys
+    import time
+
+    before = _snapshot(previous)
+    for delay in (1.0, 2.5, 4.0):   # imports, the pose pass, the mosaic and writing
+        proc = subprocess.Popen([sys.executable, "-m", "pipestitch.cli", "run", str(dataset),
+                                 "--out", str(previous), "-q"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+        if proc.returncode == 0:   # finished before the signal: a new, whole set
+            before = _snapshot(previous)
+            continue
+        after = _snapshot(previous)
+        if sig == signal.SIGKILL and after != before:
+            # SIGKILL cannot be held: killed while the outputs were being put in place
+            # (a few ms), the moved ones are new and the rest wait in the staging folder
+            left = {p.name for p in next(previous.glob(f"{STAGING_PREFIX}*")).iterdir()}
+            changed = {k.split("/")[0] for k in set(after) | set(before)
+                       if after.get(k) != before.get(k)}
+            assert changed <= set(RUN_OUTPUTS) and not changed & left, (delay, changed)
+            before = after
+            continue
+        assert after == before, (delay, proc.returncode)
+        if sig == signal.SIGINT and proc.returncode != -signal.SIGINT:
+            # -SIGINT: the signal came while Python itself was still starting, before
+            # pipestitch's code ran; from then on: one line, exit 130
+            assert proc.returncode == 130 and b"Traceback" not in err

@@ -6,6 +6,20 @@ and the option types of the stages (scenarios, calibration boards). Must not do 
 work itself: each command is a few lines around one pipeline call.
 """
 
-from pipestitch.cli.app import main
+from __future__ import annotations
+
+import sys
 
 __all__ = ["main"]
+
+
+def main() -> None:
+    """The console script: the app, imported here so that Ctrl-C at any moment, even
+    while the libraries load, ends with one line and exit code 130, not a traceback."""
+    try:
+        from pipestitch.cli.app import main as app_main
+
+        app_main()
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted\n")
+        raise SystemExit(130) from None

@@ -1,5 +1,5 @@
 """``python -m pipestitch.cli``: the same as the ``pipestitch`` command."""
 
-from pipestitch.cli.app import main
+from pipestitch.cli import main
 
 main()

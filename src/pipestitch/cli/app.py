@@ -32,7 +32,7 @@ from pipestitch.pipeline.check import (
     check_workers,
     run_check,
 )
-from pipestitch.pipeline.coding import code_run
+from pipestitch.pipeline.coding import check_observations, code_run
 from pipestitch.pipeline.measuring import measure_run
 from pipestitch.pipeline.posing import run_pose
 from pipestitch.pipeline.progress import console
@@ -322,6 +322,7 @@ def measure(
     Example: pipestitch measure out/test_piece
     """
     check_finite(crown_deg, "--crown-deg")
+    check_observations(out)   # refused user rows: before defects.csv is written
     path, defects = measure_run(out, crown_deg=crown_deg)
     coded = code_run(out, crown_deg=crown_deg)  # clocks by the best reference, observations
     typer.echo(f"clock reference: {coded.reference.source}; "

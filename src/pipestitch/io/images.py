@@ -1,10 +1,11 @@
 """Reading and writing frames: 8- or 16-bit, grey or colour, with clear errors.
 
 A frame's size is read from its header before its pixels are decoded (PNG's IHDR, a
-TIFF's first page tags), so a file that declares a size other than the camera's, or
-more pixels than ``MAX_PIXELS``, is refused at the cost of reading a few bytes, whatever
-it would take to decode: a small file declaring 30000 x 30000 pixels never becomes a
-gigabyte of memory. Other formats are decoded by OpenCV within its own pixel limit.
+TIFF's first page tags, a JPEG's frame header), so a file that declares a size other
+than the camera's, or more pixels than ``MAX_PIXELS``, is refused at the cost of reading
+a few bytes, whatever it would take to decode: a small file declaring 30000 x 30000
+pixels never becomes a gigabyte of memory. Other formats are decoded by OpenCV within
+its own pixel limit.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pipestitch.io.atomic import atomic_write_bytes
 __all__ = ["MAX_PIXELS", "image_header", "read_image", "write_image"]
 
 MAX_PIXELS = 2**27   # 134 Mpx: 10x a 12 MP sensor; larger frames are refused unread
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}   # frame headers, not tables
 _PNG = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}   # IHDR colour type -> channels
 
@@ -29,7 +31,7 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}   # IHDR colour type -> channels
 def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
     """(width, height) an image file declares, read without decoding its pixels.
 
-    PNG and TIFF are read; None for other formats (or a header too short to tell).
+    PNG, TIFF and JPEG are read; None for other formats (or a header too short to tell).
     """
     head = bytes(data[:33]) if isinstance(data, bytes) else data[:33].tobytes()
     if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
@@ -41,6 +43,26 @@ def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
                 return int(page.imagewidth), int(page.imagelength)
         except Exception:   # any malformed TIFF: the decoder says so
             return None
+    if head[:2] == b"\xff\xd8":
+        return _jpeg_size(bytes(data[:65536]) if not isinstance(data, bytes) else data[:65536])
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's frame header (SOFn), walking its marker segments."""
+    pos = 2
+    while pos + 9 <= len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:   # fill byte
+            pos += 1
+            continue
+        length = int.from_bytes(data[pos + 2:pos + 4], "big")
+        if marker in _JPEG_SOF:
+            return (int.from_bytes(data[pos + 7:pos + 9], "big"),
+                    int.from_bytes(data[pos + 5:pos + 7], "big"))
+        pos += 2 + length
     return None
 
 

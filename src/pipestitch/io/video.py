@@ -25,6 +25,7 @@ import av
 import numpy as np
 
 from pipestitch.errors import DatasetError
+from pipestitch.io import images
 
 __all__ = [
     "FrameIndex",
@@ -235,6 +236,12 @@ class VideoReader:
         if not container.streams.video:
             container.close()
             raise DatasetError(self.path, "no video stream in the file")
+        stream = container.streams.video[0]
+        width, height = int(stream.width or 0), int(stream.height or 0)
+        if width * height > images.MAX_PIXELS:   # measured before a frame is decoded
+            container.close()
+            raise DatasetError(self.path, f"the video declares {width}x{height} pixels a frame, "
+                                          f"more than {images.MAX_PIXELS:,}; not decoded")
         # Slice threads only: frame threading would decode several frames ahead after
         # every seek (measured: no faster here, and random access is slower).
         container.streams.video[0].thread_type = "SLICE"

@@ -93,7 +93,11 @@ def _detect_views(paths: Sequence[Path], board: Board, show_progress: bool
                   ) -> tuple[list[BoardView], list[str], tuple[int, int]]:
     views, no_board, size = [], [], None
     for path in track(paths, "detecting boards", total=len(paths), enabled=show_progress):
-        img = _read(path)
+        try:
+            img = _read(path)
+        except CalibrationError as exc:   # one bad image is reported and skipped
+            no_board.append(f"{path.name} ({exc})")
+            continue
         shape = (img.shape[1], img.shape[0])
         if size is None:
             size = shape
@@ -247,7 +251,10 @@ def run_laser_calibration(frames: Sequence[str | Path], *, probe: str | Path,
     rays, starts, used, skipped = [], [], [], []
     paths = [Path(p) for p in frames]
     for path in track(paths, "laser rings", total=len(paths), enabled=show_progress):
-        ray, pose, reason = _ring(path, cfg, camera)
+        try:
+            ray, pose, reason = _ring(path, cfg, camera)
+        except CalibrationError as exc:   # one bad frame is reported and skipped
+            ray, pose, reason = None, None, str(exc)
         if ray is None:
             skipped.append((path.name, reason))
             continue

@@ -63,7 +63,8 @@ from pipestitch.standards.observations import (
     user_rows,
 )
 
-__all__ = ["EXPORTS", "CodedRun", "code_run", "export_run", "resolve_reference"]
+__all__ = ["EXPORTS", "CodedRun", "check_observations", "code_run", "export_run",
+           "resolve_reference"]
 
 EXPORTS = {"en13508": "observations.txt", "pacp-csv": "observations_pacp.csv",
            "json": "observations.json"}
@@ -193,6 +194,12 @@ def _read_utf8(path: Path) -> str:
         return path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise DatasetError(path, f"not UTF-8 text: {exc}") from None
+
+
+def check_observations(out: str | Path) -> None:
+    """Refuse (DatasetError, naming the file and line) an observations.csv whose user rows
+    could not be kept: for the commands that write other outputs before re-coding."""
+    _earlier_observations(Path(out))
 
 
 def _earlier_observations(out: Path) -> ObservationsFile | None:

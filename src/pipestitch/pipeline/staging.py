@@ -112,12 +112,16 @@ class StagedOutput:
 
 def _replace(src: Path, dest: Path) -> None:
     """Move ``src`` to ``dest``; a folder replaces the previous one as a whole (the old
-    one is moved aside first, so ``dest`` is never a mix of both)."""
+    one is moved aside first, so ``dest`` is never a mix of both), but what the old one
+    held that the new one does not (a file the user put in ``tiles/``) is moved over."""
     if dest.is_dir() and not dest.is_symlink():
         aside = dest.with_name(f".{dest.name}.old-{os.getpid()}")
         shutil.rmtree(aside, ignore_errors=True)
         os.replace(dest, aside)
         os.replace(src, dest)
+        for entry in aside.iterdir():
+            if not (dest / entry.name).exists():
+                os.replace(entry, dest / entry.name)
         shutil.rmtree(aside, ignore_errors=True)
     else:
         os.replace(src, dest)

@@ -349,3 +349,14 @@ def test_a_frame_the_refinement_never_reaches_keeps_its_ring_fit_flagged(
     assert unrefined["chosen_by"] == "infeasible" and unrefined["ambiguous"] == "1"
     refined = dict(zip(header, next(csv.reader([rows[1]])), strict=True))
     assert refined["model"].endswith("refined-tilt")
+
+
+def test_measure_refuses_unkeepable_rows_before_writing_anything(output: Path,
+                                                                 tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(output, out)
+    (out / "observations.csv").write_bytes(b"\xff\xfe not UTF-8 \n")
+    before = (out / "defects.csv").read_bytes()
+    result = runner.invoke(app, ["measure", str(out)])
+    assert result.exit_code == 2 and "observations.csv" in result.output
+    assert (out / "defects.csv").read_bytes() == before

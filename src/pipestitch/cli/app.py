@@ -231,8 +231,7 @@ def pose(
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """
-    check_out_folder(dataset, out)   # not inside the dataset, not an existing file
-    check_out_folder_path(out)
+    check_out_folder(dataset, out)   # not inside the dataset, a folder that can be written
     check_workers(workers)
     summary = run_pose(dataset, out, show_progress=not quiet, workers=workers,
                        video=video)
@@ -289,7 +288,6 @@ def run(
         raise typer.Exit(2) from None
     check_finite(crown_deg, "--crown-deg")
     check_out_folder(dataset, out)
-    check_out_folder_path(out)
     summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet,
                           tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg)
     _print_run(summary)

@@ -103,6 +103,9 @@ class Dataset:
     def _checked(self, path: Path) -> np.ndarray:
         return read_frame(path, (self.config.camera.width, self.config.camera.height))
 
+    def close(self) -> None:
+        """Nothing to release for frame files (a video dataset closes its decoder)."""
+
 
 def read_frame(path: Path, size: tuple[int, int]) -> np.ndarray:
     """Read a frame and check its size (width, height) and channel count.

@@ -54,9 +54,7 @@ def run_mask(root: str | Path, out: str | Path, *, video: Path | None = None,
         occluded = find_occluders(dataset, pairs, min(frames, len(pairs)), StageTimer(),
                                   workers)
     finally:
-        close = getattr(dataset, "close", None)   # a video's decoder
-        if close is not None:
-            close()
+        dataset.close()   # a video's decoder
     path = write_mask(out, occluded)
     return MaskSummary(path, float(np.mean(occluded)), min(frames, len(pairs)),
                        mask_path(root, dataset.config))

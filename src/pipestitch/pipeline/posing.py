@@ -330,9 +330,7 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
             frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                              workers=workers, drop_rings=True)
     finally:
-        close = getattr(dataset, "close", None)   # a video's decoder
-        if close is not None:
-            close()
+        dataset.close()   # a video's decoder
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])

@@ -288,9 +288,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
             staged.commit()
             return replace(summary, out=out)
     finally:
-        close = getattr(dataset, "close", None)   # a video's decoder
-        if close is not None:
-            close()
+        dataset.close()   # a video's decoder
 
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,

@@ -23,6 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from pipestitch.errors import DatasetError, StageError
+from pipestitch.pipeline.check import check_out_folder_path
 
 __all__ = ["RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_out_folder"]
 
@@ -36,13 +37,14 @@ STAGING_PREFIX = ".pipestitch-partial-"
 
 
 def check_out_folder(dataset: Path, out: Path) -> None:
-    """Refuse an output folder that would overwrite the input or be read as it.
+    """Refuse an output folder that would overwrite the input or be read as it, or that
+    cannot be a folder (:func:`pipestitch.pipeline.check.check_out_folder_path`).
 
     Raises
     ------
     DatasetError
-        When ``out`` is inside the dataset, the dataset inside ``out``, or ``out`` is an
-        existing file (exit 2, naming both paths).
+        When ``out`` is inside the dataset, the dataset inside ``out``, a link to
+        nothing, an existing file or cannot be created (exit 2, naming the paths).
     """
     data, target = dataset.resolve(), out.resolve()
     if target == data or data in target.parents:
@@ -52,10 +54,9 @@ def check_out_folder(dataset: Path, out: Path) -> None:
     if target in data.parents:
         raise DatasetError(out, f"the dataset {dataset} is inside the output folder: choose "
                                 "--out elsewhere")
-    if target.exists() and not target.is_dir():
-        raise DatasetError(out, "--out is an existing file, not a folder")
     if out.is_symlink() and not out.exists():
         raise DatasetError(out, "--out is a symbolic link to nothing")
+    check_out_folder_path(out)
 
 
 class StagedOutput:

@@ -163,9 +163,13 @@ def test_oval_sections_are_coded_and_reported(tmp_path: Path) -> None:
     assert float(oval[20]["range_nominal_pct"]) == pytest.approx(100 * 2.6 / 66)
     assert float(oval[20]["deflection_pct"]) == pytest.approx(100 * (66 - 63.7) / 66)
     baa = [o for o in coded.observations if o.code == "BAA"]
-    # Frames 10..49 at 10 mm: 390 mm > 0.3 m, a start/finish pair from the first ring.
-    assert [(o.continuous, o.distance_m) for o in baa] == [("S01", 0.10), ("F01", 0.49)]
+    # Frames 10..49 at 10 mm: 390 mm, shorter than EN's 1 m: one observation.
+    assert [(o.continuous, o.distance_m) for o in baa] == [("", 0.10)]
     assert baa[0].quant1 == round(100 * (66 - 63.7) / 66)
+    # With DWA's 0.3 m threshold: a start/finish pair from the first ring.
+    dwa = code_run(tmp_path, nominal_diameter_mm=66.0, continuous_min_m=0.3)
+    baa = [o for o in dwa.observations if o.code == "BAA"]
+    assert [(o.continuous, o.distance_m) for o in baa] == [("A1", 0.10), ("B1", 0.49)]
     html = render_report(ReportData("t", None, 0.0, 1.0, 1.0, 66.0, [],
                                     standards=coded.report_view()))
     assert "ovality along the pipe" in html and "ASTM F1216 X1 ovality" in html
@@ -212,7 +216,11 @@ def test_measure_keeps_user_rows_byte_for_byte(tmp_path: Path) -> None:
     assert all(row in text for row in USER_ROWS) and "stale" not in text
     lines = text.split("\n")
     assert lines[0] == OBS_HEADER and lines[1] == USER_ROWS[1].rstrip("\n")
-    assert lines[2].startswith("0.07,BAC,B,,15,") and "auto:D1 mosaic" in lines[2]
+    # The hole: 30 px (15 mm) across at column 150 (z = 75 mm), BAC B quantified by its
+    # length along the pipe.
+    distance, *fields = lines[2].split(",")[:5]
+    assert float(distance) == pytest.approx(0.075, abs=0.0051)
+    assert fields == ["BAC", "B", "", "15"] and "auto:D1 mosaic" in lines[2]
     # Measuring again changes nothing.
     result = runner.invoke(app, ["measure", str(tmp_path)])
     assert result.exit_code == 0, result.output

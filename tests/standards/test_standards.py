@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pipestitch.standards import (
+    DWA_CONTINUOUS_MIN_M,
     Observation,
     Survey,
     clock_hhmm,
@@ -177,16 +178,29 @@ def test_defects_become_coded_observations() -> None:
     defects = [_Defect("hole", 120.0, 150.0, 6.0, 28.3, 117.0, 123.0, 145.0, 155.0),
                _Defect("spot", 520.0, 350.0, 40.0, 900.0, 300.0, 740.0, 330.0, 20.0, True)]
     obs = observations_from_defects(defects, relative_reference(), start_z_mm=20.0,
-                                    frame_for=lambda z: 7)
+                                    frame_for=lambda z: 7,
+                                    continuous_min_m=DWA_CONTINUOUS_MIN_M)
     hole, start, finish = obs
+    # BAC B is quantified by the hole's length along the pipe: 123 - 117 = 6 mm.
     assert (hole.code, hole.char1, hole.quant1) == ("BAC", "B", 6)
     assert hole.distance_m == 0.10 and hole.clock_from == 8 and hole.clock_to is None
     assert hole.ref.startswith("auto:D1") and "frame 00007" in hole.ref
-    # 440 mm long: a continuous pair at its ends; 50 deg wide across 0: from 2 to 4 o'clock.
-    assert (start.continuous, finish.continuous) == ("S01", "F01")
+    # 440 mm long, over DWA's 0.3 m: a continuous pair at its ends, EN markers A1/B1;
+    # 50 deg wide across 0: from 2 to 4 o'clock.
+    assert (start.continuous, finish.continuous) == ("A1", "B1")
     assert (start.distance_m, finish.distance_m) == (0.28, 0.72)
     assert (start.clock_from, start.clock_to) == (2, 4)
-    assert start.code == "BAF" and "lower bound" in start.remark
+    assert (start.code, start.char1) == ("BBB", "Z") and "lower bound" in start.remark
+    # EN 13508-2's own threshold (1 m, the default): one observation at the centre.
+    en = observations_from_defects(defects, relative_reference(), start_z_mm=20.0)
+    assert [(o.distance_m, o.continuous) for o in en] == [(0.10, ""), (0.50, "")]
+    # Spots coded as surface damage carry both characterisations (Z other, E cause
+    # not determinable).
+    damage = observations_from_defects(defects, relative_reference(), start_z_mm=20.0,
+                                       spots="surface-damage")
+    assert (damage[1].code, damage[1].char1, damage[1].char2) == ("BAF", "Z", "E")
+    with pytest.raises(ValueError, match="spots"):
+        observations_from_defects(defects, relative_reference(), 20.0, spots="stain")
 
 
 def _section(frame: int, z_mm: float, q_pct: float, deflection: float) -> ProfileSection:
@@ -199,10 +213,16 @@ def test_profile_stretches_become_deformations() -> None:
     sections = ([_section(k, 10.0 * k, 0.2, 0.3) for k in range(5)]
                 + [_section(k, 10.0 * k, 2.5, 2.6 + k / 100) for k in range(5, 50)]
                 + [_section(50, 500.0, math.nan, math.nan), _section(51, 510.0, 3.0, 3.1)])
-    obs = observations_from_profile(sections, start_z_mm=0.0, threshold_pct=1.0)
-    assert [o.continuous for o in obs] == ["S01", "F01", ""]
+    obs = observations_from_profile(sections, start_z_mm=0.0, threshold_pct=1.0,
+                                    continuous_min_m=DWA_CONTINUOUS_MIN_M)
+    assert [o.continuous for o in obs] == ["A1", "B1", ""]
     assert (obs[0].distance_m, obs[1].distance_m, obs[2].distance_m) == (0.05, 0.49, 0.51)
     assert obs[0].code == "BAA" and obs[0].quant1 == 3          # worst deflection 3.09 %
+    # No roll reference: characterisation 1 (vertical/horizontal) is left empty, and
+    # the remark says it is unknown.
+    assert obs[0].char1 == "" and "unknown" in obs[0].remark
+    # 0.44 m is shorter than EN's 1 m: one observation at the worst section.
+    assert [o.continuous for o in observations_from_profile(sections, 0.0)] == ["", ""]
     # Circle-model sections (NaN) are never flagged.
     assert observations_from_profile([_section(0, 0.0, math.nan, math.nan)], 0.0) == []
 

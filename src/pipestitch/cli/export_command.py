@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from pipestitch.pipeline.coding import EXPORTS, export_run
+from pipestitch.pipeline.coding import EXPORTS, UNITS, export_run
 from pipestitch.pipeline.progress import console
 
 __all__ = ["CROWN_HELP", "register"]
@@ -26,14 +26,20 @@ CROWN_HELP = ("Mosaic theta (deg) of the crown, 12 o'clock: overrides imu.csv an
 def export(
     out: Annotated[Path, typer.Argument(help="Output folder of `pipestitch run`.")],
     fmt: Annotated[str, typer.Option("--format", "-f", help="en13508 (EN 13508-2 text "
-                                     "exchange file), pacp-csv or json.")] = "en13508",
+                                     "exchange file), pacp7 (PACP 7 exchange tables, one CSV "
+                                     "per table, in a folder), pacp-csv or json.")] = "en13508",
     dest: Annotated[Path | None, typer.Option("--out", "-o", help="File to write (default: "
-                                              "OUT/observations.txt, _pacp.csv or .json).")
+                                              "OUT/observations.txt, _pacp.csv or .json; "
+                                              "for pacp7 a folder, default OUT/pacp7).")
                     ] = None,
     crown_deg: Annotated[float | None, typer.Option("--crown-deg", help=CROWN_HELP)] = None,
-    dataset: Annotated[Path | None, typer.Option(help="Dataset folder (for imu.csv and "
-                                                 "probe.toml) if `run` did not record it.")
-                       ] = None,
+    dataset: Annotated[Path | None, typer.Option(help="Dataset folder (for imu.csv, "
+                                                 "probe.toml and survey.toml) if `run` did "
+                                                 "not record it.")] = None,
+    units: Annotated[str | None, typer.Option(help="Units of the PACP 7 tables: metric or "
+                                              "imperial (feet, inches; IsImperial = 1). "
+                                              "Default: survey.toml's, else metric.")
+                     ] = None,
 ) -> None:
     """Export the run's coded observations (OUT/observations.csv, which you may edit).
 
@@ -42,13 +48,14 @@ def export(
     In the CSV files, text cells beginning with =, +, -, @, tab or CR get a leading '
     (spreadsheets do not run them as formulas); pipestitch reads them back without it.
 
-    Example: pipestitch export out/test_piece --format pacp-csv --out survey.csv
+    Example: pipestitch export out/test_piece --format pacp7 --units imperial
     """
-    if fmt not in EXPORTS:
-        console.print(f"[bold red]error:[/] --format: expected one of {', '.join(EXPORTS)}, "
-                      f"got {escape(repr(fmt))}")
-        raise typer.Exit(2)
-    path = export_run(out, fmt, dest=dest, crown_deg=crown_deg, dataset=dataset)
+    for option, value, allowed in (("--format", fmt, EXPORTS), ("--units", units, UNITS)):
+        if value is not None and value not in allowed:
+            console.print(f"[bold red]error:[/] {option}: expected one of "
+                          f"{', '.join(allowed)}, got {escape(repr(value))}")
+            raise typer.Exit(2)
+    path = export_run(out, fmt, dest=dest, crown_deg=crown_deg, dataset=dataset, units=units)
     typer.echo(f"wrote {path}")
 
 

@@ -508,4 +508,16 @@ def check_dataset(root: str | Path, *,
         except DatasetError as exc:
             problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_truth(root))
+    problems.extend(_check_survey(root))
     return problems
+
+
+def _check_survey(root: Path) -> list[Problem]:
+    """The optional survey.toml, read as the standards stage reads it."""
+    from pipestitch.io.survey_toml import SURVEY_FILE, read_survey_toml  # no cycle at import
+
+    try:
+        read_survey_toml(root)
+    except DatasetError as exc:
+        return [Problem(exc.path or root / SURVEY_FILE, exc.problem)]
+    return []

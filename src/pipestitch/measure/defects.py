@@ -30,17 +30,18 @@ increasing); ``up_theta_deg`` moves 12 o'clock to the crown of a roll reference
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 from skimage import measure
 
 from pipestitch.geometry.clock import clock_hhmm
+from pipestitch.measure.outline import RimOutline, rim_outline
 
 __all__ = ["Defect", "MosaicGeometry", "clock_position", "find_defects"]
 
-HOLE_CONTRAST = -0.6       # median contrast below this: no wall seen through it
+HOLE_LIGHT_FRACTION = 0.15  # a hole's interior returns at most this of its rim's light
 MIN_CONTRAST = 0.15        # weaker regions are texture, not defects
 NOISE_SIGMAS = 6.0
 MAX_THRESHOLD = 0.8        # on a busy texture: still find what is 80 % off (holes)
@@ -226,29 +227,83 @@ def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.
     seed = labels == region.label
     depth = float(np.median(contrast[seed]))
     sized = _region_size(contrast, box, depth, seed)
-    rows, cols = np.nonzero(sized)
-    rows, cols = rows + box[0].start, cols + box[1].start
-    area_px = rows.size if rows.size else region.area
-    row_c = (rows.mean() if rows.size else region.centroid[0]) - shift
-    col_c = cols.mean() if cols.size else region.centroid[1]
-    area_mm2 = area_px * geometry.mm_per_px * geometry.arc_mm_per_px
+    if not sized.any():
+        sized = seed[box]
     ring = cv2.dilate(sized.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     partial = bool(np.any(ring & ~valid[box]))
-    theta = float((row_c * geometry.deg_per_px) % 360.0)
+    rows, cols = np.nonzero(sized)
+    rows, cols = rows + box[0].start, cols + box[1].start
+    area_mm2 = rows.size * geometry.mm_per_px * geometry.arc_mm_per_px
+    centre = (rows.mean(), cols.mean())
+    kind = "spot"
+    if depth < 0:
+        rim = None if partial else _rim(contrast, centre, area_mm2, geometry)
+        margin = EDGE_MARGIN_PX
+        if rim is not None:
+            rows, cols, area_mm2 = rim.rows, rim.cols, rim.area_mm2
+            centre = (rim.centre_row, rim.centre_col)
+            margin += int(np.ceil(2 * rim.blur_px))
+        if _light_fraction(contrast, valid, rows, cols, margin) <= HOLE_LIGHT_FRACTION:
+            kind = "hole"
+    theta = float(((centre[0] - shift) * geometry.deg_per_px) % 360.0)
     # Confidence: how far past the detection threshold the region is (1 at 1.5 x).
     threshold = thresholds[0] if depth < 0 else thresholds[1]
     margin = abs(depth) / max(threshold, 1e-6) - 1
     return Defect(
-        kind="hole" if depth < HOLE_CONTRAST else "spot",
-        z_mm=float(geometry.z0_mm + col_c * geometry.mm_per_px), theta_deg=theta,
-        clock=clock_position(theta, up_theta_deg),
+        kind=kind, z_mm=float(geometry.z0_mm + centre[1] * geometry.mm_per_px),
+        theta_deg=theta, clock=clock_position(theta, up_theta_deg),
         diameter_mm=float(np.sqrt(4 * area_mm2 / np.pi)), area_mm2=float(area_mm2),
-        z_min_mm=float(geometry.z0_mm + (cols.min() if cols.size else c0) * geometry.mm_per_px),
-        z_max_mm=float(geometry.z0_mm + (cols.max() if cols.size else c1) * geometry.mm_per_px),
-        theta_min_deg=float(((rows.min() if rows.size else r0) - shift) * geometry.deg_per_px
-                            % 360.0),
-        theta_max_deg=float(((rows.max() if rows.size else r1) - shift) * geometry.deg_per_px
-                            % 360.0),
+        z_min_mm=float(geometry.z0_mm + cols.min() * geometry.mm_per_px),
+        z_max_mm=float(geometry.z0_mm + cols.max() * geometry.mm_per_px),
+        theta_min_deg=float((rows.min() - shift) * geometry.deg_per_px % 360.0),
+        theta_max_deg=float((rows.max() - shift) * geometry.deg_per_px % 360.0),
         contrast=depth,
         confidence=float(np.clip(margin / 0.5, 0.0, 1.0) * (0.5 if partial else 1)),
         partial=partial)
+
+
+def _light_fraction(contrast: np.ndarray, valid: np.ndarray, rows: np.ndarray,
+                    cols: np.ndarray, margin_px: int) -> float:
+    """How much light a dark region's interior returns, as a fraction of the wall at its
+    rim: the 90th percentile of its interior (``margin_px`` inside the outline given by
+    ``rows``/``cols``: a polygon, or the region's own pixels) over the median of the
+    seen wall in a band of the same width just outside it. 1 when either is empty."""
+    m = 2 * margin_px + max(4, int(np.ptp(rows)) // 2)
+    r0, c0 = int(np.floor(rows.min())) - m, int(np.floor(cols.min())) - m
+    r1, c1 = int(np.ceil(rows.max())) + m + 1, int(np.ceil(cols.max())) + m + 1
+    if r0 < 0 or c0 < 0 or r1 > contrast.shape[0] or c1 > contrast.shape[1]:
+        lo = (max(r0, 0), max(c0, 0))
+        r0, c0, r1, c1 = lo[0], lo[1], min(r1, contrast.shape[0]), min(c1, contrast.shape[1])
+    mask = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    if np.allclose(rows, np.round(rows)) and np.allclose(cols, np.round(cols)):
+        mask[rows.astype(int) - r0, cols.astype(int) - c0] = 1
+    else:
+        poly = np.stack([cols - c0, rows - r0], axis=1)
+        cv2.fillPoly(mask, [np.round(poly * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2)
+    seen = valid[r0:r1, c0:c1]
+    core = cv2.erode(mask, kernel).astype(bool) & seen
+    near = cv2.dilate(mask, kernel)
+    band = cv2.dilate(near, kernel).astype(bool) & ~near.astype(bool) & seen
+    if not core.any() or not band.any():
+        return 1.0
+    level = 1.0 + contrast[r0:r1, c0:c1]
+    wall = float(np.median(level[band]))
+    return float(np.percentile(level[core], 90)) / wall if wall > 0 else 1.0
+
+
+def _rim(contrast: np.ndarray, centre: tuple[float, float], area_mm2: float,
+         geometry: MosaicGeometry) -> RimOutline | None:
+    """The hole's rim (:mod:`pipestitch.measure.outline`) in ``contrast``'s pixels,
+    searched in a box of twice the first radius guess around ``centre``."""
+    radius_mm = float(np.sqrt(area_mm2 / np.pi))
+    pitch = (geometry.arc_mm_per_px, geometry.mm_per_px)
+    half = [int(np.ceil(2 * radius_mm / p)) + 4 for p in pitch]
+    lo = [max(0, int(c) - h) for c, h in zip(centre, half, strict=True)]
+    hi = [min(n, int(c) + h + 1) for c, h, n in zip(centre, half, contrast.shape, strict=True)]
+    crop = contrast[lo[0]:hi[0], lo[1]:hi[1]]
+    rim = rim_outline(crop, (centre[0] - lo[0], centre[1] - lo[1]), radius_mm, pitch)
+    if rim is None:
+        return None
+    return replace(rim, rows=rim.rows + lo[0], cols=rim.cols + lo[1],
+                   centre_row=rim.centre_row + lo[0], centre_col=rim.centre_col + lo[1])

@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.patches import Ellipse
 
 from pipestitch.measure.defects import Defect
-from pipestitch.standards import DEFINITIONS, Observation
+from pipestitch.standards import DEFINITIONS, Observation, Survey
 from pipestitch.standards.observations import ProfileSection
 
 __all__ = ["FrameRow", "ReportData", "StandardsView", "render_report"]
@@ -52,6 +52,7 @@ class StandardsView:
     crown_theta_deg: float           # mosaic theta of 12 o'clock
     observations: list[Observation] = field(default_factory=list)
     sections: list[ProfileSection] = field(default_factory=list)
+    survey: Survey | None = None     # the survey header the exchange files carry
 
 
 @dataclass
@@ -240,6 +241,23 @@ def _observation_section(data: ReportData) -> str:
                           "quant. 2", "clock", "continuous", "remark", "reference"], rows)
 
 
+_SURVEY_FIELDS = (("pipe_ref", "pipe"), ("start_node", "start node"),
+                  ("finish_node", "finish node"), ("direction", "direction"),
+                  ("material", "material"), ("shape", "shape"), ("date", "date"),
+                  ("time", "time"), ("operator", "operator"), ("location", "location"),
+                  ("reference_point", "longitudinal reference (EN ABC)"))
+
+
+def _survey_section(data: ReportData) -> str:
+    """The survey metadata (DATASET/survey.toml, else what the run knows)."""
+    survey = data.standards.survey if data.standards is not None else None
+    if survey is None:
+        return ""
+    rows = [[label, str(getattr(survey, name)) or "not stated"]
+            for name, label in _SURVEY_FIELDS]
+    return "<h2>Survey</h2>" + _table(["field", "value"], rows)
+
+
 def _fmt_pct(value: float) -> str:
     return f"{value:.2f}" if np.isfinite(value) else "—"
 
@@ -290,6 +308,7 @@ def render_report(data: ReportData) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
 <style>{_STYLE}</style></head><body>
 <h1>{html.escape(data.title)}</h1>
+{_survey_section(data)}
 <h2>Unrolled wall</h2>
 {_mosaic_section(data)}
 <h2>Defects</h2>

@@ -56,6 +56,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
     Scenario("test_piece", "reference test piece: 65 mm aluminium pipe, 7 holes of 6 mm in a "
              "cross 24 mm apart, 32 pairs over 160 mm", n_pairs=32, texture="aluminium",
              defects="test_piece"),
+    Scenario("corroded_piece", "the reference test piece's 7 holes of 6 mm in a corroded 65 mm "
+             "pipe (dark pits and stains around them), 36 pairs", n_pairs=36,
+             defects="test_piece"),
     Scenario("corrosion", "corroded 65 mm pipe, 30 pairs, odometer", n_pairs=30, odometer=True,
              defects="random"),
     Scenario("aluminium", "feature-poor brushed aluminium 65 mm pipe with an odometer that "

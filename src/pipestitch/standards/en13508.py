@@ -8,10 +8,13 @@ block ``#C=<field letters>`` with one line per observation, and ``#Z`` closing i
 
 Observation field letters used: I distance (m), A main code, B/C characterisation 1/2,
 D/E quantification 1/2, F remark, G/H circumferential location (clock hour at/from, to),
-J continuous defect code, M photograph reference (our mosaic/frame reference).
-Inspection header codes used: AAA pipe reference, ABA standard, ABF date, ABG time,
-ABQ anticipated length (m), ACB height, ACC width (mm), ADE general remark (which
-carries the clock reference).
+J continuous defect code (``A<n>`` start, ``B<n>`` end), M photograph reference (our
+mosaic/frame reference). Inspection header codes used: AAA pipe reference, ABA
+standard, ABF date, ABG time, ABQ anticipated length (m), ACB height, ACC width (mm),
+ADE general remark (which carries the clock reference); and, when the survey states
+them, AAB start node, AAD/AAF node 1/2, AAJ location, AAK direction, ABC longitudinal
+reference point, ABH inspector, ACA shape, ACD material. Node 1/2 follow the published
+example file: with AAK = A the inspection starts at node 2, with B at node 1.
 
 The parser reads any field order and separator the ``#A`` lines declare, ignores
 fields it does not know (e.g. K joint, N video reference) and returns one
@@ -37,6 +40,7 @@ import csv
 import re
 from collections.abc import Sequence
 
+from pipestitch.standards.codes import DIRECTIONS, MATERIALS, SHAPES
 from pipestitch.standards.observations import Observation, Survey, parse_int
 
 __all__ = ["field_text", "parse_en13508", "write_en13508"]
@@ -80,16 +84,40 @@ def _num(value: float | int | None, decimal: str) -> str:
     return text.replace(".", decimal)
 
 
+def _header(survey: Survey, dec: str) -> dict[str, str]:
+    """The inspection header codes and values: the fixed ones, and those the survey
+    states (a code whose value is not stated is left out)."""
+    direction = DIRECTIONS[survey.direction][0] if survey.direction else ""
+    node1, node2 = survey.start_node, survey.finish_node
+    if direction == "A":
+        node1, node2 = node2, node1
+    optional = {"AAB": survey.start_node, "AAD": node1, "AAF": node2,
+                "AAJ": survey.location, "AAK": direction, "ABC": survey.reference_point,
+                "ABH": survey.operator,
+                "ACA": SHAPES[survey.shape][0] if survey.shape else "",
+                "ACD": MATERIALS[survey.material].en if survey.material else ""}
+    # The three node codes go together: one stated node is written with the others empty.
+    nodes = bool(survey.start_node or survey.finish_node)
+    header = {"AAA": survey.pipe_ref, "ABA": survey.standard, "ABF": survey.date,
+              "ABG": survey.time, "ABQ": _num(float(survey.length_m), dec),
+              "ACB": str(survey.nominal_diameter_mm), "ACC": str(survey.nominal_diameter_mm),
+              "ADE": REFERENCE_PREFIX + survey.reference}
+    header.update({code: value for code, value in optional.items()
+                   if value or (nodes and code in ("AAB", "AAD", "AAF"))})
+    return {code: header[code] for code in sorted(header)}
+
+
 def write_en13508(surveys: Sequence[tuple[Survey, Sequence[Observation]]]) -> str:
     """The exchange file text for one or more inspections (ISO-8859-1 safe when the
-    remarks are)."""
+    remarks are).
+
+    The records are written as given: :func:`~pipestitch.standards.observations.with_nodes`
+    adds the BCD/BCE node observations an inspection opens and closes with.
+    """
     sep, dec, quote = FILE_HEADER["A3"], FILE_HEADER["A4"], FILE_HEADER["A5"]
     lines = [f"#{k}={v}" for k, v in FILE_HEADER.items()]
     for survey, observations in surveys:
-        header = {"AAA": survey.pipe_ref, "ABA": survey.standard, "ABF": survey.date,
-                  "ABG": survey.time, "ABQ": _num(float(survey.length_m), dec),
-                  "ACB": str(survey.nominal_diameter_mm), "ACC": str(survey.nominal_diameter_mm),
-                  "ADE": REFERENCE_PREFIX + survey.reference}
+        header = _header(survey, dec)
         lines += ["#B01=" + sep.join(header), _line(list(header.values()), sep, quote)]
         lines.append("#C=" + sep.join(OBS_FIELDS))
         for o in observations:
@@ -121,7 +149,24 @@ def _survey(header: dict[str, str], dec: str) -> Survey:
         raise ValueError(f"inspection header: {exc}") from None
     return Survey(header.get("AAA", ""), header.get("ABF", ""), header.get("ABG", ""), length_m,
                   diameter, ref[len(REFERENCE_PREFIX):] if ref.startswith(REFERENCE_PREFIX) else "",
-                  header.get("ABA", ""))
+                  header.get("ABA", ""), **_described(header))
+
+
+def _name(table: dict, code: str, pick: object) -> str:
+    """The name whose code (``pick(entry)``) is ``code``; "" when none is."""
+    return next((name for name, entry in table.items() if pick(entry) == code), "")
+
+
+def _described(header: dict[str, str]) -> dict[str, str]:
+    """Survey fields from the optional header codes (codes without a name are dropped)."""
+    direction = _name(DIRECTIONS, header.get("AAK", "").strip(), lambda e: e[0])
+    node1, node2 = header.get("AAD", ""), header.get("AAF", "")
+    start, finish = (node2, node1) if header.get("AAK", "").strip() == "A" else (node1, node2)
+    return {"start_node": header.get("AAB", start), "finish_node": finish,
+            "direction": direction, "reference_point": header.get("ABC", "").strip(),
+            "shape": _name(SHAPES, header.get("ACA", "").strip(), lambda e: e[0]),
+            "material": _name(MATERIALS, header.get("ACD", "").strip(), lambda e: e.en),
+            "operator": header.get("ABH", ""), "location": header.get("AAJ", "")}
 
 
 def _observation(letters: list[str], cells: list[str], dec: str) -> Observation:

@@ -8,10 +8,13 @@ resolution of the standard: distance in m to 0.01, clock positions in whole hour
 ref starting with ``auto:``; re-coding replaces those and keeps every other row.
 
 Codes (EN 13508-2 main codes, docs/standards.md lists what was verified):
-hole -> BAC (break/collapse) char. B (missing pieces), quantity = size in mm;
-spot -> BAF (surface damage) char. Z (other, described in the remark), size in mm;
-out-of-round section -> BAA (deformation), quantity = deflection in %;
-sediment band (invert reference) -> BBC (settled deposits) char. Z.
+hole -> BAC (break/collapse) char. B (missing pieces), quantity = length along the pipe
+in mm; spot -> BBB (attached deposits) char. Z (other), or, when chosen, BAF (surface
+damage) char. Z (other) / E (cause not determinable); out-of-round section -> BAA
+(deformation), char. A vertical / B horizontal when a roll reference orients the oval,
+quantity = deflection in %; sediment band (invert reference) -> BBC (settled deposits).
+Features longer than the continuous threshold (EN 13508-2: 1 m; the German DWA
+supplement uses 0.3 m) are a start/finish pair marked ``A<n>``/``B<n>``.
 
 CSV files (observations.csv here, the PACP-style CSV in :mod:`.pacp`) are opened in
 spreadsheets, so text cells are written against CSV/formula injection as OWASP's
@@ -37,16 +40,20 @@ from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, fields
 from typing import Protocol
 
+from pipestitch.standards.codes import DIRECTIONS, MATERIALS, SHAPES
 from pipestitch.standards.ovality import SectionFigures
 from pipestitch.standards.roll_reference import RollReference, clock_hour
 
-__all__ = ["AUTO_PREFIX", "CONTINUOUS_MIN_M", "FORMULA_TRIGGERS", "OBSERVATION_COLUMNS",
-           "Observation", "ObservationRow", "ObservationsFile", "ProfileSection", "Survey",
-           "csv_record", "csv_records", "is_auto", "neutralise_cell", "observations_from_defects",
+__all__ = ["AUTO_PREFIX", "CONTINUOUS_MIN_M", "DWA_CONTINUOUS_MIN_M", "FORMULA_TRIGGERS",
+           "OBSERVATION_COLUMNS", "SPOT_CODINGS", "Observation", "ObservationRow",
+           "ObservationsFile", "ProfileSection", "Survey", "csv_record", "csv_records",
+           "en_markers", "is_auto", "neutralise_cell", "observations_from_defects",
            "observations_from_profile", "parse_observations_csv", "read_observations_file",
-           "restore_cell", "user_rows", "write_observations_csv"]
+           "restore_cell", "user_rows", "with_nodes", "write_observations_csv"]
 
-CONTINUOUS_MIN_M = 0.3          # longer features are coded as start/finish pairs
+CONTINUOUS_MIN_M = 1.0          # EN 13508-2: longer features are start/finish pairs
+DWA_CONTINUOUS_MIN_M = 0.3      # the German DWA supplement's threshold
+SPOT_CODINGS = ("deposit", "surface-damage")
 AUTO_PREFIX = "auto:"
 EXTENDED_CLOCK_DEG = 30.0       # features at least this wide get a from-to clock range
 STANDARD = "EN 13508-2:2003+A1:2011"
@@ -86,7 +93,13 @@ class Observation:
 
 @dataclass(frozen=True)
 class Survey:
-    """The inspection header: what the export files say about the run as a whole."""
+    """The inspection header: what the export files say about the run as a whole.
+
+    ``direction``, ``shape`` and ``material`` are names of
+    :data:`~pipestitch.standards.codes.DIRECTIONS`, ``SHAPES`` and ``MATERIALS`` (or
+    empty: not stated); ``reference_point`` is the EN 13508-2 letter of the
+    longitudinal reference point (ABC); the other fields are free text.
+    """
 
     pipe_ref: str
     date: str                    # YYYY-MM-DD
@@ -95,6 +108,21 @@ class Survey:
     nominal_diameter_mm: int
     reference: str               # the clock reference used ("imu", "relative", ...)
     standard: str = STANDARD
+    start_node: str = ""
+    finish_node: str = ""
+    direction: str = ""
+    reference_point: str = ""
+    shape: str = ""
+    material: str = ""
+    operator: str = ""
+    location: str = ""
+
+    def __post_init__(self) -> None:
+        for name, allowed in (("direction", DIRECTIONS), ("shape", SHAPES),
+                              ("material", MATERIALS)):
+            value = getattr(self, name)
+            if value and value not in allowed:
+                raise ValueError(f"{name}: expected one of {', '.join(allowed)}, got {value!r}")
 
 
 OBSERVATION_COLUMNS = tuple(f.name for f in fields(Observation))
@@ -131,13 +159,12 @@ def _clock_range(theta_min: float, theta_max: float, theta: float,
 
 
 def _pair_or_point(template: Observation, start_m: float, end_m: float,
-                   at_m: float, number: int) -> list[Observation]:
-    """A start/finish pair (continuous codes S/F + number) for features longer than
-    ``CONTINUOUS_MIN_M``, else one observation at ``at_m``."""
-    if end_m - start_m > CONTINUOUS_MIN_M:
-        tag = f"{number:02d}"
-        return [_replace(template, distance_m=start_m, continuous=f"S{tag}"),
-                _replace(template, distance_m=end_m, continuous=f"F{tag}")]
+                   at_m: float, number: int, min_m: float) -> list[Observation]:
+    """A start/finish pair (EN 13508-2 continuous markers ``A<n>``/``B<n>``) for
+    features longer than ``min_m``, else one observation at ``at_m``."""
+    if end_m - start_m > min_m:
+        return [_replace(template, distance_m=start_m, continuous=f"A{number}"),
+                _replace(template, distance_m=end_m, continuous=f"B{number}")]
     return [_replace(template, distance_m=at_m)]
 
 
@@ -148,12 +175,20 @@ def _replace(obs: Observation, **changes: object) -> Observation:
 def observations_from_defects(defects: Sequence[DefectLike], reference: RollReference,
                               start_z_mm: float, *,
                               frame_for: Callable[[float], int | None] = lambda z: None,
-                              first_continuous: int = 1) -> list[Observation]:
+                              first_continuous: int = 1,
+                              continuous_min_m: float = CONTINUOUS_MIN_M,
+                              spots: str = "deposit") -> list[Observation]:
     """Holes and spots as observations (distance from ``start_z_mm``, clock by ``reference``).
 
-    Each row's ref is ``auto:D<k>`` (k = the defect's 1-based row in defects.csv) with the
-    mosaic position and the frame that saw it best (``frame_for``).
+    Holes are BAC B quantified by their length along the pipe (mm). Spots (stain, pit
+    or deposit: the detector cannot tell them apart) are BBB Z with ``spots =
+    "deposit"``, BAF Z/E (surface damage, cause not determinable) with
+    ``"surface-damage"``; their size is in the remark. Each row's ref is ``auto:D<k>``
+    (k = the defect's 1-based row in defects.csv) with the mosaic position and the frame
+    that saw it best (``frame_for``). ValueError for an unknown ``spots``.
     """
+    if spots not in SPOT_CODINGS:
+        raise ValueError(f"spots: expected one of {', '.join(SPOT_CODINGS)}, got {spots!r}")
     out: list[Observation] = []
     number = first_continuous
     for k, d in enumerate(defects, start=1):
@@ -161,21 +196,30 @@ def observations_from_defects(defects: Sequence[DefectLike], reference: RollRefe
         frame = frame_for(d.z_mm)
         ref = (f"{AUTO_PREFIX}D{k} mosaic z={d.z_mm:.1f}mm theta={d.theta_deg:.1f}deg"
                + (f" frame {frame:05d}" if frame is not None else ""))
-        size = f"equivalent diameter {d.diameter_mm:.2f} mm, area {d.area_mm2:.1f} mm2"
-        partial = "; partly unseen, size is a lower bound" if d.partial else ""
-        if d.kind == "hole":
-            template = Observation(0.0, "BAC", "B", quant1=round(d.diameter_mm),
-                                   remark=f"hole, {size}{partial}", clock_from=at,
-                                   clock_to=to, ref=ref)
-        else:
-            template = Observation(0.0, "BAF", "Z", quant1=round(d.diameter_mm),
-                                   remark=f"spot (stain, pit or deposit), {size}{partial}",
-                                   clock_from=at, clock_to=to, ref=ref)
+        template = _defect_template(d, spots, at, to, ref)
         rows = _pair_or_point(template, _dist(d.z_min_mm, start_z_mm),
-                              _dist(d.z_max_mm, start_z_mm), _dist(d.z_mm, start_z_mm), number)
+                              _dist(d.z_max_mm, start_z_mm), _dist(d.z_mm, start_z_mm),
+                              number, continuous_min_m)
         number += len(rows) == 2
         out += rows
     return out
+
+
+def _defect_template(d: DefectLike, spots: str, at: int, to: int | None,
+                     ref: str) -> Observation:
+    length_mm = max(0.0, d.z_max_mm - d.z_min_mm)
+    size = (f"equivalent diameter {d.diameter_mm:.2f} mm, area {d.area_mm2:.1f} mm2, "
+            f"length along the pipe {length_mm:.1f} mm")
+    partial = "; partly unseen, size is a lower bound" if d.partial else ""
+    common = {"clock_from": at, "clock_to": to, "ref": ref}
+    if d.kind == "hole":
+        return Observation(0.0, "BAC", "B", quant1=round(length_mm),
+                           remark=f"hole, {size}{partial}", **common)
+    if spots == "surface-damage":
+        return Observation(0.0, "BAF", "Z", "E", remark=f"surface damage (spot), {size}"
+                           f"{partial}", **common)
+    return Observation(0.0, "BBB", "Z", remark=f"spot (stain or deposit), {size}; "
+                       f"cross-section reduction not measured{partial}", **common)
 
 
 def _dist(z_mm: float, start_z_mm: float) -> float:
@@ -184,8 +228,8 @@ def _dist(z_mm: float, start_z_mm: float) -> float:
 
 @dataclass(frozen=True)
 class ProfileSection:
-    """One profile.csv row: inside diameters (mm; min/max NaN when not measured) and
-    the named figures."""
+    """One profile.csv row: inside diameters (mm; min/max NaN when not measured), the
+    named figures and the direction of the oval's major axis (NaN: not known)."""
 
     frame: int
     z_mm: float
@@ -193,17 +237,22 @@ class ProfileSection:
     min_id_mm: float
     max_id_mm: float
     figures: SectionFigures
+    major_axis_theta_deg: float = math.nan    # mosaic theta of the oval's major axis
 
 
 def observations_from_profile(sections: Sequence[ProfileSection], start_z_mm: float, *,
-                              threshold_pct: float = 1.0,
-                              first_continuous: int = 1) -> list[Observation]:
+                              threshold_pct: float = 1.0, first_continuous: int = 1,
+                              continuous_min_m: float = CONTINUOUS_MIN_M,
+                              reference: RollReference | None = None) -> list[Observation]:
     """Out-of-round stretches (ASTM F1216 ovality, mean-min form, >= ``threshold_pct``)
     as BAA deformation observations, quantity = the largest deflection in %.
 
     Consecutive flagged frames form one stretch: a start/finish pair when longer than
-    0.3 m, else one observation at the worst frame. Sections without a measured
-    ovality (NaN) are never flagged.
+    ``continuous_min_m``, else one observation at the worst frame. Sections without a
+    measured ovality (NaN) are never flagged. Characterisation 1 is A (vertical: the
+    shorter axis within 45 deg of the crown-invert line) or B (horizontal) when
+    ``reference`` is a real roll reference (not "relative") and the worst section's
+    axis direction is known; else it is left empty and the remark says it is unknown.
     """
     out: list[Observation] = []
     number = first_continuous
@@ -211,19 +260,79 @@ def observations_from_profile(sections: Sequence[ProfileSection], start_z_mm: fl
         worst = max(run, key=lambda s: s.figures.f1216_mean_min_pct)
         deflection = max((s.figures.deflection_pct for s in run
                           if math.isfinite(s.figures.deflection_pct)), default=math.nan)
+        char1, why = _deformation_direction(worst, reference)
         remark = (f"out of round: ASTM F1216 ovality up to {worst.figures.f1216_mean_min_pct:.2f} %"
                   + (f", deflection up to {deflection:.2f} %" if math.isfinite(deflection) else "")
-                  + "; axis orientation not measured")
+                  + f"; {why}")
         ref = (f"{AUTO_PREFIX}P profile frames {run[0].frame:05d}-{run[-1].frame:05d}, "
                f"worst {worst.frame:05d}")
-        template = Observation(0.0, "BAA", quant1=round(deflection) if math.isfinite(deflection)
-                               else None, remark=remark, ref=ref)
+        template = Observation(0.0, "BAA", char1, quant1=round(deflection)
+                               if math.isfinite(deflection) else None, remark=remark, ref=ref)
         rows = _pair_or_point(template, _dist(run[0].z_mm, start_z_mm),
                               _dist(run[-1].z_mm, start_z_mm), _dist(worst.z_mm, start_z_mm),
-                              number)
+                              number, continuous_min_m)
         number += len(rows) == 2
         out += rows
     return out
+
+
+def _deformation_direction(section: ProfileSection,
+                           reference: RollReference | None) -> tuple[str, str]:
+    """(characterisation 1, what the remark says about it) for BAA."""
+    if reference is None or reference.source == "relative":
+        return "", "characterisation 1 (vertical/horizontal) unknown: no roll reference"
+    if not math.isfinite(section.major_axis_theta_deg):
+        return "", "characterisation 1 (vertical/horizontal) unknown: axis direction not measured"
+    # Angle between the major axis and the crown-invert line, 0..90 deg.
+    off = (reference.to_gravity(section.major_axis_theta_deg) - 90.0) % 180.0
+    off = min(off, 180.0 - off)
+    if off == 45.0:
+        return "", "characterisation 1 unknown: axes at 45 deg to the vertical"
+    # Major axis horizontal = the vertical diameter is the shorter one.
+    if off > 45.0:
+        return "A", f"vertical deformation (major axis {90 - off:.0f} deg from horizontal)"
+    return "B", f"horizontal deformation (major axis {off:.0f} deg from vertical)"
+
+
+def en_markers(observations: Iterable[Observation]) -> list[Observation]:
+    """The observations with PACP-style continuous markers (``S<n>``/``F<n>``, written
+    by earlier versions or typed by a user) as EN 13508-2 writes them
+    (``A<n>``/``B<n>``); other markers are kept as they are."""
+    out = []
+    for o in observations:
+        marker = o.continuous.strip()
+        if len(marker) > 1 and marker[0] in "SF" and marker[1:].isascii() \
+                and marker[1:].isdigit():
+            o = _replace(o, continuous={"S": "A", "F": "B"}[marker[0]] + str(int(marker[1:])))
+        out.append(o)
+    return out
+
+
+def with_nodes(survey: Survey, observations: Sequence[Observation]) -> list[Observation]:
+    """The inspection as EN 13508-2 records it: BCD (start node) first, the observations
+    in distance order, BCE (finish node) last, at the surveyed length (or the last
+    observation, if further). Rows the user already coded BCD/BCE are used as they are.
+
+    Node type (characterisation 1) Z = other structure; the node reference goes into the
+    remark and, when it is a whole number, into quantification 1 (as the published
+    example file does).
+    """
+    rows = sorted(observations, key=lambda o: o.distance_m)
+    opened = [o for o in rows if o.code == "BCD"]
+    closed = [o for o in rows if o.code == "BCE"]
+    body = [o for o in rows if o.code not in ("BCD", "BCE")]
+    end = max([o.distance_m for o in rows]
+              + ([survey.length_m] if math.isfinite(survey.length_m) else []), default=0.0)
+    start = opened[:1] or [_node("BCD", 0.0, survey.start_node, "start")]
+    finish = closed[-1:] or [_node("BCE", end, survey.finish_node, "finish")]
+    return start + opened[1:] + body + closed[:-1] + finish
+
+
+def _node(code: str, distance_m: float, node_ref: str, which: str) -> Observation:
+    number = node_ref.strip()
+    quant = int(number) if number.isascii() and number.isdigit() else None
+    remark = f"{which} node {number}" if number else f"{which} node (reference not given)"
+    return Observation(distance_m, code, "Z", quant1=quant, remark=remark)
 
 
 def _flagged_runs(sections: Sequence[ProfileSection],

@@ -1,10 +1,10 @@
-"""PACP-style CSV (NASSCO's Pipeline Assessment Certification Program): write and parse.
+"""PACP-style CSV: pipestitch's own one-file CSV with a PACP code column: write and parse.
 
-Not the PACP exchange database itself: one CSV row per observation with PACP-like
-column names, metric units (distance in m, dimensions in mm) and the EN 13508-2 code
-columns alongside, so the file re-imports without loss. The PACP code is a best-effort
-translation of the EN code (``PACP_CODES``); neither the column names nor the codes
-were verified against the PACP manual (docs/standards.md).
+Not the PACP exchange database (that is :mod:`pipestitch.standards.pacp7`, the tables
+PACP_Inspections, PACP_Conditions, ... with PACP's column names): one CSV row per
+observation, metric units (distance in m, dimensions in mm) and the EN 13508-2 code
+columns alongside, so the file re-imports without loss. The PACP code is a translation
+of the EN code (``PACP_CODES``), not verified against the PACP manual (docs/standards.md).
 
 The file is meant for spreadsheets: text cells (codes, characterisations, continuous
 code, remark, image reference) that begin with ``=``, ``+``, ``-``, ``@``, tab or CR
@@ -33,7 +33,8 @@ from pipestitch.standards.observations import (
 __all__ = ["PACP_CODES", "PACP_COLUMNS", "parse_pacp_csv", "write_pacp_csv"]
 
 # (EN main code, characterisation 1) -> PACP-style code; unverified (see module doc).
-PACP_CODES = {("BAC", "B"): "H", ("BAF", "Z"): "SZ", ("BAA", ""): "D", ("BBC", "Z"): "DSZ"}
+PACP_CODES = {("BAC", "B"): "H", ("BAF", "Z"): "SZ", ("BAA", ""): "DR", ("BAA", "A"): "DR",
+              ("BAA", "B"): "DR", ("BBB", "Z"): "DAZ", ("BBC", "Z"): "DSZ"}
 PACP_COLUMNS = ("Distance_m", "Code", "Continuous", "Value_1st_Dimension_mm",
                 "Value_2nd_Dimension_mm", "Value_Percent", "Clock_At_From", "Clock_To",
                 "Remarks", "Image_Reference", "EN13508_Code", "EN13508_Char1", "EN13508_Char2")

@@ -349,6 +349,14 @@ def test_a_frame_the_refinement_never_reaches_keeps_its_ring_fit_flagged(
     assert unrefined["chosen_by"] == "infeasible" and unrefined["ambiguous"] == "1"
     refined = dict(zip(header, next(csv.reader([rows[1]])), strict=True))
     assert refined["model"].endswith("refined-tilt")
+    # The oval's major axis in mosaic theta: the simulated section's angle seen from
+    # the first frame's roll (the mosaic's reference); none for the circle fit.
+    truth = json.loads((tmp_path / "ds" / "truth" / "simulation.json").read_text())["pipe"]
+    roll0 = read_csv_columns(tmp_path / "ds" / "truth" / "poses.csv", ("roll_deg",))["roll_deg"][0]
+    axis = read_csv_columns(tmp_path / "out" / "profile.csv", ("frame",))["major_axis_theta_deg"]
+    expected = (truth["angle_deg"] + (0 if truth["a_mm"] > truth["b_mm"] else 90) - roll0) % 180
+    err = (axis - expected + 90) % 180 - 90
+    assert np.isnan(axis[2]) and np.all(np.abs(err[[0, 1, 3]]) < 1.0)
 
 
 def test_measure_refuses_unkeepable_rows_before_writing_anything(output: Path,

@@ -30,7 +30,8 @@ __all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "intensity_scale", "mosaic_from_
            "read_mosaic", "write_csv", "write_json", "write_mosaic_png"]
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
-                   "diameter_std_mm", "model", "within_tolerance", "ovality_std")
+                   "diameter_std_mm", "model", "within_tolerance", "ovality_std",
+                   "major_axis_theta_deg")
 DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2", "z_min_mm",
                   "z_max_mm", "theta_min_deg", "theta_max_deg", "contrast", "confidence",
                   "partial")

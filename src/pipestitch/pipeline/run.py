@@ -172,7 +172,7 @@ def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
 
 
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
-                  plane_distance_mm: float, nominal_mm: float,
+                  roll: dict[int, float], plane_distance_mm: float, nominal_mm: float,
                   tolerance_pct: float) -> list[list[object]]:
     """Diameter and ovality per frame from the ring.
 
@@ -182,17 +182,22 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
     ovality is nan: a ring alone cannot tell ovality from tilt. z is the ring's
     axial position: the camera's z plus the laser plane distance;
     ``within_tolerance`` is 1 when the mean diameter is within ``tolerance_pct`` %
-    of nominal.
+    of nominal; ``major_axis_theta_deg`` is the mosaic theta (0-180) of the oval's
+    longer axis (the frame's own angle turned by its roll; nan without an oval fit or
+    a place in the mosaic).
     """
     rows: list[list[object]] = []
     for frame, _, h in _chosen(frames, choices):
         sec = h.pipe_section
         lo, hi = sorted((sec.a_mm, sec.b_mm))
+        major = math.degrees(sec.angle) + (0.0 if sec.a_mm >= sec.b_mm else 90.0)
+        axis = ((major + roll.get(frame.index, math.nan)) % 180.0
+                if h.section is not None else math.nan)
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, sec.ovality if h.section is not None else math.nan,
                      lo, hi, 2 * h.std.get("radius_mm", math.nan), frame.fit.model,
                      int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm),
-                     h.std.get("ovality", math.nan)])
+                     h.std.get("ovality", math.nan), axis])
     return rows
 
 
@@ -350,7 +355,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
             write_defects_csv(out / "defects.csv", defects)
         write_poses_csv(out / "poses.csv", frames, choices, z, roll)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
-                  _profile_rows(frames, choices, z, dataset.config.laser.plane_distance_mm,
+                  _profile_rows(frames, choices, z, roll, dataset.config.laser.plane_distance_mm,
                                 dataset.config.pipe.inner_diameter_mm, tolerance_pct))
     problems = _problems(frames, result, choices, no_mosaic)
     # A video's dropped frames and timestamp gaps (io.video) concern the whole run.

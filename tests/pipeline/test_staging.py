@@ -3,6 +3,7 @@ the output folder can neither be the input nor hold it."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -15,10 +16,12 @@ import pipestitch.pipeline.staging as staging
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.run import run_dataset
 from pipestitch.pipeline.staging import (
+    JOURNAL,
     RUN_OUTPUTS,
     STAGING_PREFIX,
     StagedOutput,
     check_out_folder,
+    finish_interrupted_commit,
 )
 
 
@@ -206,11 +209,99 @@ def test_a_killed_run_leaves_the_previous_run_byte_identical(dataset: Path, prev
             mine = previous / f"{STAGING_PREFIX}{proc.pid}"
             if mine.exists():
                 assert sig == signal.SIGKILL, (delay, changed)
-                assert not changed & {p.name for p in mine.iterdir()}, (delay, changed)
-            before = after
+                pending = {p.name for p in mine.iterdir()}
+                assert not changed & pending, (delay, changed)
+                # The next command finishes the commit from the journal: the whole set.
+                assert finish_interrupted_commit(previous)
+                assert not mine.exists() and not (previous / JOURNAL).exists()
+                assert all((previous / name).exists() for name in pending)
+            before = _snapshot(previous)
             continue
         assert after == before, (delay, proc.returncode)
         if sig == signal.SIGINT and proc.returncode != -signal.SIGINT:
             # -SIGINT: the signal came while Python itself was still starting, before
             # pipestitch's code ran; from then on: one line, exit 130
             assert proc.returncode == 130 and b"Traceback" not in err
+
+
+class _Killed(BaseException):
+    """Stands for a process killed outright: nothing after it runs."""
+
+
+def _killed_during_commit(out: Path, monkeypatch, after_moves: int) -> set[str]:
+    """Stage a new set in ``out`` and stop the commit after ``after_moves`` outputs."""
+    replace = staging._replace
+    moves: list[str] = []
+
+    def dying_replace(src: Path, dest: Path) -> None:
+        if len(moves) == after_moves:
+            raise _Killed
+        moves.append(dest.name)
+        replace(src, dest)
+
+    monkeypatch.setattr(staging, "_replace", dying_replace)
+    with pytest.raises(_Killed), StagedOutput(out) as staged:
+        for name in ("defects.csv", "poses.csv", "report.html"):
+            (staged.path / name).write_text("new")
+        (staged.path / "tiles").mkdir()
+        (staged.path / "tiles" / "0.png").write_text("new")
+        staged._done = True      # a killed process never cleans up
+        staged.commit()
+    monkeypatch.setattr(staging, "_replace", replace)
+    return set(moves)
+
+
+@pytest.mark.parametrize("after_moves", [0, 1, 3])
+def test_a_commit_killed_midway_is_finished_by_the_next_command(tmp_path: Path, monkeypatch,
+                                                                after_moves: int) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("defects.csv", "poses.csv", "report.html", "ovality.csv"):
+        (out / name).write_text("old")
+    (out / "tiles").mkdir()
+    (out / "tiles" / "0.png").write_text("old")
+    (out / "tiles" / "mine.txt").write_text("the user's")
+    moved = _killed_during_commit(out, monkeypatch, after_moves)
+    assert (out / JOURNAL).is_file() and len(moved) == after_moves
+    assert {n for n in ("defects.csv", "poses.csv", "report.html")
+            if (out / n).read_text() == "new"} == moved - {"tiles"}
+    assert finish_interrupted_commit(out)
+    for name in ("defects.csv", "poses.csv", "report.html", "tiles/0.png"):
+        assert (out / name).read_text() == "new", name
+    assert not (out / "ovality.csv").exists()            # the old run's, not made anew
+    assert (out / "tiles" / "mine.txt").read_text() == "the user's"
+    assert not (out / JOURNAL).exists()
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert not finish_interrupted_commit(out)            # nothing left to do
+
+
+def test_a_folder_moved_aside_when_the_process_died_is_merged_back(tmp_path: Path) -> None:
+    """Killed between moving the old tiles/ aside and moving the new one in."""
+    out = tmp_path / "out"
+    stage = out / f"{STAGING_PREFIX}4242"
+    (stage / "tiles").mkdir(parents=True)
+    (stage / "tiles" / "0.png").write_text("new")
+    (out / ".tiles.old-4242").mkdir()
+    (out / ".tiles.old-4242" / "0.png").write_text("old")
+    (out / ".tiles.old-4242" / "mine.txt").write_text("the user's")
+    (out / JOURNAL).write_text(json.dumps({"staging": stage.name, "made": ["tiles"],
+                                           "remove": []}))
+    assert finish_interrupted_commit(out)
+    assert (out / "tiles" / "0.png").read_text() == "new"
+    assert (out / "tiles" / "mine.txt").read_text() == "the user's"
+    assert sorted(p.name for p in out.iterdir()) == ["tiles"]
+
+
+@pytest.mark.parametrize("text", ["{not json", json.dumps({"staging": "../elsewhere",
+                                                          "made": [], "remove": []}),
+                                  json.dumps({"staging": f"{STAGING_PREFIX}1",
+                                              "made": ["../../x"], "remove": []}),
+                                  json.dumps({"staging": f"{STAGING_PREFIX}1", "made": [],
+                                              "remove": ["my_notes.txt"]})])
+def test_a_journal_that_cannot_be_trusted_is_refused_and_named(tmp_path: Path,
+                                                               text: str) -> None:
+    (tmp_path / JOURNAL).write_text(text)
+    (tmp_path / "my_notes.txt").write_text("mine")
+    with pytest.raises(DatasetError, match=JOURNAL):
+        finish_interrupted_commit(tmp_path)
+    assert (tmp_path / "my_notes.txt").read_text() == "mine"

@@ -38,6 +38,7 @@ from pipestitch.io.probe_toml import read_probe_toml
 from pipestitch.io.survey_toml import SurveyFile, read_survey_toml
 from pipestitch.measure.defects import Defect, clock_position
 from pipestitch.pipeline.measuring import write_defects_csv
+from pipestitch.pipeline.staging import finish_interrupted_commit
 from pipestitch.report.html import StandardsView
 from pipestitch.standards import (
     CONTINUOUS_MIN_M,
@@ -416,6 +417,7 @@ def export_run(out: str | Path, fmt: str, *, dest: str | Path | None = None,
     if units is not None and units not in UNITS:
         raise ValueError(f"--units: expected one of {', '.join(UNITS)}, got {units!r}")
     out = Path(out)
+    finish_interrupted_commit(out)
     if not (out / "poses.csv").is_file() and not (out / "observations.csv").is_file():
         raise DatasetError(out, "not a run folder (no poses.csv or observations.csv; run "
                                 "`pipestitch run` first)")

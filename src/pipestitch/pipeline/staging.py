@@ -10,10 +10,19 @@ was: its staging folder is removed, or kept (and named) when the failure is one 
 partial outputs are worth a look; so is one whose outputs could not all be put in place
 (the error names both folders). Ctrl-C while the outputs are being put in place is
 held until they all are.
+
+A process killed outright (SIGKILL, power loss) while putting the outputs in place
+cannot hold anything; for that the commit first writes a journal,
+``OUT/.pipestitch-commit.json`` (atomically: it is there whole or not at all), naming
+the staging folder, the outputs to move and those to remove. The next command that
+writes or reads OUT (``run``, ``measure``, ``export``) finds it and finishes the
+commit from the staging folder (:func:`finish_interrupted_commit`) before doing
+anything else, so OUT never stays a mix of two runs.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -25,7 +34,8 @@ from pathlib import Path
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.check import check_out_folder_path
 
-__all__ = ["RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_out_folder"]
+__all__ = ["JOURNAL", "RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_out_folder",
+           "finish_interrupted_commit"]
 
 # Everything `pipestitch run` may write into OUT (and earlier versions wrote).
 RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.json",
@@ -34,6 +44,7 @@ RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.
 # What a new run reads of the previous one in OUT (the user's observation rows).
 CARRIED = ("observations.csv", "standards.json")
 STAGING_PREFIX = ".pipestitch-partial-"
+JOURNAL = ".pipestitch-commit.json"
 
 
 def check_out_folder(dataset: Path, out: Path) -> None:
@@ -75,6 +86,7 @@ class StagedOutput:
     def __enter__(self) -> StagedOutput:
         try:
             self.out.mkdir(parents=True, exist_ok=True)
+            finish_interrupted_commit(self.out)
             shutil.rmtree(self.path, ignore_errors=True)
             self.path.mkdir()
             for name in CARRIED:   # the user's rows survive the re-coding, as in place
@@ -92,23 +104,90 @@ class StagedOutput:
     def commit(self) -> None:
         """Put the staged outputs in place of the previous run's, as one set."""
         with _interrupts_held():
-            made = {p.name for p in self.path.iterdir()}
+            made = sorted(p.name for p in self.path.iterdir())
+            remove = [name for name in RUN_OUTPUTS if name not in made]
+            journal = self.out / JOURNAL
             try:
-                for name in sorted(made):
-                    _replace(self.path / name, self.out / name)
-                for name in RUN_OUTPUTS:
-                    if name not in made:
-                        _remove(self.out / name)
+                _write_journal(journal, self.path.name, made, remove)
+                _apply(self.out, self.path, made, remove)
             except OSError as exc:
+                journal.unlink(missing_ok=True)
                 kept = self.keep()
                 raise StageError(f"the outputs could not all be put in place in {self.out} "
                                  f"({exc}); those not moved are in {kept}") from None
             shutil.rmtree(self.path, ignore_errors=True)
+            journal.unlink(missing_ok=True)
             self._done = True
 
     def __exit__(self, *exc: object) -> None:
         if not self._done:
             shutil.rmtree(self.path, ignore_errors=True)
+
+
+def finish_interrupted_commit(out: str | Path) -> bool:
+    """Finish putting a killed run's outputs in place in ``out`` from its journal (see
+    the module docstring); True when there was one. A journal that cannot be read or
+    names no staging folder of ours is left alone (and reported as an error)."""
+    out = Path(out)
+    journal = out / JOURNAL
+    if not journal.is_file():
+        return False
+    try:
+        entry = json.loads(journal.read_text(encoding="utf-8"))
+        staging = str(entry["staging"])
+        made, remove = [str(n) for n in entry["made"]], [str(n) for n in entry["remove"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DatasetError(journal, f"unreadable record of an interrupted run ({exc}); "
+                                    "remove it once OUT has been checked") from None
+    if (not staging.startswith(STAGING_PREFIX) or not _is_plain_name(staging)
+            or not all(map(_is_plain_name, made)) or not set(remove) <= set(RUN_OUTPUTS)):
+        raise DatasetError(journal, "names paths outside the output folder; remove it once "
+                                    "OUT has been checked")
+    try:
+        with _interrupts_held():
+            _apply(out, out / staging, made, remove)
+            shutil.rmtree(out / staging, ignore_errors=True)
+            journal.unlink(missing_ok=True)
+    except OSError as exc:
+        raise StageError(f"an interrupted run's outputs could not be put in place in {out} "
+                         f"({exc}); they are in {out / staging}") from None
+    return True
+
+
+def _is_plain_name(name: str) -> bool:
+    return bool(name) and name not in (".", "..") and "/" not in name and "\\" not in name
+
+
+def _write_journal(path: Path, staging: str, made: list[str], remove: list[str]) -> None:
+    """The commit's journal, written to a temporary name, flushed and renamed."""
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("w", encoding="utf-8") as handle:
+        json.dump({"staging": staging, "made": made, "remove": remove}, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def _apply(out: Path, staging: Path, made: list[str], remove: list[str]) -> None:
+    """Move the staged outputs in place and remove the previous run's others; safe to run
+    again after an interruption (what was moved is no longer in ``staging``; a folder
+    moved aside is merged back)."""
+    for name in made:
+        if (staging / name).exists() or (staging / name).is_symlink():
+            _replace(staging / name, out / name)
+        for aside in out.glob(f".{name}.old-*"):
+            _merge_aside(aside, out / name)
+    for name in remove:
+        _remove(out / name)
+
+
+def _merge_aside(aside: Path, dest: Path) -> None:
+    """Move what an old folder held that its replacement does not into it; drop the rest."""
+    if dest.is_dir():
+        for entry in aside.iterdir():
+            if not (dest / entry.name).exists():
+                os.replace(entry, dest / entry.name)
+    shutil.rmtree(aside, ignore_errors=True)
 
 
 def _replace(src: Path, dest: Path) -> None:
@@ -120,10 +199,7 @@ def _replace(src: Path, dest: Path) -> None:
         shutil.rmtree(aside, ignore_errors=True)
         os.replace(dest, aside)
         os.replace(src, dest)
-        for entry in aside.iterdir():
-            if not (dest / entry.name).exists():
-                os.replace(entry, dest / entry.name)
-        shutil.rmtree(aside, ignore_errors=True)
+        _merge_aside(aside, dest)
     else:
         os.replace(src, dest)
 

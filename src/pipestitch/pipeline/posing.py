@@ -34,10 +34,10 @@ from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
-from pipestitch.pose.ambiguity import Choice, envelope_costs, resolve_run
+from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
 from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
-from pipestitch.pose.section import INFEASIBLE_CLEARANCE_MM, oval_at_zero_tilt
+from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
            "report_frame_messages", "resolve_frames", "ring_search_band",
@@ -91,6 +91,10 @@ OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; 
 # README) makes even the true hypothesis disagree photometrically with its
 # neighbour, so the comparison would be evidence about noise, not about the mirror.
 PHOTOMETRIC_MIN_TILT_DEG = 1.5
+# A circle fit whose every hypothesis puts the probe body this many sigmas of its
+# clearance (pose.ambiguity.clearance_sigma_mm: 1 mm at least) into the wall is not
+# the declared probe in a circular pipe.
+INFEASIBLE_SIGMAS = 2.0
 
 
 def _photometric_strips(led: np.ndarray, fit: PoseFit, camera: CameraModel) -> StripPair | None:
@@ -165,7 +169,8 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     if fit.ok and settings.body is not None:
         clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
                         for h in fit.hypotheses)
-        if clearance < INFEASIBLE_CLEARANCE_MM:
+        if clearance < -INFEASIBLE_SIGMAS * max(clearance_sigma_mm(h, settings.body)
+                                                for h in fit.hypotheses):
             infeasible = True
             warning = BODY_WARNING.format(clearance=-clearance)
             if settings.oval_start:

@@ -29,7 +29,8 @@ import numpy as np
 from pipestitch.geometry import BodyEnvelope, PipeSection
 from pipestitch.pose.fit import Hypothesis, PoseFit
 
-__all__ = ["Choice", "envelope_costs", "hypothesis_distance", "resolve_run"]
+__all__ = ["BODY_TOLERANCE_MM", "Choice", "clearance_sigma_mm", "envelope_costs",
+           "hypothesis_distance", "resolve_run"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,21 +65,40 @@ def hypothesis_distance(h1: Hypothesis, h2: Hypothesis, *, angle_scale_rad: floa
     return float(np.hypot(dang, doff))
 
 
-def envelope_costs(fit: PoseFit, body: BodyEnvelope | None, *,
-                   sigma_mm: float = 0.5) -> np.ndarray:
+# How far the declared body may differ from the real one where it meets the wall
+# (machining, wheels or skids, the wall's roughness): the floor of the uncertainty of
+# a body's clearance when the ring pins its pose exactly.
+BODY_TOLERANCE_MM = 0.5
+
+
+def clearance_sigma_mm(h: Hypothesis, body: BodyEnvelope) -> float:
+    """1-sigma uncertainty of the body's clearance for hypothesis ``h``.
+
+    The ring fit's own uncertainty (``h.std``, from the frame's pixel noise) moves the
+    body's rear rim by the tilt's sigma times the body's length plus the offset's sigma
+    (on simulated runs the tilt errors match the stated sigma: 0.03-0.33° against
+    0.08-0.34°), combined with ``BODY_TOLERANCE_MM``. So a frame seen through a coarse
+    lens, a far laser plane or a noisy line is judged with the leeway its own pose has.
+    """
+    s = {k: float(v) if np.isfinite(v) else 0.0 for k, v in h.std.items()}
+    tilt = float(np.hypot(s.get("alpha", 0.0), s.get("beta", 0.0)))
+    offset = float(np.hypot(s.get("dx_mm", 0.0), s.get("dy_mm", 0.0)))
+    return float(np.hypot(BODY_TOLERANCE_MM, body.length_mm * tilt + offset))
+
+
+def envelope_costs(fit: PoseFit, body: BodyEnvelope | None) -> np.ndarray:
     """Cost of each hypothesis from the probe body's fit inside the pipe (0 without a
     declared body).
 
-    A hypothesis whose body crosses the wall by v mm costs (v / sigma)² / 2, where
-    sigma is the uncertainty of the body's far end (a tenth of a degree of tilt moves
-    the rear of a 145 mm body by 0.25 mm). The wall is the ring's own radius.
+    A hypothesis whose body crosses the wall by v mm costs (v / sigma)² / 2, sigma from
+    :func:`clearance_sigma_mm`. The wall is the ring's own radius.
     """
     costs = np.zeros(2)
     if body is None:
         return costs
     for i, h in enumerate(fit.hypotheses):
         clearance = body.clearance_mm(h.pose, PipeSection(h.radius_mm))
-        costs[i] = 0.5 * (min(clearance, 0.0) / sigma_mm) ** 2
+        costs[i] = 0.5 * (min(clearance, 0.0) / clearance_sigma_mm(h, body)) ** 2
     return costs
 
 

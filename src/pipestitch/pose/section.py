@@ -149,12 +149,6 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
                       float(np.sqrt(np.mean(resid**2))), resid, pose_info)
 
 
-# A circle fit whose every hypothesis puts the probe body this far into the wall is
-# not the declared probe in a circular pipe: the ring's tilt error moves the body's
-# rear end by tenths of a mm, not by one.
-INFEASIBLE_CLEARANCE_MM = -1.0
-
-
 def oval_at_zero_tilt(fit: PoseFit, camera: CameraModel) -> PoseFit:
     """The frame refitted as an oval pipe with the tilt held at 0.
 

@@ -8,12 +8,20 @@ robust noise (scikit-image labels and region properties do the rest):
 * detection: |contrast| above 6 sigma, kept within [0.15, 0.8] (a busy texture
   such as corrosion has a large sigma, yet a hole must still count; a stain that is
   only ~50 % darker is then indistinguishable from the texture's own pits and is not
-  reported; bright regions always need 6 sigma), regions of at least a 1 mm disc;
+  reported; bright regions always need 6 sigma), regions of at least a 1 mm disc (and
+  at least 5 mosaic pixels across on a coarse mosaic);
 * sizing: each region is re-thresholded at half its own depth inside a box around it,
   so a blurred edge does not bias the size (the 50 % level of a symmetric blur sits
-  on the true rim); equivalent diameter = that of a disc of the same area;
-* kind: a **hole** shows (almost) no wall, darker than 40 % of its surroundings
-  (median contrast below -0.6); anything else is a **spot** (stain, pit, deposit);
+  on the true rim); a dark region that is not cut by unseen wall is then outlined
+  along its rim, the steepest point of the step on rays from its centre
+  (:mod:`pipestitch.measure.outline`), which does not move with the brightness of
+  the wall beside it (corrosion, stains) as a fixed fraction of the depth does;
+  equivalent diameter = that of a disc of the same area;
+* kind: a **hole** is through the wall, so it returns (almost) no light: its interior
+  (inside the rim by the blur measured there) returns at most 15 % of the light of
+  the wall just outside its rim (90th percentile over the interior; simulated holes
+  6-9 %, the darkest corrosion pits 23 % and more); anything else is a **spot**
+  (stain, pit, deposit);
 * regions touching unseen wall are flagged ``partial`` (their size is a lower bound);
 * for a defect across theta = 0/360, ``theta_min_deg`` > ``theta_max_deg`` (the range
   wraps).
@@ -47,6 +55,7 @@ NOISE_SIGMAS = 6.0
 MAX_THRESHOLD = 0.8        # on a busy texture: still find what is 80 % off (holes)
 BACKGROUND_MM = 16.0       # running-median window (several defect diameters)
 MIN_DIAMETER_MM = 1.0
+MIN_DIAMETER_PX = 5        # and never fewer mosaic pixels across (coarse mosaics)
 EDGE_MARGIN_PX = 3         # nodes this close to unseen wall are not trusted
 
 
@@ -203,7 +212,9 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
     dark = float(np.clip(NOISE_SIGMAS * sigma, MIN_CONTRAST, MAX_THRESHOLD))
     bright = max(NOISE_SIGMAS * sigma, MIN_CONTRAST)
     mask = trusted & ((contrast < -dark) | (contrast > bright))
-    min_area = np.pi / 4 * (MIN_DIAMETER_MM / geometry.mm_per_px) ** 2
+    pitch = max(geometry.mm_per_px, geometry.arc_mm_per_px)
+    min_diameter_mm = max(MIN_DIAMETER_MM, MIN_DIAMETER_PX * pitch)
+    min_area = np.pi / 4 * min_diameter_mm**2 / (geometry.mm_per_px * geometry.arc_mm_per_px)
     shift = _roll_for_labelling(mask)
     rolled = [np.roll(a, shift, axis=0) for a in (mask, contrast, valid)]
     labels = measure.label(_fill_holes(rolled[0]) & rolled[2])

@@ -26,6 +26,7 @@ from pipestitch.pose.fit import PoseFit
 
 __all__ = ["StripPair", "contrast_strips", "pair_costs"]
 
+STRIP_ROWS = 584    # nodes around the pipe in a comparison strip
 BLOCK_PX = 8        # residuals are treated as independent per 8 x 8 block
 MAX_COST = 30.0     # cap on one pair's evidence (negative log-likelihood units)
 
@@ -53,8 +54,12 @@ def _contrast(strip: np.ndarray) -> np.ndarray:
 
 
 def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,
-                    mm_per_px: float = 0.35) -> StripPair:
+                    mm_per_px: float | None = None) -> StripPair:
     """Unwrap ``led`` (grey float) with each hypothesis of ``fit`` over the comparison window.
+
+    The window runs from 0.6 to 1.8 radii ahead; its pitch (default) is the
+    circumference over ``STRIP_ROWS``, so every pipe's strips have the same nodes
+    whatever its size (0.35 mm in a 65 mm pipe), and so does the cost of comparing them.
 
     The maps are projected exactly at every 4th node and interpolated between (ten
     times faster; ~0.03 px from the exact maps at most, far below what a mirror pose
@@ -63,7 +68,8 @@ def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,
     strips = []
     for h in fit.hypotheses:
         r = h.radius_mm
-        grid = StripGrid.window(r, mm_per_px, 0.6 * r, 1.8 * r)
+        pitch = mm_per_px or 2 * np.pi * r / STRIP_ROWS
+        grid = StripGrid.window(r, pitch, 0.6 * r, 1.8 * r)
         strips.append(_contrast(unwrap(led, camera, h.pose, PipeSection(r), grid, step=4)))
     return StripPair(tuple(strips))
 

@@ -77,7 +77,10 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> N
           "0.3022 uncentred)")
     print("(tilt err: mean |alpha, beta error| of poses.csv; ours = refined with the LED "
           "frames, the others = the ring alone)")
+    print("(axial scale: mosaic z per true z - 1, in %; local: RMS after removing the "
+          "offsets and that scale; shading: low-frequency brightness error, 8-bit levels)")
     print(f"{'dataset':>10} | {'unwrap':>7} | {'SSIM':>6} | {'geom RMS mm':>11} | "
+          f"{'axial scale':>11} | {'local mm':>8} | {'shading':>7} | "
           f"{'patches (rejected)':>18} | {'placed':>6} | {'tilt err':>8} | {'pairs/s':>7}")
     for name in scenarios:
         dataset = root / f"{name}_{size}"
@@ -91,7 +94,9 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> N
             s = score(dataset, summary)
             patches = f"{s.n_patches} ({s.n_rejected})"
             print(f"{name:>10} | {mode:>7} | {s.ssim:6.3f} | {s.geometric_rms_mm:11.3f} | "
-                  f"{patches:>18} | {summary.n_placed:3d}/{summary.n_frames:<2d} | "
+                  f"{100 * s.axial_scale_error:+10.3f}% | {s.local_rms_mm:8.3f} | "
+                  f"{s.shading_dn:7.2f} | {patches:>18} | "
+                  f"{summary.n_placed:3d}/{summary.n_frames:<2d} | "
                   f"{tilt_error_deg(dataset, out):7.3f}° | {summary.pairs_per_second:7.2f}",
                   flush=True)
 

@@ -14,7 +14,14 @@ allowed to get wrong. Then:
   A patch of periodic texture (gratings, checkers) can lock onto the wrong period:
   patches further than max(0.5 mm, 5 robust sigma) from the median are counted as
   failed matches (``n_rejected``), not as geometry; for a warped baseline the robust
-  sigma is large, so its real errors are kept.
+  sigma is large, so its real errors are kept;
+* axial scale error: the slope of the patches' axial displacement against their z
+  (mosaic z per true z, minus 1), which the local RMS hides: a mosaic 0.1 % short is
+  0.33 mm off at the ends of a 330 mm run yet locally perfect; ``local_rms_mm`` is
+  the RMS after removing that slope too;
+* shading error: the mean absolute difference (in 8-bit levels of the true wall)
+  between the mosaic, after the same gain and offset, and the truth, both low-passed
+  to 4 mm (Gaussian sigma): the LED fall-off, vignetting and gain left in the mosaic.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
 PATCH_PX = 64
 MIN_PATCH_RESPONSE = 0.1
 MIN_PATCH_STD = 0.005     # flatter true-wall patches carry no position
+SHADING_SIGMA_MM = 4.0
 
 
 @dataclass(frozen=True)
@@ -55,6 +63,9 @@ class MosaicScore:
     coverage: float
     z_offset_mm: float
     roll_offset_deg: float
+    axial_scale_error: float = float("nan")
+    local_rms_mm: float = float("nan")
+    shading_dn: float = float("nan")
 
 
 def truth_on_grid(truth: WallImage, mosaic: WallImage, z_offset_mm: float,
@@ -83,7 +94,8 @@ def truth_on_grid(truth: WallImage, mosaic: WallImage, z_offset_mm: float,
 
 def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
                          radius_mm: float) -> np.ndarray:
-    """(N, 2) displacement (dz, d_arc) in mm of textured, fully covered patches."""
+    """(N, 3) displacement (dz, d_arc) in mm of textured, fully covered patches, and
+    the patch centre's mosaic z (mm)."""
     out = []
     win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
     arc_mm = np.deg2rad(mosaic.deg_per_px) * radius_mm
@@ -96,21 +108,9 @@ def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
                 continue
             dx, dy, resp = phase_shift(t.astype(np.float32), m.astype(np.float32), win)
             if resp >= MIN_PATCH_RESPONSE and max(abs(dx), abs(dy)) < PATCH_PX / 4:
-                out.append((dx * mosaic.mm_per_px, dy * arc_mm))
-    return np.array(out, float).reshape(-1, 2)
-
-
-def _ssim(mosaic: np.ndarray, reference: np.ndarray) -> float:
-    valid = np.isfinite(mosaic) & np.isfinite(reference)
-    if valid.sum() < 1000:
-        return float("nan")
-    a = np.vstack([mosaic[valid], np.ones(valid.sum())]).T
-    gain, offset = np.linalg.lstsq(a, reference[valid], rcond=None)[0]
-    fitted = np.where(valid, mosaic * gain + offset, 0).astype(np.float64)
-    ref = np.where(valid, reference, 0).astype(np.float64)
-    _, smap = structural_similarity(ref, fitted, data_range=1.0, full=True, win_size=7)
-    inner = cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
-    return float(np.mean(smap[inner]))
+                z = mosaic.z0_mm + (c + PATCH_PX / 2) * mosaic.mm_per_px
+                out.append((dx * mosaic.mm_per_px, dy * arc_mm, z))
+    return np.array(out, float).reshape(-1, 3)
 
 
 def score_mosaic(mosaic: WallImage, truth: WallImage, radius_mm: float, z_offset_mm: float,
@@ -123,18 +123,76 @@ def score_mosaic(mosaic: WallImage, truth: WallImage, radius_mm: float, z_offset
     reference = truth_on_grid(truth, mosaic, z_offset_mm, roll_offset_deg)
     disp = _patch_displacements(mosaic, reference, radius_mm)
     if len(disp):
-        dz, ds = np.median(disp, axis=0)
+        dz, ds = np.median(disp[:, :2], axis=0)
         z_offset_mm -= dz
         roll_offset_deg -= np.rad2deg(ds / radius_mm)
         reference = truth_on_grid(truth, mosaic, z_offset_mm, roll_offset_deg)
         disp = _patch_displacements(mosaic, reference, radius_mm)
-    rms, n_rejected = float("nan"), 0
+    rms, local, scale, n_rejected = float("nan"), float("nan"), float("nan"), 0
     if len(disp):
-        dist = np.hypot(*(disp - np.median(disp, axis=0)).T)
+        dist = np.hypot(*(disp[:, :2] - np.median(disp[:, :2], axis=0)).T)
         robust_sigma = 1.4826 * float(np.median(dist))
         kept = dist <= max(0.5, 5 * robust_sigma)
         n_rejected = int(np.sum(~kept))
         rms = float(np.sqrt(np.mean(dist[kept] ** 2)))
+        scale, local = _scale_and_local(disp[kept])
     coverage = float(np.mean(np.isfinite(mosaic.image)))
-    return MosaicScore(_ssim(mosaic.image, reference), rms, int(len(disp) - n_rejected),
-                       n_rejected, coverage, z_offset_mm, roll_offset_deg)
+    fitted = _fitted(mosaic.image, reference)
+    return MosaicScore(_ssim(fitted), rms, int(len(disp) - n_rejected),
+                       n_rejected, coverage, z_offset_mm, roll_offset_deg, scale, local,
+                       _shading_dn(fitted, mosaic.mm_per_px))
+
+
+def _scale_and_local(disp: np.ndarray) -> tuple[float, float]:
+    """Axial scale error (slope of dz against z) and the RMS displacement left after
+    removing it and the median arc offset; NaN with too few patches or no z span."""
+    z = disp[:, 2]
+    if len(disp) < 3 or np.ptp(z) <= 0:
+        return float("nan"), float("nan")
+    slope, intercept = np.polyfit(z, disp[:, 0], 1)
+    rest = np.column_stack([disp[:, 0] - (slope * z + intercept),
+                            disp[:, 1] - np.median(disp[:, 1])])
+    return float(slope), float(np.sqrt(np.mean(np.sum(rest**2, axis=1))))
+
+
+def _fitted(mosaic: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mosaic after the least-squares gain and offset onto the reference, reference),
+    both NaN where either has no data (all NaN with too little data)."""
+    valid = np.isfinite(mosaic) & np.isfinite(reference)
+    if valid.sum() < 1000:
+        nan = np.full(mosaic.shape, np.nan, np.float32)
+        return nan, nan
+    a = np.vstack([mosaic[valid], np.ones(valid.sum())]).T
+    gain, offset = np.linalg.lstsq(a, reference[valid], rcond=None)[0]
+    return (np.where(valid, mosaic * gain + offset, np.nan).astype(np.float32),
+            np.where(valid, reference, np.nan).astype(np.float32))
+
+
+def _ssim(fitted: tuple[np.ndarray, np.ndarray]) -> float:
+    """Mean SSIM over the nodes 3 or more away from missing data."""
+    mosaic, reference = fitted
+    valid = np.isfinite(mosaic)
+    if valid.sum() < 1000:
+        return float("nan")
+    a = np.where(valid, mosaic, 0).astype(np.float64)
+    ref = np.where(valid, reference, 0).astype(np.float64)
+    _, smap = structural_similarity(ref, a, data_range=1.0, full=True, win_size=7)
+    inner = cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    return float(np.mean(smap[inner]))
+
+
+def _shading_dn(fitted: tuple[np.ndarray, np.ndarray], mm_per_px: float) -> float:
+    """Mean |low-pass(mosaic) - low-pass(reference)| in 8-bit levels, over the nodes
+    whose whole low-pass footprint has data."""
+    mosaic, reference = fitted
+    valid = np.isfinite(mosaic)
+    if valid.sum() < 1000:
+        return float("nan")
+    sigma = SHADING_SIGMA_MM / mm_per_px
+    weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
+    low = [cv2.GaussianBlur(np.where(valid, a, 0).astype(np.float32), (0, 0), sigma)
+           / np.maximum(weight, 1e-6) for a in (mosaic, reference)]
+    inner = weight > 0.99
+    if not inner.any():
+        return float("nan")
+    return float(255 * np.mean(np.abs(low[0] - low[1])[inner]))

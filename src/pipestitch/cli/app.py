@@ -24,6 +24,7 @@ from pipestitch.cli.calibrate_command import register as register_calibrate
 from pipestitch.cli.export_command import CROWN_HELP
 from pipestitch.cli.export_command import register as register_export
 from pipestitch.cli.mask_command import register as register_mask
+from pipestitch.cli.review_command import register as register_review
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.check import (
     check_finite,
@@ -362,6 +363,7 @@ app.command(name="batch")(_handle_errors(batch))
 register_export(app, _checked(files={"dest": "--out"}, finite={"crown_deg": "--crown-deg"}))
 register_calibrate(app, _handle_errors)
 register_mask(app, _checked(files={"out": "--out"}))
+register_review(app, _handle_errors)
 
 
 def main() -> None:

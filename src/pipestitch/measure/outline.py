@@ -92,7 +92,8 @@ def rim_outline(values: np.ndarray, centre_rc: tuple[float, float], radius_mm: f
     radius[~inside] = np.nan
     # The steepest point of a blurred circular step lies sigma^2 / (2 r) inside the rim
     # (sigma: the image's blur, i.e. the peak's width less the smoothing added here).
-    blur2 = max(float(np.nanmedian(width2[inside])) - SMOOTH_PX**2, 0.0) * pix**2
+    widths = width2[inside & np.isfinite(width2)]
+    blur2 = max(float(np.median(widths)) - SMOOTH_PX**2, 0.0) * pix**2 if widths.size else 0.0
     radius += blur2 / (2 * np.maximum(radius, pix))
     x, y = radius * np.cos(phi), radius * np.sin(phi)          # mm, col and row axes
     keep = _ellipse_inliers(x, y, 0.01 * pix)
@@ -135,7 +136,9 @@ def _ellipse_inliers(x: np.ndarray, y: np.ndarray, floor_mm: float) -> np.ndarra
     """
     radius = np.hypot(x, y)
     finite = np.isfinite(radius)
-    keep = finite & _gate(radius - np.nanmedian(radius), finite, floor_mm)
+    if finite.sum() < 5:
+        return finite
+    keep = finite & _gate(radius - np.median(radius[finite]), finite, floor_mm)
     for _ in range(4):
         if keep.sum() < 5:
             return keep

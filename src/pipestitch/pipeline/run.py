@@ -39,6 +39,7 @@ from pipestitch.pipeline.posing import (
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
+from pipestitch.pipeline.review import write_review_page
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pipeline.staging import StagedOutput, check_out_folder
 from pipestitch.pipeline.stitched_output import (
@@ -51,7 +52,7 @@ from pipestitch.pipeline.stitched_output import (
 from pipestitch.pipeline.stitching import FrameView, MosaicResult, MosaicSettings, build_mosaic
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
-from pipestitch.report.html import FrameRow, ReportData, render_report
+from pipestitch.report.html import PROBLEMS_CSV, TABLES, FrameRow, ReportData, render_report
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -374,8 +375,17 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         data.defects = coded.defects if coded is not None and result is not None else defects
         data.tolerance_pct = tolerance_pct
         data.standards = coded.report_view() if coded is not None else None
-        atomic_write_text(out / "report.html", render_report(data))
+        _write_report(out, data, result is not None)
     return summary
+
+
+def _write_report(out: Path, data: ReportData, with_mosaic: bool) -> None:
+    """report.html, the problems it lists as problems.csv beside it, and review.html."""
+    write_csv(out / PROBLEMS_CSV, ("frame", "problem"), data.problems)
+    if with_mosaic:
+        data.review_href = write_review_page(out).name
+    data.tables = [name for name, _ in TABLES if (out / name).is_file()]
+    atomic_write_text(out / "report.html", render_report(data))
 
 
 def _coded(out: Path, dataset: Dataset, crown_deg: float | None,

@@ -40,7 +40,8 @@ __all__ = ["JOURNAL", "RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_ou
 # Everything `pipestitch run` may write into OUT (and earlier versions wrote).
 RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.json",
                "mosaic.ome.tif", "mosaic.tif", "tiles", "viewer.html", "report.html",
-               "observations.csv", "standards.json", "ovality.csv")
+               "observations.csv", "standards.json", "ovality.csv", "problems.csv",
+               "review.html")
 # What a new run reads of the previous one in OUT (the user's observation rows).
 CARRIED = ("observations.csv", "standards.json")
 STAGING_PREFIX = ".pipestitch-partial-"

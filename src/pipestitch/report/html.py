@@ -26,6 +26,15 @@ from pipestitch.standards.observations import ProfileSection
 __all__ = ["FrameRow", "ReportData", "StandardsView", "render_report"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
+OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
+MAX_LISTED = 200         # rows of a list (exceedances, problems) shown; the rest in its CSV
+BIN_M = 1.0              # the summary's section length along the pipe
+PROBLEMS_CSV = "problems.csv"
+TABLES = (("poses.csv", "pose of every frame (both mirror hypotheses)"),
+          ("profile.csv", "diameter and ovality of every ring"),
+          ("ovality.csv", "named ovality figures of every section"),
+          ("defects.csv", "every defect"), ("observations.csv", "the coded observations"),
+          (PROBLEMS_CSV, "every frame that failed, was skipped or stayed ambiguous"))
 
 
 @dataclass(frozen=True)
@@ -72,6 +81,8 @@ class ReportData:
     tolerance_pct: float = 1.0
     standards: StandardsView | None = None
     viewer_href: str | None = None      # relative link to the pan-and-zoom viewer page
+    review_href: str | None = None      # relative link to the review page
+    tables: list[str] = field(default_factory=list)   # CSV files beside the report to link
 
 
 def _png(fig: plt.Figure) -> str:
@@ -202,9 +213,11 @@ def _defect_table(data: ReportData) -> str:
         return "<p>No defects found.</p>"
     rows = [[f"D{k}", d.kind, f"{d.z_mm:.1f}", f"{d.theta_deg:.1f}", d.clock,
              f"{d.diameter_mm:.2f}", f"{d.area_mm2:.1f}", f"{d.confidence:.2f}",
-             "yes" if d.partial else ""] for k, d in enumerate(data.defects, start=1)]
-    return _table(["id", "kind", "z (mm)", "θ (deg)", "clock", "diameter (mm)", "area (mm²)",
-                   "confidence", "partial"], rows)
+             "yes" if d.partial else ""]
+            for k, d in enumerate(data.defects[:MAX_LISTED], start=1)]
+    return _listed(len(data.defects), "defects.csv") + _table(
+        ["id", "kind", "z (mm)", "θ (deg)", "clock", "diameter (mm)", "area (mm²)",
+         "confidence", "partial"], rows)
 
 
 def _clock_text(o: Observation) -> str:
@@ -236,9 +249,11 @@ def _observation_section(data: ReportData) -> str:
     if not view.observations:
         return note + "<p>No observations.</p>"
     rows = [[f"{o.distance_m:.2f}", o.code, o.char1, o.char2, _q(o.quant1), _q(o.quant2),
-             _clock_text(o), o.continuous, o.remark, o.ref] for o in view.observations]
-    return note + _table(["distance (m)", "code", "char. 1", "char. 2", "quant. 1",
-                          "quant. 2", "clock", "continuous", "remark", "reference"], rows)
+             _clock_text(o), o.continuous, o.remark, o.ref]
+            for o in view.observations[:MAX_LISTED]]
+    headers = ["distance (m)", "code", "char. 1", "char. 2", "quant. 1", "quant. 2", "clock",
+               "continuous", "remark", "reference"]
+    return note + _listed(len(view.observations), "observations.csv") + _table(headers, rows)
 
 
 _SURVEY_FIELDS = (("pipe_ref", "pipe"), ("start_node", "start node"),
@@ -285,32 +300,129 @@ def _ovality_section(data: ReportData) -> str:
     if not measured:
         return (defs + "<p>Ovality not measured: the rings were fitted with the circle model "
                 "(minimum = maximum diameter by construction), so no figure is reported.</p>")
+    over = [s for s in measured if s.figures.f1216_mean_min_pct >= OVALITY_FLAG_PCT]
     rows = [[f"{s.frame:05d}", f"{s.z_mm:.1f}", f"{s.mean_id_mm:.3f}", f"{s.min_id_mm:.3f}",
              f"{s.max_id_mm:.3f}", *(_fmt_pct(getattr(s.figures, k)) for k in DEFINITIONS)]
-            for s in view.sections]
+            for s in over[:MAX_LISTED]]
+    listed = (f"<p>{len(over)} of {len(measured)} sections with an ASTM F1216 ovality of at "
+              f"least {OVALITY_FLAG_PCT:g} %{_more(len(over), 'ovality.csv')}.</p>")
+    table = _table(["frame", "z (mm)", "mean ID (mm)", "min ID (mm)", "max ID (mm)",
+                    *DEFINITIONS], rows) if rows else ""
     return (defs + f'<img alt="ovality along the pipe" src="{_ovality_figure(measured)}">'
-            + _table(["frame", "z (mm)", "mean ID (mm)", "min ID (mm)", "max ID (mm)",
-                      *DEFINITIONS], rows))
+            + listed + table)
+
+
+def _more(n: int, csv_name: str) -> str:
+    """A note that a list shows its first ``MAX_LISTED`` rows, and where the rest is."""
+    if n <= MAX_LISTED:
+        return ""
+    return (f" (the first {MAX_LISTED} listed; all in <a href=\"{csv_name}\">{csv_name}"
+            "</a>)")
+
+
+def _listed(n: int, csv_name: str) -> str:
+    """:func:`_more` as a paragraph of its own."""
+    more = _more(n, csv_name)
+    return f'<p class="note">{n} rows{more}.</p>' if more else ""
+
+
+def _problems_section(data: ReportData) -> str:
+    if not data.problems:
+        return "<p>None.</p>"
+    rows = [[f"{i:05d}" if i >= 0 else "run", m] for i, m in data.problems[:MAX_LISTED]]
+    frames = len({i for i, _ in data.problems if i >= 0})
+    return (f"<p>{len(data.problems)} notes on {frames} frames"
+            f"{_more(len(data.problems), PROBLEMS_CSV)}.</p>" + _table(["frame", "problem"], rows))
+
+
+def _exceedances(data: ReportData) -> str:
+    """Frames whose diameter is outside the tolerance (listed, up to ``MAX_LISTED``)."""
+    tol = data.tolerance_pct / 100 * data.nominal_diameter_mm
+    out = [f for f in data.frames if np.isfinite(f.diameter_mm)
+           and abs(f.diameter_mm - data.nominal_diameter_mm) > tol]
+    head = (f"<p>{len(out)} of {len(data.frames)} frames with a diameter more than "
+            f"{data.tolerance_pct:g} % from the nominal {data.nominal_diameter_mm:g} mm"
+            f"{_more(len(out), 'profile.csv')}.</p>")
+    rows = [[f"{f.frame:05d}", f"{f.z_mm:.1f}", f"{f.diameter_mm:.3f}",
+             f"{f.diameter_mm - data.nominal_diameter_mm:+.3f}"] for f in out[:MAX_LISTED]]
+    return head + (_table(["frame", "z (mm)", "D (mm)", "D − nominal (mm)"], rows)
+                   if rows else "")
+
+
+def _bins(data: ReportData) -> tuple[np.ndarray, float]:
+    """Each frame's section index (``BIN_M`` along the pipe) and the first section's start."""
+    z = _series(data, "z_mm")
+    finite = z[np.isfinite(z)]
+    start = float(np.floor(finite.min() / 1000.0)) * 1000.0 if finite.size else 0.0
+    return np.where(np.isfinite(z), (z - start) // (BIN_M * 1000.0), -1).astype(int), start
+
+
+def _range(values: np.ndarray, digits: int) -> str:
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return "—"
+    return f"{values.mean():.{digits}f} ({values.min():.{digits}f}–{values.max():.{digits}f})"
+
+
+def _summary_row(data: ReportData, k: int, start: float, members: np.ndarray) -> list[str]:
+    z0, z1 = start + k * BIN_M * 1000.0, start + (k + 1) * BIN_M * 1000.0
+    frames = [data.frames[i] for i in members]
+    d = np.array([f.diameter_mm for f in frames], float)
+    tilt = np.hypot([f.alpha_deg for f in frames], [f.beta_deg for f in frames])
+    tol = data.tolerance_pct / 100 * data.nominal_diameter_mm
+    ids = {f.frame for f in frames}
+    defects = [x for x in data.defects if z0 <= x.z_mm < z1]
+    holes = sum(1 for x in defects if x.kind == "hole")
+    return [f"{z0 / 1000:.1f}–{z1 / 1000:.1f}", str(len(frames)),
+            str(sum(f.ambiguous for f in frames)),
+            str(len({i for i, _ in data.problems if i in ids})), _range(d, 2),
+            str(int(np.sum(np.abs(d - data.nominal_diameter_mm) > tol))),
+            f"{np.nanmax(tilt):.2f}" if np.isfinite(tilt).any() else "—",
+            f"{holes} / {len(defects) - holes}"]
+
+
+def _summary_section(data: ReportData) -> str:
+    """One row per ``BIN_M`` of pipe: frames, flags, diameter, tilt, defects."""
+    if not data.frames:
+        return "<p>No frame has a pose.</p>"
+    index, start = _bins(data)
+    rows = [_summary_row(data, k, start, np.flatnonzero(index == k))
+            for k in range(int(index.max()) + 1) if np.any(index == k)]
+    return ('<p class="note">z of the camera, from the run\'s z origin; D as mean (min–max) '
+            'of the rings.</p>'
+            + _table(["z (m)", "frames", "ambiguous", "flagged", "D (mm)", "D out of tol.",
+                      "max tilt (°)", "holes / spots"], rows))
+
+
+def _tables_section(data: ReportData) -> str:
+    items = "".join(f'<li><a href="{html.escape(name)}">{html.escape(name)}</a>: {what}</li>'
+                    for name, what in TABLES if name in data.tables)
+    return f"<ul>{items}</ul>" if items else "<p>None written.</p>"
+
+
+def _review_note(data: ReportData) -> str:
+    if data.review_href is None:
+        return ""
+    href = html.escape(data.review_href)
+    return (f'<p>Review the mosaic with its defects, axes, a ruler and the source frames: '
+            f'<a href="{href}">{href}</a> (read-only here; <code>pipestitch review OUT</code> '
+            "to edit the observations).</p>")
 
 
 def render_report(data: ReportData) -> str:
-    """The report as one HTML string (no external resources)."""
+    """The report as one HTML string (no external resources); the per-frame tables are
+    the CSV files beside it, linked (``data.tables``)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
-    problems = (_table(["frame", "problem"], [[f"{i:05d}" if i >= 0 else "run", m]
-                                              for i, m in data.problems])
-                if data.problems else "<p>None.</p>")
-    rows = [[f"{f.frame:05d}", f"{f.z_mm:.2f}", f"{f.alpha_deg:.3f}", f"{f.beta_deg:.3f}",
-             f"{f.dx_mm:.3f}", f"{f.dy_mm:.3f}", f"{f.diameter_mm:.3f}",
-             "yes" if f.ambiguous else "", f.chosen_by] for f in data.frames]
-    frames = _table(["frame", "z (mm)", "α (°)", "β (°)", "Δx (mm)", "Δy (mm)", "D (mm)",
-                     "ambiguous", "chosen by"], rows)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
 <style>{_STYLE}</style></head><body>
 <h1>{html.escape(data.title)}</h1>
 {_survey_section(data)}
+<h2>Summary per metre</h2>
+{_summary_section(data)}
 <h2>Unrolled wall</h2>
 {_mosaic_section(data)}
+{_review_note(data)}
 <h2>Defects</h2>
 <p class="note">Holes (red) and spots (amber), outlined on the mosaic; z and θ in the
 mosaic's coordinates; clock: {_clock_note(data)}, clockwise looking along the survey
@@ -318,12 +430,14 @@ mosaic's coordinates; clock: {_clock_note(data)}, clockwise looking along the su
 {_defect_table(data)}
 <h2>Coded observations</h2>
 {_observation_section(data)}
+<h2>Diameter exceedances</h2>
+{_exceedances(data)}
 <h2>Ovality and deflection</h2>
 {_ovality_section(data)}
 <h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
 <h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
-<h2>Frames that failed, were skipped or stayed ambiguous</h2>{problems}
+<h2>Frames that failed, were skipped or stayed ambiguous</h2>{_problems_section(data)}
 <h2>Processing</h2>{figures}
-<h2>Frames</h2>{frames}
+<h2>Per-frame tables</h2>{_tables_section(data)}
 </body></html>
 """

@@ -18,12 +18,13 @@ import html
 import json
 from importlib import resources
 
-__all__ = ["VIEWER_NAME", "render_viewer"]
+__all__ = ["VIEWER_NAME", "openseadragon_js", "render_viewer"]
 
 VIEWER_NAME = "viewer.html"
 
 
-def _openseadragon_js() -> str:
+def openseadragon_js() -> str:
+    """OpenSeadragon's script (vendored, BSD-3-Clause), to inline into a page."""
     path = resources.files("pipestitch.report") / "static" / "openseadragon"
     return (path / "openseadragon.min.js").read_text(encoding="utf-8")
 
@@ -50,7 +51,7 @@ def render_viewer(source: dict[str, object], *, title: str = "pipestitch mosaic"
     """
     axes = ({"z0_mm": z0_mm, "mm_per_px": mm_per_px, "deg_per_px": deg_per_px}
             if mm_per_px is not None and deg_per_px is not None else None)
-    return _PAGE.format(title=html.escape(title), osd=_openseadragon_js(),
+    return _PAGE.format(title=html.escape(title), osd=openseadragon_js(),
                         source=json.dumps(source), axes=json.dumps(axes))
 
 

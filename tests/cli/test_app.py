@@ -128,12 +128,12 @@ def test_pose_on_missing_dataset_exit_2(tmp_path: Path) -> None:
 
 def test_unexpected_failure_exits_1_without_traceback(small_dataset: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
-    import pipestitch.cli.app as cli
+    import pipestitch.pipeline.posing as posing
 
     def boom(*args: object, **kwargs: object) -> None:
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(cli, "run_pose", boom)
+    monkeypatch.setattr(posing, "run_pose", boom)
     monkeypatch.delenv("PIPESTITCH_DEBUG", raising=False)
     result = runner.invoke(app, ["pose", str(small_dataset), "--out", "/tmp/x", "--quiet"])
     assert result.exit_code == 1
@@ -318,12 +318,12 @@ def test_calibrate_camera_bad_board_options_exit_2(small_dataset: Path, tmp_path
 
 def test_bad_parameter_in_a_command_body_is_one_line_exit_2(
         monkeypatch: pytest.MonkeyPatch, small_dataset: Path, tmp_path: Path) -> None:
-    import pipestitch.cli.app as cli
+    import pipestitch.pipeline.posing as posing
 
     def bad(*args: object, **kwargs: object) -> None:
         raise typer.BadParameter("--workers: too many")
 
-    monkeypatch.setattr(cli, "run_pose", bad)
+    monkeypatch.setattr(posing, "run_pose", bad)
     result = runner.invoke(app, ["pose", str(small_dataset), "--out", str(tmp_path / "o")])
     _one_error_line(result, "--workers: too many")
 
@@ -425,12 +425,12 @@ def test_check_with_a_video_reads_imu_and_odometry_as_run_does(small_dataset: Pa
 def test_os_errors_naming_a_path_are_bad_input(small_dataset: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch, exc: OSError,
                                                code: int, needle: str) -> None:
-    import pipestitch.cli.app as cli
+    import pipestitch.pipeline.posing as posing
 
     def fail(*args: object, **kwargs: object) -> None:
         raise exc
 
-    monkeypatch.setattr(cli, "run_pose", fail)
+    monkeypatch.setattr(posing, "run_pose", fail)
     monkeypatch.delenv("PIPESTITCH_DEBUG", raising=False)
     result = runner.invoke(app, ["pose", str(small_dataset), "--out", str(tmp_path / "o")])
     lines = [line for line in result.output.splitlines() if line.strip()]
@@ -443,3 +443,25 @@ def test_fewer_than_one_worker_is_refused(small_dataset: Path, tmp_path: Path,
     result = CliRunner().invoke(app, [command, str(small_dataset), "--out", str(tmp_path / "o"),
                                       "--workers", "0"])
     assert result.exit_code == 2 and "--workers" in result.output
+
+
+def test_calibration_formats_in_the_help_are_the_pipelines() -> None:
+    from pipestitch.cli import calibrate_command
+    from pipestitch.pipeline import calibrating
+
+    assert calibrate_command.FORMATS == calibrating.FORMATS
+
+
+def test_the_command_line_loads_no_stage_until_a_command_runs() -> None:
+    """`pipestitch --help` and usage errors import typer and the scenario list, not the
+    pipeline, scipy or the compiled kernels (each command imports what it runs)."""
+    import subprocess
+    import sys
+
+    heavy = ("pipestitch.pipeline.run", "pipestitch.pipeline.calibrating", "scipy", "numba",
+             "pipestitch.mosaic", "pipestitch.pose", "matplotlib")
+    code = ("import sys, pipestitch.cli.app; "
+            f"print([m for m in {heavy!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"

@@ -12,7 +12,7 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Annotated, NoReturn, TypeVar
 
 import click
 import typer
@@ -26,22 +26,15 @@ from pipestitch.cli.export_command import register as register_export
 from pipestitch.cli.mask_command import register as register_mask
 from pipestitch.cli.review_command import register as register_review
 from pipestitch.errors import PipestitchError
-from pipestitch.pipeline.check import (
-    check_finite,
-    check_out_file,
-    check_out_folder_path,
-    check_workers,
-    run_check,
-)
-from pipestitch.pipeline.coding import check_observations, code_run
-from pipestitch.pipeline.measuring import measure_run
-from pipestitch.pipeline.posing import run_pose
 from pipestitch.pipeline.progress import console
-from pipestitch.pipeline.run import RunSummary, run_dataset
-from pipestitch.pipeline.simulating import simulate_dataset
-from pipestitch.pipeline.staging import check_out_folder
-from pipestitch.pipeline.stitching import MosaicSettings
 from pipestitch.simulate.scenarios import SCENARIOS
+
+if TYPE_CHECKING:
+    from pipestitch.pipeline.run import RunSummary
+
+# The pipeline is imported by the command that runs it, inside its body: `--help`, a
+# usage error or a light command (check, export) does not load the mosaic stages,
+# scipy or the compiled kernels.
 
 __all__ = ["app", "main"]
 
@@ -117,6 +110,8 @@ def _checked(files: dict[str, str] | None = None,
     def handle(func: F) -> F:
         @functools.wraps(func)
         def wrapper(*args: object, **kwargs: object) -> object:
+            from pipestitch.pipeline.check import check_finite, check_out_file
+
             for name, option in (finite or {}).items():
                 check_finite(kwargs.get(name), option)  # type: ignore[arg-type]
             for name, option in (files or {}).items():
@@ -160,6 +155,9 @@ def simulate(
 
     Example: pipestitch simulate --scenario test_piece --size half --out data/test_piece
     """
+    from pipestitch.pipeline.check import check_out_folder_path
+    from pipestitch.pipeline.simulating import simulate_dataset
+
     if scenario not in SCENARIOS:
         console.print(f"[bold red]error:[/] unknown scenario {scenario!r}; choose from "
                       f"{', '.join(SCENARIOS)}")
@@ -203,6 +201,8 @@ def check(
 
     Example: pipestitch check data/test_piece
     """
+    from pipestitch.pipeline.check import run_check
+
     problems = run_check(dataset, show_progress=not quiet, video=video)
     errors = [p for p in problems if p.severity == "error"]
     if problems:
@@ -232,6 +232,10 @@ def pose(
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """
+    from pipestitch.pipeline.check import check_workers
+    from pipestitch.pipeline.posing import run_pose
+    from pipestitch.pipeline.staging import check_out_folder
+
     check_out_folder(dataset, out)   # not inside the dataset, a folder that can be written
     check_workers(workers)
     summary = run_pose(dataset, out, show_progress=not quiet, workers=workers,
@@ -278,6 +282,11 @@ def run(
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """
+    from pipestitch.pipeline.check import check_finite, check_workers
+    from pipestitch.pipeline.run import run_dataset
+    from pipestitch.pipeline.staging import check_out_folder
+    from pipestitch.pipeline.stitching import MosaicSettings
+
     try:
         make = MosaicSettings.fine if fine_registration else MosaicSettings
         check_workers(workers)
@@ -320,6 +329,10 @@ def measure(
 
     Example: pipestitch measure out/test_piece
     """
+    from pipestitch.pipeline.check import check_finite
+    from pipestitch.pipeline.coding import check_observations, code_run
+    from pipestitch.pipeline.measuring import measure_run
+
     check_finite(crown_deg, "--crown-deg")
     check_observations(out)   # refused user rows: before defects.csv is written
     path, defects = measure_run(out, crown_deg=crown_deg)
@@ -343,6 +356,10 @@ def demo(
 
     Example: pipestitch demo --out /tmp/pipestitch-demo
     """
+    from pipestitch.pipeline.check import check_out_folder_path, run_check
+    from pipestitch.pipeline.run import run_dataset
+    from pipestitch.pipeline.simulating import simulate_dataset
+
     if size not in ("full", "half"):
         raise _error(f"--size: expected full or half, got {size!r}", 2)
     if out is not None:

@@ -8,15 +8,17 @@ failed, 2 for bad input (a missing folder, a bad option).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from pipestitch.pipeline.batch import BatchResult, run_batch
 from pipestitch.pipeline.progress import console
+
+if TYPE_CHECKING:
+    from pipestitch.pipeline.batch import BatchResult
 
 __all__ = ["batch"]
 
@@ -46,6 +48,8 @@ def batch(
 
     Example: pipestitch batch data/run1 data/run2 --out out/night --workers 2
     """
+    from pipestitch.pipeline.batch import run_batch
+
     if workers < 1 or retries < 0 or threads < 1:
         console.print("[bold red]error:[/] expected --workers >= 1, --retries >= 0, "
                       f"--threads >= 1; got {workers}, {retries}, {threads}")

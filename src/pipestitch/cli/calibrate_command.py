@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -16,23 +16,18 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from pipestitch.calibrate import Board, parse_board
 from pipestitch.errors import ConfigError
-from pipestitch.pipeline.calibrating import (
-    FORMATS,
-    CameraRun,
-    LaserRun,
-    export_calibration,
-    import_calibration,
-    run_camera_calibration,
-    run_laser_calibration,
-)
-from pipestitch.pipeline.check import check_out_file
+
+if TYPE_CHECKING:   # the calibration code loads when a calibrate command runs
+    from pipestitch.pipeline.calibrating import CameraRun, LaserRun
 
 __all__ = ["register"]
 
 _out = Console(highlight=False, soft_wrap=True)
 _QUIET = typer.Option("--quiet", "-q", help="No progress bar.")
+# pipeline.calibrating.FORMATS (tests/cli/test_app.py checks they agree), written out so
+# that the help does not load the calibration code.
+FORMATS = ("ocamcalib", "matlab", "opencv")
 _FORMAT_HELP = (f"{', '.join(FORMATS)} (default: from the suffix: .txt OCamCalib "
                 "calib_results.txt, .yaml/.yml OpenCV, .mat MATLAB, .json MATLAB or OpenCV "
                 "by its keys).")
@@ -60,6 +55,10 @@ def camera(
 
     Example: pipestitch calibrate camera calib/*.png --board 8x6 --square-mm 10 --out probe.toml
     """
+    from pipestitch.calibrate import Board, parse_board
+    from pipestitch.pipeline.calibrating import run_camera_calibration
+    from pipestitch.pipeline.check import check_out_file
+
     try:
         cols, rows = parse_board(board)
     except ValueError:
@@ -116,6 +115,9 @@ def laser(
 
     Example: pipestitch calibrate laser frames/laser_*.png --probe probe.toml --pipe-diameter-mm 65
     """
+    from pipestitch.pipeline.calibrating import run_laser_calibration
+    from pipestitch.pipeline.check import check_out_file
+
     if not (np.isfinite(pipe_diameter_mm) and pipe_diameter_mm > 0):
         raise ConfigError(None, f"--pipe-diameter-mm: expected a positive diameter in mm, got "
                                 f"{pipe_diameter_mm}")
@@ -148,6 +150,9 @@ def import_(
 
     Example: pipestitch calibrate import calib_results.txt --out probe.toml
     """
+    from pipestitch.pipeline.calibrating import import_calibration
+    from pipestitch.pipeline.check import check_out_file
+
     check_out_file(out, "--out")
     cam, fmt, updated = import_calibration(source, out=out, fmt=fmt)
     verb = "updated \\[camera] of" if updated else "wrote"
@@ -164,6 +169,9 @@ def export(
 
     Example: pipestitch calibrate export probe.toml --out intrinsics.json --format matlab
     """
+    from pipestitch.pipeline.calibrating import export_calibration
+    from pipestitch.pipeline.check import check_out_file
+
     check_out_file(out, "--out")
     fmt = export_calibration(probe, out, fmt=fmt)
     _out.print(f"wrote {fmt} {escape(str(out))}")

@@ -13,7 +13,6 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from pipestitch.pipeline.coding import EXPORTS, UNITS, export_run
 from pipestitch.pipeline.progress import console
 
 __all__ = ["CROWN_HELP", "register"]
@@ -50,6 +49,8 @@ def export(
 
     Example: pipestitch export out/test_piece --format pacp7 --units imperial
     """
+    from pipestitch.pipeline.coding import EXPORTS, UNITS, export_run
+
     for option, value, allowed in (("--format", fmt, EXPORTS), ("--units", units, UNITS)):
         if value is not None and value not in allowed:
             console.print(f"[bold red]error:[/] {option}: expected one of "

@@ -12,8 +12,6 @@ from typing import Annotated
 
 import typer
 
-from pipestitch.pipeline.masking import run_mask
-
 __all__ = ["register"]
 
 
@@ -34,6 +32,8 @@ def mask(
 
     Example: pipestitch mask data/test_piece --out data/test_piece/mask.png
     """
+    from pipestitch.pipeline.masking import run_mask
+
     summary = run_mask(dataset, out, video=video, frames=frames)
     typer.echo(f"wrote {summary.path}: {summary.occluded_fraction:.1%} of the image never "
                f"shows the wall (from {summary.n_frames} LED frames)")

@@ -13,9 +13,6 @@ from typing import Annotated
 
 import typer
 
-from pipestitch.pipeline.review import write_review_page
-from pipestitch.pipeline.review_server import ReviewServer
-
 __all__ = ["register"]
 
 
@@ -38,6 +35,9 @@ def review(
 
     Example: pipestitch review out/test_piece
     """
+    from pipestitch.pipeline.review import write_review_page
+    from pipestitch.pipeline.review_server import ReviewServer
+
     if not 0 <= port <= 65535:
         raise typer.BadParameter(f"--port: expected 0..65535, got {port}")
     if not out.is_dir():

@@ -9,18 +9,17 @@ Writing a dataset to disk is the pipeline's job (``pipeline/simulating.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipestitch.camera import CameraModel, default_camera
-from pipestitch.geometry import BodyEnvelope, PipeSection, Pose
-from pipestitch.simulate.render import Optics, Renderer, WallTexture
-from pipestitch.simulate.textures import Defect, WallGrid, make_wall, reference_test_piece
-from pipestitch.simulate.trajectory import (
-    odometer_readings,
-    table1_poses,
-    wandering_poses,
-)
+from pipestitch.simulate.optics import Optics
+
+if TYPE_CHECKING:   # the renderer and textures load when a run is built, not to list these
+    from pipestitch.camera import CameraModel
+    from pipestitch.geometry import BodyEnvelope, PipeSection, Pose
+    from pipestitch.simulate.render import Renderer
+    from pipestitch.simulate.textures import Defect, WallGrid
 
 __all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run"]
 
@@ -115,6 +114,8 @@ class SyntheticRun:
 def _random_defects(radius_mm: float, z0: float, z1: float,
                     rng: np.random.Generator) -> list[Defect]:
     """A few holes and spots spread over the run (not on its very ends)."""
+    from pipestitch.simulate.textures import Defect
+
     out = []
     for kind, n in (("hole", 3), ("spot", 3)):
         for _ in range(n):
@@ -138,6 +139,12 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     n_pairs : int, optional
         Override the scenario's number of pairs.
     """
+    from pipestitch.camera import default_camera
+    from pipestitch.geometry import BodyEnvelope, PipeSection
+    from pipestitch.simulate.render import Renderer, WallTexture
+    from pipestitch.simulate.textures import WallGrid, make_wall, reference_test_piece
+    from pipestitch.simulate.trajectory import odometer_readings, table1_poses, wandering_poses
+
     rng = np.random.default_rng(seed)
     n = scenario.n_pairs if n_pairs is None else int(n_pairs)
     if n < 1:

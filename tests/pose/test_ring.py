@@ -176,3 +176,21 @@ def test_the_part_of_the_frame_the_rays_read_gives_the_whole_frames_samples(band
         np.testing.assert_array_equal(
             cv2.remap(part, part_x, part_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
             whole)
+
+
+def test_row_percentile_is_numpys_nanpercentile_per_row() -> None:
+    """The line-width background (one sort instead of numpy's per-row loop): the same
+    values, NaN ignored, NaN for a row without data."""
+    import warnings
+
+    from pipestitch.pose.ring import _row_percentile
+
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=(300, 41))
+    values[rng.random(values.shape) < 0.1] = np.nan
+    values[3] = np.nan
+    values[4, 1:] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanpercentile(values, 20, axis=1)
+    np.testing.assert_allclose(_row_percentile(values, 20.0), expected, rtol=0, atol=1e-12)

@@ -319,7 +319,7 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     inside = (cols >= 0) & (cols < polar.shape[1])
     profile = np.where(inside, polar[rows[:, None], np.clip(cols, 0, polar.shape[1] - 1)],
                        np.nan)
-    base = np.nanpercentile(profile, 20, axis=1)
+    base = _row_percentile(profile, 20.0)
     peak = np.nanmax(profile[:, half - 2:half + 3], axis=1)
     level = (base + (peak - base) / 2)[:, None]
     below = ~(profile >= level)   # NaN (outside the frame) counts as below
@@ -330,6 +330,21 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     if fwhm.size < MIN_WIDTH_SAMPLES // 2:
         return float("nan")
     return float(np.median(fwhm)) / FWHM_PER_SIGMA
+
+
+def _row_percentile(values: np.ndarray, q: float) -> np.ndarray:
+    """Each row's ``q``-th percentile of its finite values (linear interpolation, as
+    ``np.nanpercentile(values, q, axis=1)`` gives, which loops over the rows in Python:
+    ~30 ms a frame for the ring's ~700 rays; one sort of the whole array instead)."""
+    ordered = np.sort(values, axis=1)          # NaN last
+    n = np.count_nonzero(np.isfinite(values), axis=1)
+    pos = np.maximum(n - 1, 0) * (q / 100.0)
+    lo = np.floor(pos).astype(np.intp)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    rows = np.arange(len(values))
+    frac = pos - lo
+    out = ordered[rows, lo] * (1.0 - frac) + ordered[rows, hi] * frac
+    return np.where(n > 0, out, np.nan)
 
 
 def _crossing(profile: np.ndarray, below: np.ndarray, level: np.ndarray) -> np.ndarray:

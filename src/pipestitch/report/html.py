@@ -85,11 +85,18 @@ class ReportData:
     tables: list[str] = field(default_factory=list)   # CSV files beside the report to link
 
 
-def _png(fig: plt.Figure) -> str:
+def _png(fig: plt.Figure, *, photo: bool = False) -> str:
+    """The figure as a data URI: PNG for plots; JPEG (quality 90) for ``photo``, a figure
+    that is mostly an image (the mosaic: a tenth of the bytes, a third of the time)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    if photo:
+        fig.savefig(buf, format="jpeg", dpi=110, bbox_inches="tight",
+                    pil_kwargs={"quality": 90})
+    else:
+        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    kind = "jpeg" if photo else "png"
+    return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _mosaic_figure(data: ReportData) -> str:
@@ -110,7 +117,7 @@ def _mosaic_figure(data: ReportData) -> str:
     _outline_defects(ax, data)
     if data.standards is not None:
         _clock_axis(ax, data.standards.crown_theta_deg, img.shape[0] * data.deg_per_px)
-    return _png(fig)
+    return _png(fig, photo=True)
 
 
 def _clock_axis(ax: plt.Axes, crown_theta_deg: float, theta_max: float) -> None:

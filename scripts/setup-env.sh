@@ -1,6 +1,7 @@
 # Sourced by ./run-tests and ./run-demo: create .venv with Python >= 3.11 and install
 # pipestitch (editable, with test extras, versions from constraints.txt) when
-# pyproject.toml or constraints.txt changed since the last install.
+# pyproject.toml or constraints.txt changed since the last install; then compile the
+# numba kernels into their cache when they changed since the last compile.
 PY=""
 for cand in python3.11 python3.12 python3.13 python3 python; do
   if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
@@ -23,3 +24,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   .venv/bin/python -m pip install --quiet -c constraints.txt -e '.[test]' >&2
   echo "$want" > "$stamp"
 fi
+# Compiled here, in parallel processes, the first run loads the kernels instead of
+# compiling them (about a minute); a failure only leaves them to compile on first use.
+.venv/bin/python scripts/compile_kernels.py --stamp .venv/.pipestitch-kernels >&2 \
+  || echo "warning: kernels not compiled ahead; the first run compiles them" >&2

@@ -18,11 +18,13 @@ SMOKE = [   # (script, a line its --quick output must hold)
     ("render.py", "pairs/s"),
     ("table1.py", "speed: ours"),
     ("mosaic.py", "pairs/s"),
+    ("first_run.py", "first run / warm"),
     ("holes.py", "spacing err"),
     ("ovality.py", "ours (refined tilt)"),
     ("scale.py", "speed ratio cluster vs sequential"),
     ("calibration_real.py", "calibration vs published"),
     ("occluders.py", "SSIM - black"),
+    ("report.py", "open in Chromium"),
 ]
 
 

@@ -22,4 +22,16 @@ def main() -> None:
         app_main()
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
+        quiet_shutdown()
         raise SystemExit(130) from None
+    except SystemExit as exc:
+        if exc.code == 130:
+            quiet_shutdown()
+        raise
+
+
+def quiet_shutdown() -> None:
+    """After an interrupt, let nothing but the one line reach the user: objects that a
+    library was building when Ctrl-C came (numba's LLVM passes, mid-compile) are
+    finalised at exit and their errors would print as tracebacks; they are dropped."""
+    sys.unraisablehook = lambda _unraisable: None

@@ -36,7 +36,9 @@ def quantile_over_frames(stack: np.ndarray, virtual: float,
     med = np.empty((height, width) if median else (0, 0), np.float32)
     buf = np.empty((n, width), np.float32)
     for i in range(height):
-        buf[:, :] = stack[:, i, :]
+        for f in range(n):   # loops, not a slice assignment: less code to compile
+            for j in range(width):
+                buf[f, j] = stack[f, i, j]
         # Odd-even transposition sort of every pixel's n values at once: branch-free
         # and contiguous over the pixels of a row (an insertion sort per pixel is
         # several times slower on its mispredicted branches).

@@ -147,8 +147,10 @@ def residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndarray, shi
     for r in range(n_rows):
         _row_gradients(img, r, gx, gy)
         src = moved[(r + shift_rows) % n_rows]
-        m[:n_cols - sc] = src[sc:]
-        m[n_cols - sc:] = src[:sc]
+        for c in range(n_cols - sc):   # loops, not slice assignments: less to compile
+            m[c] = src[sc + c]
+        for c in range(sc):
+            m[n_cols - sc + c] = src[c]
         w, cur = weight[r] if weight.size else ones, img[r]
         for c in range(n_cols):
             e = w[c] * (m[c] - cur[c])

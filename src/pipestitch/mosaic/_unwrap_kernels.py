@@ -67,7 +67,8 @@ def upsample_masked(nodes: np.ndarray, step: int, n_rows: int, n_cols: int,
         for order in range(n_f):   # the validity first: it masks the others
             f = 2 if order == 0 else (order - 1 if order <= 2 else order)
             if k == 0 or r0 == last_r:
-                row[:] = nodes[f, r0]
+                for c in range(row.shape[0]):   # not a slice assignment: less to compile
+                    row[c] = nodes[f, r0, c]
             else:
                 for c in range(row.shape[0]):
                     row[c] = nodes[f, r0, c] * w_lo[k] + nodes[f, r0 + 1, c] * w_hi[k]
@@ -192,9 +193,44 @@ def column_medians(values: np.ndarray, min_count: float) -> np.ndarray:
         n = count[j]
         if n > min_count:
             mid = n // 2
-            part = np.partition(columns[j, :n], mid)
+            part = columns[j]
+            _select(part, n, mid)
             if n % 2:
                 out[j] = part[mid]
             else:
                 out[j] = F32(part[:mid].max() + part[mid]) / F32(2)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _select(a: np.ndarray, n: int, k: int) -> None:
+    """Reorder ``a[:n]`` (finite values) in place so that ``a[k]`` is its k-th smallest
+    value, none larger before it and none smaller after (what ``np.partition`` gives:
+    the same order statistics). Quickselect with a median-of-three pivot: numba's
+    ``np.partition`` compiles a sort of its ``kth`` argument too, seconds of code."""
+    lo, hi = 0, n - 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while pivot < a[j]:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return

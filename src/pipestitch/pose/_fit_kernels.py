@@ -68,8 +68,25 @@ def sym_eig(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 if a[p, q] != 0.0:
                     _rotate(a, v, p, q)
     d = np.diag(a).copy()
-    order = np.argsort(d)
+    order = _argsort_small(d)
     return d[order], v[:, order].copy()
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _argsort_small(d: np.ndarray) -> np.ndarray:
+    """``np.argsort(d)`` of a few values: numba's argsort sorts up to 15 by insertion,
+    as here (same comparison, NaN last, so the same order, ties included); its general
+    quicksort is a second of compiling for six numbers."""
+    order = np.arange(d.size)
+    for i in range(1, d.size):
+        k = order[i]
+        v = d[k]
+        j = i
+        while j > 0 and (v < d[order[j - 1]] or (np.isnan(d[order[j - 1]]) and not np.isnan(v))):
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = k
+    return order
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -152,7 +169,9 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
     x = np.empty(b.shape)
     for c in range(b.shape[1]):
-        x[:, c] = lu_solve(f, order, np.ascontiguousarray(b[:, c]))
+        col = lu_solve(f, order, np.ascontiguousarray(b[:, c]))
+        for r in range(col.size):   # not x[:, c] = col: a slice assignment compiles a
+            x[r, c] = col[r]        # shape check with its error message, seconds of code
     return x
 
 
@@ -339,7 +358,9 @@ def conic_through(pts: np.ndarray) -> tuple[np.ndarray, float, bool]:
         cols[r], cols[j] = cols[j], cols[r]
         for q in range(5):
             if q != r:
-                design[q] -= design[q, r] / design[r, r] * design[r]
+                f = design[q, r] / design[r, r]
+                for c in range(6):
+                    design[q, c] -= f * design[r, c]
     coef = np.empty(6)
     coef[cols[5]] = 1.0
     for r in range(5):
@@ -443,7 +464,7 @@ def ransac_conic(pts: np.ndarray, uniforms: np.ndarray,
         for j in range(5):   # partial Fisher-Yates: 5 distinct points, uniformly
             m = j + int(uniforms[k, j] * (n - j))
             perm[j], perm[m] = perm[m], perm[j]
-            sample[j] = pts[perm[j]]
+            sample[j, 0], sample[j, 1] = pts[perm[j], 0], pts[perm[j], 1]
         coef, scale, ok = conic_through(sample)
         k += 1
         if not ok:
@@ -579,7 +600,8 @@ def step_query(pixels: np.ndarray, stride: int) -> np.ndarray:
     n = pixels.shape[0]
     m = (n + stride - 1) // stride
     out = np.empty((n + 2 * m, 2))
-    out[:n] = pixels
+    for i in range(n):
+        out[i, 0], out[i, 1] = pixels[i, 0], pixels[i, 1]
     for i in range(m):
         out[n + i, 0], out[n + i, 1] = pixels[i * stride, 0] + 1.0, pixels[i * stride, 1]
         out[n + m + i, 0] = pixels[i * stride, 0]
@@ -660,7 +682,8 @@ def mirror_of(x: np.ndarray, distance: float, normal: np.ndarray,
         gap = abs(sols[k, 0] - x[0]) + abs(sols[k, 1] - x[1])
         if gap > best:
             best = gap
-            out[:4] = sols[k, :4]
+            for j in range(4):
+                out[j] = sols[k, j]
     return out
 
 
@@ -828,7 +851,8 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
             damped[j, j] += damping * a[j, j]
         step = solve_vector(damped, -grad[:n_free])
         trial = x.copy()
-        trial[:n_free] += step
+        for j in range(n_free):
+            trial[j] += step[j]
         # sigma of each parameter (weighted normal equations, residual variance)
         sigma2 = np.diag(solve(a, np.eye(n_free))) * max(wrr / dof, 1e-12)
         if np.all(step**2 <= STOP_SIGMA**2 * sigma2):
@@ -892,20 +916,27 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     for i in range(n):
         if kept[i] and i % stride == 0:
             k = i // stride
-            pts[count], res[count] = uv[i], resid[position]
-            col[count], row[count] = uv[n + k], uv[n + m + k]
+            res[count] = resid[position]
+            for j in range(2):   # element by element (see the summary below)
+                pts[count, j], col[count, j] = uv[i, j], uv[n + k, j]
+                row[count, j] = uv[n + m + k, j]
             count += 1
         position += kept[i]
     a_mat, c = plane_to_world(x, distance, normal, basis)
     rms_px = px_rms(pts[:count], res[:count], col[:count], row[:count], a_mat, c)
     # one row per hypothesis, so Python converts one array (each conversion has a cost)
     summary, info = np.empty((2, SUMMARY_SIGMA + n_free)), np.empty((2, 4, 4))
-    summary[0, :5], summary[1, :5] = x, mirror
+    for j in range(5):   # element by element: slice assignments compile a shape check
+        summary[0, j], summary[1, j] = x[j], mirror[j]
     for h, (r, h_jtj) in enumerate(((resid, jtj), (m_resid, m_jtj))):
         summary[h, SUMMARY_RMS] = np.sqrt(dot(r, r) / r.size)
-        sigma, info[h], ok = uncertainty(r, h_jtj, n_free)
+        sigma, pose_info, ok = uncertainty(r, h_jtj, n_free)
+        for i in range(4):
+            for j in range(4):
+                info[h, i, j] = pose_info[i, j]
         summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
-        summary[h, SUMMARY_SIGMA:] = sigma
+        for j in range(n_free):
+            summary[h, SUMMARY_SIGMA + j] = sigma[j]
     return summary, cost, rms_px, info
 
 
@@ -1008,8 +1039,11 @@ def uncertainty(resid: np.ndarray, jtj: np.ndarray,
     dof = max(1, resid.size - n_free)
     info = jtj[:n_free, :n_free] / max(dot(resid, resid) / dof, 1e-12)
     pose_info = info[:4, :4].copy()
-    if n_free == 5:
-        pose_info -= np.outer(info[:4, 4], info[4, :4]) / max(info[4, 4], 1e-300)
+    if n_free == 5:   # loops, not np.outer and an array expression: less code to compile
+        scale = max(info[4, 4], 1e-300)
+        for i in range(4):
+            for j in range(4):
+                pose_info[i, j] -= info[i, 4] * info[4, j] / scale
     sigma = np.full(n_free, np.nan)
     if lu(info)[2] == 0.0:
         return sigma, pose_info, False

@@ -1,0 +1,130 @@
+"""The first ``pipestitch run`` after set-up against a warm one, as the user runs it.
+
+Every run is ``pipestitch run`` as a child process on the same dataset (``--scenario``,
+default ``chart83``: 20 pairs at 1224 x 1024), each with numba's cache in a folder of
+its own (``NUMBA_CACHE_DIR``), so nothing another process compiled is reused:
+
+- ``cold``: an empty cache, the first run compiles every kernel (what the first run
+  cost before set-up compiled them; left out by ``--quick``, as it takes a minute);
+- ``set-up``: ``scripts/compile_kernels.py`` into a second empty cache, as
+  ``scripts/setup-env.sh`` runs it after installing;
+- ``first``: the first run on that cache;
+- ``warm``: the runs after it (``--repeat``), with the cache and the files read by
+  ``first`` in place.
+
+Prints each wall time and peak resident memory (getrusage of the child) and the
+ratios to the fastest warm run. Target: ``first`` <= 1.5 x ``warm``.
+
+Run: python -u bench/first_run.py [--quick] [--pairs N] [--repeat N] [--work DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+COMPILE = ROOT / "scripts" / "compile_kernels.py"
+
+
+def pipestitch() -> list[str]:
+    """The command line of the ``pipestitch`` console script of this interpreter.
+
+    Returns
+    -------
+    list of str
+        The script beside ``sys.executable``, else ``python -m pipestitch.cli``.
+    """
+    script = Path(sys.executable).with_name("pipestitch")
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "pipestitch.cli"]
+
+
+def timed(cmd: list[str], cache: Path) -> tuple[float, float]:
+    """Run ``cmd`` as a child with numba's cache in ``cache``; its wall time and peak
+    resident memory.
+
+    Parameters
+    ----------
+    cmd : list of str
+        Command line.
+    cache : pathlib.Path
+        ``NUMBA_CACHE_DIR`` of the child.
+
+    Returns
+    -------
+    tuple of float
+        Wall time (s) and peak resident memory (MB) of the child.
+    """
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    with tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)   # this child's own rusage
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode != 0:
+            err.seek(0)
+            raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n"
+                             f"{err.read().decode(errors='replace')[-2000:]}")
+    return wall, usage.ru_maxrss / 1024
+
+
+def main() -> None:
+    """Simulate the dataset, time the runs, print the table and the ratios."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="2 pairs, no cold run (smoke test)")
+    parser.add_argument("--scenario", default="chart83")
+    parser.add_argument("--size", default="half")
+    parser.add_argument("--pairs", type=int, default=20)
+    parser.add_argument("--repeat", type=int, default=2, help="warm runs")
+    parser.add_argument("--work", type=Path, help="keep the dataset, caches and outputs here")
+    args = parser.parse_args()
+    pairs = 2 if args.quick else args.pairs
+    work = args.work or Path(tempfile.mkdtemp(prefix="pipestitch-first-run-"))
+    work.mkdir(parents=True, exist_ok=True)
+    data = work / "data"
+    try:
+        if not data.is_dir():
+            subprocess.run([*pipestitch(), "simulate", "--scenario", args.scenario, "--size",
+                            args.size, "--pairs", str(pairs), "--out", str(data), "-q"],
+                           check=True, stdout=subprocess.DEVNULL)
+        run = [*pipestitch(), "run", str(data), "-q", "--out"]
+        caches = {name: Path(tempfile.mkdtemp(prefix=f"numba-{name}-", dir=work))
+                  for name in ("cold", "setup")}
+        rows: list[tuple[str, float, float]] = []
+        if not args.quick:
+            rows.append(("cold (empty cache)", *timed([*run, str(work / "out-cold")],
+                                                      caches["cold"])))
+        rows.append(("set-up: compile_kernels.py",
+                     *timed([sys.executable, str(COMPILE)], caches["setup"])))
+        rows.append(("first run after set-up", *timed([*run, str(work / "out-first")],
+                                                      caches["setup"])))
+        for k in range(max(1, args.repeat)):
+            rows.append((f"warm run {k + 1}", *timed([*run, str(work / f"out-warm{k}")],
+                                                     caches["setup"])))
+        warm = min(wall for name, wall, _ in rows if name.startswith("warm"))
+        print(f"pipestitch run, {pairs} pairs of {args.scenario!r} at {args.size} size, "
+              f"{os.cpu_count()} cores")
+        print(f"{'what':<28} {'wall s':>8} {'peak MB':>8} {'x warm':>7}")
+        for name, wall, mb in rows:
+            print(f"{name:<28} {wall:8.2f} {mb:8.0f} {wall / warm:7.2f}")
+        first = next(wall for name, wall, _ in rows if name.startswith("first"))
+        print(f"first run / warm: {first / warm:.2f} (target <= 1.5)")
+        if not args.quick:
+            cold = rows[0][1]
+            print(f"cold run / warm: {cold / warm:.2f}; set-up compile + first run: "
+                  f"{rows[1][1] + first:.1f} s against {cold:.1f} s cold")
+    finally:
+        if args.work is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

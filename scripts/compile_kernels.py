@@ -1,0 +1,219 @@
+"""Compile pipestitch's numba kernels ahead of the first run, into numba's on-disk cache.
+
+``scripts/setup-env.sh`` runs this after installing, so that the first ``pipestitch
+run`` loads the compiled kernels (about 1 s) instead of compiling them (about a
+minute on 2 cores). Each kernel that Python code calls is compiled for the one
+signature a run calls it with (:data:`KERNELS`); the kernels it calls are compiled with
+it. The work is split over processes: the pose fit's kernel tree alone is about two
+thirds of it, so one process compiles the fit while another compiles its refinement
+subtree first (ready in the cache before the fit reaches it: numba loads a callee from
+the cache when it has it) and then the other kernels (on a shared 2-core machine: 52 s
+in one process, 27-39 s in two).
+
+``tests/test_kernel_warmup.py`` checks that a run after this compiles nothing new: a
+kernel whose signature changes must change here too.
+
+Usage: ``python scripts/compile_kernels.py [--jobs N] [--stamp FILE]``. With
+``--stamp``, nothing is done when FILE holds the key of the current kernel sources,
+numba version and cache folder (and FILE is written after a successful compile).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
+
+# (module, kernel, argument types). Types: f4 f8 i8 u1 b1 are float32, float64, int64,
+# uint8 and bool scalars; "f4:2" is a C-contiguous 2-d float32 array, a trailing "A"
+# any layout, a trailing "r" read-only.
+KERNELS: tuple[tuple[str, str, str], ...] = (
+    ("pose._fit_kernels", "fit_pixels",
+     "f8:2 i8:1A i8:1A i8 f8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8 f8:2 f8 f8:1r f8:2r"
+     " i8 f8 i8 f8 i8"),
+    # fit_pixels' refinement subtree as fit_frame calls it (compiled apart in parallel)
+    ("pose._fit_kernels", "refine_frame", "f8:1 f8:2 b1:1 i8 f8 f8:1r f8:2r i8 f8"),
+    ("pose._fit_kernels", "rays_to_plane", "f8:2 f8 f8:1r f8:2r"),
+    ("pose._ring_kernels", "divide_by_reflectance", "f4:2 f4:2 f4:2 f8 f8"),
+    ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
+    ("camera.kernels", "rays_of", "i8 f8:2 f8:1 f8:1 f8:1 f8:1 i8:1"),
+    ("camera.ocam", "_rho_of_points", "f8:2 f8:1 f8:1 f8:1 f8:1 i8:1"),
+    ("camera.ocam", "_pixels", "f8:2 f8:1 f8:1"),
+    ("camera.ocam", "ray_loop", "f8:2 f8:1 f8:1 f8"),
+    ("mosaic._unwrap_kernels", "upsample_masked", "f4:3 i8 i8 i8 f8"),
+    ("mosaic._unwrap_kernels", "column_medians", "f4:2 f8"),
+    ("mosaic._unwrap_kernels", "mask_strip", "f4:2 f4:2 f4:2 f4:2 f8 b1:2"),
+    ("mosaic._unwrap_kernels", "fill_invalid", "f4:2"),
+    ("mosaic._unwrap_kernels", "contrast_of", "f4:2 f4:2 f4:2 f4:2"),
+    ("mosaic._occluder_kernels", "quantile_over_frames", "f4:3 f8 b1"),
+    ("mosaic._register_kernels", "cross_power_ccs", "f4:2 f4:2"),
+    ("mosaic._register_kernels", "weighted_peak", "f4:2 f4:1 f4:1 f8"),
+    ("mosaic._register_kernels", "gradient_moments", "f4:2 f4:2"),
+    ("mosaic._register_kernels", "residual_moments", "f4:2 f4:2 f4:2 i8 i8"),
+    ("mosaic._register_kernels", "shifted_residual_moments", "f4:2 f4:2 f4:2 f8 f8"),
+    ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f8:1r f4:2"),
+    ("mosaic._blend_kernels", "feathered_weight", "f4:2 f4:2 u1:2"),
+    ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
+    ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
+)
+BIG = ("pose._fit_kernels", "fit_pixels")     # the big kernel tree: a process of its own
+FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the next one
+AFTER_BIG = ("mosaic._unwrap_kernels", "column_medians")   # after the tree, to balance
+
+
+def parse_types(text: str) -> tuple:
+    """Numba argument types of a :data:`KERNELS` entry's type string.
+
+    Parameters
+    ----------
+    text : str
+        Space-separated types, e.g. ``"f4:2 f8 i8:1A f8:1r"``.
+
+    Returns
+    -------
+    tuple of numba.core.types.Type
+        The argument types, in order.
+    """
+    from numba.core import types
+
+    scalars = {"f4": types.float32, "f8": types.float64, "i8": types.int64,
+               "u1": types.uint8, "b1": types.boolean}
+    out = []
+    for token in text.split():
+        name, _, rest = token.partition(":")
+        if not rest:
+            out.append(scalars[name])
+            continue
+        layout = "A" if "A" in rest else "C"
+        out.append(types.Array(scalars[name], int(rest.rstrip("Ar")), layout,
+                               readonly="r" in rest))
+    return tuple(out)
+
+
+def groups(n_jobs: int) -> list[list[int]]:
+    """Indices into :data:`KERNELS` for each process, in compile order.
+
+    Parameters
+    ----------
+    n_jobs : int
+        Processes (1: everything in one).
+
+    Returns
+    -------
+    list of list of int
+        One list per process.
+    """
+    index = {entry[:2]: i for i, entry in enumerate(KERNELS)}
+    big, first, after = index[BIG], index[FIRST], index[AFTER_BIG]
+    rest = [i for i in range(len(KERNELS)) if i not in (big, first, after)]
+    if n_jobs <= 1:
+        return [[first, big, after, *rest]]
+    out: list[list[int]] = [[big, after], [first]]
+    out += [[] for _ in range(n_jobs - 2)]
+    for k, i in enumerate(rest):     # the rest round-robin over the other processes
+        out[1 + k % (n_jobs - 1)].append(i)
+    return out
+
+
+def compile_entries(indices: list[int]) -> float:
+    """Compile the given :data:`KERNELS` entries in this process (or load them from the
+    cache); return the seconds it took.
+
+    Parameters
+    ----------
+    indices : list of int
+        Entries of :data:`KERNELS`.
+
+    Returns
+    -------
+    float
+        Wall time, s.
+    """
+    t0 = time.perf_counter()
+    for i in indices:
+        module, name, sig = KERNELS[i]
+        kernel = getattr(importlib.import_module(f"pipestitch.{module}"), name)
+        kernel.compile(parse_types(sig))
+    return time.perf_counter() - t0
+
+
+def source_key() -> str:
+    """Key of what the compiled cache depends on: the kernel modules (path, size and
+    modification time, as numba's cache checks them), this file, the interpreter, numba's
+    version and the cache folder.
+
+    Returns
+    -------
+    str
+        A hex digest.
+    """
+    from importlib.metadata import version
+
+    files = sorted({*SRC.rglob("*kernels.py"), SRC / "camera" / "ocam.py",
+                    SRC / "camera" / "opencv_fisheye.py", Path(__file__).resolve()})
+    h = hashlib.sha256()
+    for f in files:
+        st = f.stat()
+        h.update(f"{f}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+    h.update(f"{sys.executable}|{version('numba')}|{os.environ.get('NUMBA_CACHE_DIR', '')}"
+             .encode())
+    return h.hexdigest()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: see the module docstring.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: 0 when every kernel compiled.
+    """
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                        help="processes (default: 2, or 1 on one core)")
+    parser.add_argument("--stamp", type=Path, help="skip when this file holds the key")
+    parser.add_argument("--verbose", action="store_true", help="each process's time")
+    parser.add_argument("--entries", help=argparse.SUPPRESS)   # a child process's share
+    args = parser.parse_args(argv)
+    if args.entries is not None:
+        indices = [int(i) for i in args.entries.split(",") if i]
+        seconds = compile_entries(indices)
+        if args.verbose:
+            print(f"  {seconds:5.1f} s: " + ", ".join(KERNELS[i][1] for i in indices),
+                  file=sys.stderr)
+        return 0
+    key = source_key()
+    if args.stamp is not None and args.stamp.is_file() and args.stamp.read_text() == key:
+        return 0
+    t0 = time.perf_counter()
+    shares = [g for g in groups(max(1, args.jobs)) if g]
+    print(f"compiling the numba kernels ({len(shares)} processes, once: up to a minute) ...",
+          file=sys.stderr)
+    procs = [subprocess.Popen([sys.executable, __file__, "--entries", ",".join(map(str, g)),
+                               *(["--verbose"] if args.verbose else [])]) for g in shares]
+    failed = sum(p.wait() != 0 for p in procs)
+    if failed:
+        print(f"compile_kernels: {failed} of {len(procs)} processes failed; the kernels "
+              "left will compile on first use", file=sys.stderr)
+        return 1
+    print(f"compiled {len(KERNELS)} kernels in {time.perf_counter() - t0:.1f} s "
+          f"({len(procs)} processes)", file=sys.stderr)
+    if args.stamp is not None:
+        args.stamp.write_text(key)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,86 @@
+"""The kernels compiled at set-up (``scripts/compile_kernels.py``) are all a run needs."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "compile_kernels.py"
+
+# In a fresh interpreter: compile (or load) every kernel of the list, note each numba
+# dispatcher's signatures, run the pipeline in the same process, print what it added.
+CHILD = """
+import importlib.util, json, sys
+import numba.core.registry
+
+spec = importlib.util.spec_from_file_location("compile_kernels", sys.argv[1])
+ck = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(ck)
+ck.compile_entries(list(range(len(ck.KERNELS))))
+
+
+def signatures():
+    out = {}
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("pipestitch"):
+            continue
+        for obj in list(vars(module).values()):
+            if isinstance(obj, numba.core.registry.CPUDispatcher):
+                key = f"{obj.py_func.__module__}.{obj.py_func.__qualname__}"
+                out[key] = {str(s) for s in obj.signatures}
+    return out
+
+
+before = signatures()
+from pipestitch.cli import main
+sys.argv = ["pipestitch", "run", sys.argv[2], "--out", sys.argv[3], "-q"]
+try:
+    main()
+except SystemExit as stop:
+    if stop.code:
+        raise
+after = signatures()
+print(json.dumps({k: sorted(v - before.get(k, set())) for k, v in after.items()
+                  if v - before.get(k, set())}))
+"""
+
+
+def _load_script():
+    spec = importlib.util.spec_from_file_location("compile_kernels", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_listed_kernel_exists_and_parses() -> None:
+    ck = _load_script()
+    for module, name, sig in ck.KERNELS:
+        kernel = getattr(importlib.import_module(f"pipestitch.{module}"), name)
+        assert hasattr(kernel, "compile"), (module, name)
+        assert len(ck.parse_types(sig)) == kernel.py_func.__code__.co_argcount, (module, name)
+
+
+def test_groups_cover_every_kernel_once() -> None:
+    ck = _load_script()
+    for jobs in (1, 2, 3, 4):
+        flat = [i for group in ck.groups(jobs) for i in group]
+        assert sorted(flat) == list(range(len(ck.KERNELS)))
+
+
+@pytest.mark.slow   # a simulated run and the pipeline in a child process
+def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
+    data, out = tmp_path / "data", tmp_path / "out"
+    subprocess.run([sys.executable, "-m", "pipestitch.cli", "simulate", "--scenario",
+                    "default", "--size", "half", "--pairs", "3", "--out", str(data), "-q"],
+                   check=True, capture_output=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(SCRIPT), str(data), str(out)],
+                          capture_output=True, text=True, timeout=900, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    added = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert added == {}, f"compiled at run time, not by scripts/compile_kernels.py: {added}"

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
+from typing import TypeVar
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from pipestitch.camera import CameraModel
 from pipestitch.config import CameraConfig, ProbeConfig
@@ -18,15 +19,25 @@ from pipestitch.errors import ConfigError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.text import read_config_text
 
+M = TypeVar("M", bound=BaseModel)
+
 __all__ = ["format_probe_toml", "parse_probe_toml", "probe_config_for", "read_probe_toml",
+           "validated_toml",
            "write_probe_toml"]
 
 
-def _describe(exc: ValidationError) -> str:
+def _describe(exc: ValidationError, *, sections: bool) -> str:
+    """Every problem pydantic found, one phrase each: ``[section] key`` when the file's
+    top level is sections (probe.toml), the dotted key otherwise (survey.toml)."""
     problems = []
     for err in exc.errors():
         loc = [str(p) for p in err["loc"]]
-        where = f"[{loc[0]}] {'.'.join(loc[1:])}".strip() if loc else "(top level)"
+        if not loc:
+            where = "(top level)"
+        elif sections:
+            where = f"[{loc[0]}] {'.'.join(loc[1:])}".strip()
+        else:
+            where = ".".join(loc)
         if err["type"] == "extra_forbidden":
             problems.append(f"unknown key {where}")
         elif err["type"] == "missing":
@@ -36,17 +47,23 @@ def _describe(exc: ValidationError) -> str:
     return "; ".join(problems)
 
 
-def parse_probe_toml(text: str, path: str | Path = "probe.toml") -> ProbeConfig:
-    """Parse and validate probe.toml text; the camera model is built to check it."""
-    path = Path(path)
+def validated_toml(text: str, path: Path, model: type[M], *, sections: bool) -> M:
+    """``text`` parsed as TOML and validated as ``model``; ConfigError names ``path``
+    and every problem (malformed TOML, unknown or missing keys, bad values)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(path, f"malformed TOML: {exc}") from exc
+        raise ConfigError(path, f"malformed TOML: {exc}") from None
     try:
-        cfg = ProbeConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(path, _describe(exc)) from exc
+        raise ConfigError(path, _describe(exc, sections=sections)) from None
+
+
+def parse_probe_toml(text: str, path: str | Path = "probe.toml") -> ProbeConfig:
+    """Parse and validate probe.toml text; the camera model is built to check it."""
+    path = Path(path)
+    cfg = validated_toml(text, path, ProbeConfig, sections=True)
     try:
         cfg.camera_model()
     except ValueError as exc:

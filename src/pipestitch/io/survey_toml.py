@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import datetime as dt
 import re
-import tomllib
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from pipestitch.errors import ConfigError
+from pipestitch.io.probe_toml import validated_toml
 from pipestitch.io.text import read_config_text
 
 __all__ = ["SURVEY_FILE", "SurveyFile", "parse_survey_toml", "read_survey_toml"]
@@ -70,28 +69,9 @@ class SurveyFile(BaseModel):
         return value
 
 
-def _describe(exc: ValidationError) -> str:
-    problems = []
-    for err in exc.errors():
-        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        if err["type"] == "extra_forbidden":
-            problems.append(f"unknown key {where}")
-        else:
-            problems.append(f"{where}: {err['msg']}")
-    return "; ".join(problems)
-
-
 def parse_survey_toml(text: str, path: str | Path = SURVEY_FILE) -> SurveyFile:
     """Parse and validate survey.toml text; ConfigError names ``path`` and every problem."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(path, f"malformed TOML: {exc}") from None
-    try:
-        return SurveyFile.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(path, _describe(exc)) from None
+    return validated_toml(text, Path(path), SurveyFile, sections=False)
 
 
 def read_survey_toml(dataset: str | Path) -> SurveyFile | None:

@@ -49,6 +49,11 @@ from pipestitch.standards.ovality import SectionFigures
 # --- the public reader's rules, as checks of our own --------------------------------------
 
 KNOWN_LETTERS = set("ABCDEFGHIJKLMN")
+# Inspection header codes of the package's code table (eucodes.csv, tables C1, C2, C3,
+# C5), the ones marked "not used" left out.
+KNOWN_HEADER_CODES = ({f"AA{c}" for c in "ABCDEFGHIJKLMNOPQ"}
+                      | {f"AB{c}" for c in "ABCEFGHIJKLMNOPQRST"}
+                      | {f"AC{c}" for c in "ABCDEFGHIJKLMN"} | {f"AD{c}" for c in "ABCE"})
 NUMERIC, INTEGER = set("DEI"), set("GH")
 MARKER = re.compile(r"^$|^[AB]\d+$")
 
@@ -63,6 +68,8 @@ def en_problems(text: str) -> list[str]:
     for k, line in enumerate(lines):
         if line.startswith("#B01="):
             codes = line[5:].split(sep)
+            problems += [f"line {k + 1}: unknown header code {c}" for c in codes
+                         if c not in KNOWN_HEADER_CODES]
             nxt = lines[k + 1] if k + 1 < len(lines) else "#"
             if nxt.startswith("#") or len(_cells(nxt, sep, quote)) != len(codes):
                 problems.append(f"line {k + 1}: #B01 not followed by {len(codes)} values")
@@ -118,6 +125,7 @@ def test_the_checks_catch_what_the_reader_refuses() -> None:
     assert any("G =" in p for p in en_problems(good.replace(";5;;;3;", ";5;;;3.5;")))
     assert any("captions" in p for p in en_problems(good.replace("#C=I;A;", "#C=I;X;")))
     assert any("#A6" in p for p in en_problems(good.replace("#A6=2010\n", "")))
+    assert any("header code" in p for p in en_problems(good.replace("#B01=AAA;", "#B01=XXX;")))
 
 
 # --- a run with holes, a deformation and a continuous feature ---------------------------------
@@ -171,6 +179,9 @@ def test_en_file_of_a_run_passes_the_reader_rules() -> None:
     assert [r["J"] for r in rows if r["J"]] == ["A1", "B1"]
     # Holes: BAC B quantified by their length along the pipe (mm, below 1000).
     assert [(r["B"], r["D"]) for r in rows if r["A"] == "BAC"] == [("B", "6"), ("B", "8")]
+    # The deformation, with a roll reference (detected invert): oriented, A or B.
+    [baa] = [r for r in rows if r["A"] == "BAA"]
+    assert baa["B"] in ("A", "B") and baa["D"] == "3"
     header = _header(text)
     assert {k: header[k] for k in ("AAB", "AAK", "ABC", "ACA", "ACD", "ABF", "ABH")} == {
         "AAB": "MH1", "AAK": "A", "ABC": "Z", "ACA": "A", "ACD": "AX", "ABF": "2026-11-23",
@@ -240,7 +251,7 @@ def test_pacp_tables_have_pacps_names_and_codes() -> None:
     rows = _csv(tables["PACP_Conditions"])
     codes = [r["PACP_Code"] for r in rows]
     assert codes.count("H") == 2 and "DFE" in codes          # PVC is flexible
-    assert [r["Continuous"] for r in rows if r["Continuous"]] == ["S01", "F01"]
+    assert [r["Continuous"] for r in rows if r["Continuous"]] == ["S1", "F1"]
     deformation = next(r for r in rows if r["PACP_Code"] == "DFE")
     assert deformation["Value_Percent"] == "3" and deformation["Value_1st_Dimension"] == ""
     [head] = _csv(tables["PACP_Inspections"])

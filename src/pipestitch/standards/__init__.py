@@ -31,6 +31,12 @@ from pipestitch.standards.pacp7 import (
     parse_pacp7_tables,
     write_pacp7_tables,
 )
+from pipestitch.standards.pacp_ratings import (
+    ConditionGrade,
+    PacpRatings,
+    pacp_ratings,
+    parse_pacp_ratings,
+)
 from pipestitch.standards.roll_reference import (
     RollReference,
     clock_hhmm,
@@ -42,11 +48,12 @@ from pipestitch.standards.roll_reference import (
 )
 
 __all__ = ["CONTINUOUS_MIN_M", "DEFINITIONS", "DIRECTIONS", "DWA_CONTINUOUS_MIN_M", "MATERIALS",
-           "SHAPES", "SPOT_CODINGS", "InvertBand", "Observation", "PacpCondition",
-           "RollReference", "SectionFigures", "Survey", "clock_hhmm", "clock_hour",
-           "crown_from_imu", "crown_from_invert", "detect_invert", "en_markers",
-           "observations_from_defects", "observations_from_profile", "pacp_conditions",
-           "parse_en13508", "parse_json", "parse_observations_csv", "parse_pacp7_tables",
-           "parse_pacp_csv", "relative_reference", "section_figures", "user_reference",
+           "SHAPES", "SPOT_CODINGS", "ConditionGrade", "InvertBand", "Observation",
+           "PacpCondition", "PacpRatings", "RollReference", "SectionFigures", "Survey",
+           "clock_hhmm", "clock_hour", "crown_from_imu", "crown_from_invert", "detect_invert",
+           "en_markers", "observations_from_defects", "observations_from_profile",
+           "pacp_conditions", "pacp_ratings", "parse_en13508", "parse_json",
+           "parse_observations_csv", "parse_pacp7_tables", "parse_pacp_csv",
+           "parse_pacp_ratings", "relative_reference", "section_figures", "user_reference",
            "with_nodes", "write_en13508", "write_json_text", "write_observations_csv",
            "write_pacp7_tables", "write_pacp_csv"]

@@ -4,10 +4,13 @@ direction of survey, by plain names (the names ``survey.toml`` takes), with thei
 
 Sources and what is verified: docs/standards.md, "What was verified against what". The
 EN letters come from the code tables shipped with the public EN 13508-2 reader
-kwb.en13508.2 (tables C4 material, AEC/ACA shape); the PACP codes were not checked
-against the PACP 7 manual. Brick and masonry are left out on purpose: PACP codes their
-deformation with a ``DT...`` family we could not verify, and a small-bore pipe is never
-brick.
+kwb.en13508.2 (tables C4 material, AEC/ACA shape). The PACP deformation classes follow a
+public PACP code table: rigid (``DR``) for asbestos cement, cast iron, concrete,
+reinforced concrete and vitrified clay; flexible (``DF...``) for plastics (PVC),
+reinforced plastic and corrugated metal. Steel and ductile iron are in neither list, so
+their class is not stated (coded ``DR`` with a note). PACP's material and shape codes
+themselves were not checked against the PACP 7 manual. Brick and masonry (PACP ``DT...``)
+are left out: a small-bore pipe is never brick.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ __all__ = ["DIRECTIONS", "MATERIALS", "SHAPES", "Material", "continuous_pacp",
 @dataclass(frozen=True)
 class Material:
     """A pipe material: EN 13508-2 ACD code, PACP 7 material code and whether PACP
-    counts it as rigid (deformation ``DR``) or flexible (``DF...``); None = not known."""
+    counts it as rigid (deformation ``DR``) or flexible (``DF...``); None = the source
+    does not say (or the material is not known)."""
 
     en: str
     pacp: str
@@ -37,8 +41,8 @@ MATERIALS: dict[str, Material] = {
     "fibre-cement": Material("AK", "AC", True),
     "grp": Material("AL", "FRP", False),
     "cast-iron": Material("AM", "CAS", True),
-    "ductile-iron": Material("AO", "DIP", True),
-    "steel": Material("AP", "SP", True),
+    "ductile-iron": Material("AO", "DIP", None),
+    "steel": Material("AP", "SP", None),
     "polyester": Material("AU", "FRP", False),
     "polyethylene": Material("AV", "PE", False),
     "polypropylene": Material("AW", "PP", False),
@@ -61,20 +65,44 @@ _MARKER = re.compile(r"([ABSF])(\d+)", re.ASCII)
 
 
 def deformation_pacp(material: str) -> tuple[str, str]:
-    """PACP 7 deformation code for a pipe of ``material`` and a note for the remark:
-    ``DR`` for a rigid pipe, ``DFE`` (flexible, elliptical) for a flexible one; a
-    material not known is coded as rigid and the note says so."""
+    """PACP 7 deformation code for a pipe of ``material`` and a note for the remark.
+
+    Parameters
+    ----------
+    material : str
+        A name of :data:`MATERIALS` (or "" when not stated).
+
+    Returns
+    -------
+    tuple of str
+        ``("DR", "")`` for a rigid pipe, ``("DFE", "")`` (flexible, elliptical: the
+        section compressed into an oval, which is what an ovality measures) for a
+        flexible one; a material whose class is not known is coded ``DR`` and the note
+        says why.
+    """
     known = MATERIALS.get(material)
-    if known is None or known.rigid is None:
+    if known is None or material in ("unknown", "other"):
         return "DR", "material not known: coded as rigid"
+    if known.rigid is None:
+        return "DR", f"PACP deformation class of {material} not verified: coded as rigid"
     return ("DR", "") if known.rigid else ("DFE", "")
 
 
 def continuous_pacp(marker: str) -> str:
-    """An EN 13508-2 continuous marker as PACP writes it: ``A<n>`` -> ``S<nn>``,
-    ``B<n>`` -> ``F<nn>``; PACP markers (``S``/``F`` + digits) are kept; anything
-    else becomes empty."""
+    """An EN 13508-2 continuous marker as PACP writes it.
+
+    Parameters
+    ----------
+    marker : str
+        ``A<n>``/``B<n>`` (EN 13508-2) or ``S<n>``/``F<n>`` (PACP).
+
+    Returns
+    -------
+    str
+        ``S<n>`` for a start, ``F<n>`` for a finish, ``n`` without leading zeros (the
+        form public PACP documentation shows, e.g. ``S2``/``F2``); "" for anything else.
+    """
     found = _MARKER.fullmatch(marker.strip())
     if found is None:
         return ""
-    return {"A": "S", "B": "F"}.get(found[1], found[1]) + f"{int(found[2]):02d}"
+    return {"A": "S", "B": "F"}.get(found[1], found[1]) + str(int(found[2]))

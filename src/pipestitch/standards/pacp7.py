@@ -2,9 +2,11 @@
 files named after the tables of the exchange database: write and parse.
 
 ``PACP_Inspections`` (one row: the survey header, ``IsImperial`` saying the units),
-``PACP_Conditions`` (one row per condition, PACP's column names exactly) and
-``PACP_Media_Conditions`` (the image reference of each condition that has one).
-``PACP_Ratings`` is not written: pipestitch does not grade conditions.
+``PACP_Conditions`` (one row per condition, PACP's column names exactly),
+``PACP_Media_Conditions`` (the image reference of each condition that has one) and,
+only when the caller passes ratings computed from graded conditions,
+``PACP_Ratings`` (:mod:`pipestitch.standards.pacp_ratings`; pipestitch assigns no
+grades itself).
 
 Units: metric (``IsImperial`` 0) writes distances and lengths in m, dimensions and the
 pipe size in mm; imperial (1) in feet and inches, to 0.01. Both read back to the same
@@ -14,11 +16,12 @@ finer than the 0.01 m and 1 mm the records hold).
 Codes come from the EN 13508-2 observations (:func:`pacp_conditions`): holes ``H``,
 deformation ``DR``/``DFE`` by the pipe material, attached deposits ``DAE``/``DAGS``/
 ``DAZ``, settled deposits ``DSF``/``DSGV``/``DSC``/``DSZ``, surface damage ``SZ``,
-continuous markers ``S<nn>``/``F<nn>``; anything else is a general observation ``MGO``
-whose remark names the EN code. The column and table names are those public importers
-of PACP 7 CSV exports use; the codes were not checked against the PACP 7 manual
-(docs/standards.md). Text cells are neutralised against formula injection as in the
-other CSV exports (:func:`pipestitch.standards.observations.neutralise_cell`).
+continuous markers ``S<n>``/``F<n>``; anything else is a general observation ``MGO``
+whose remark names the EN code. The table and column names are those public importers
+of PACP 7 CSV exports use and the codes are in public PACP code tables; neither was
+checked against the PACP 7 manual (docs/standards.md). Text cells are neutralised
+against formula injection as in the other CSV exports
+(:func:`pipestitch.standards.observations.neutralise_cell`).
 """
 
 from __future__ import annotations
@@ -44,8 +47,9 @@ from pipestitch.standards.observations import (
     parse_int,
     restore_cell,
 )
+from pipestitch.standards.pacp_ratings import PacpRatings, write_pacp_ratings
 
-__all__ = ["CONDITION_COLUMNS", "INSPECTION_COLUMNS", "MEDIA_COLUMNS", "TABLES",
+__all__ = ["CONDITION_COLUMNS", "INSPECTION_COLUMNS", "MEDIA_COLUMNS", "RATINGS_TABLE", "TABLES",
            "PacpCondition", "pacp_conditions", "parse_pacp7_tables", "write_pacp7_tables"]
 
 INSPECTION_ID = 1
@@ -59,6 +63,7 @@ CONDITION_COLUMNS = ("ConditionID", "InspectionID", "Distance", "Counter", "PACP
                      "VCR_Time")
 MEDIA_COLUMNS = ("ConditionID", "Image_Reference")
 TABLES = ("PACP_Inspections", "PACP_Conditions", "PACP_Media_Conditions")
+RATINGS_TABLE = "PACP_Ratings"
 
 FT_M = 0.3048
 IN_MM = 25.4
@@ -162,10 +167,31 @@ def _inspection(survey: Survey, imperial: bool) -> dict[str, str]:
 
 
 def write_pacp7_tables(survey: Survey, conditions: Sequence[PacpCondition], *,
-                       units: str = "metric") -> dict[str, str]:
-    """CSV text per table (keys: :data:`TABLES`) for one inspection.
+                       units: str = "metric",
+                       ratings: PacpRatings | None = None) -> dict[str, str]:
+    """CSV text per table for one inspection.
 
-    ``units``: "metric" or "imperial" (``IsImperial``). ValueError for other units.
+    Parameters
+    ----------
+    survey : Survey
+        The inspection header.
+    conditions : sequence of PacpCondition
+        The conditions, in order (``ConditionID`` 1, 2, ...).
+    units : str
+        "metric" or "imperial" (``IsImperial``).
+    ratings : PacpRatings, optional
+        Ratings from graded conditions; adds the :data:`RATINGS_TABLE` table.
+
+    Returns
+    -------
+    dict of str to str
+        Table name (:data:`TABLES`, and :data:`RATINGS_TABLE` with ``ratings``) to CSV
+        text.
+
+    Raises
+    ------
+    ValueError
+        For other units.
     """
     if units not in ("metric", "imperial"):
         raise ValueError(f"units: expected metric or imperial, got {units!r}")
@@ -186,7 +212,11 @@ def write_pacp7_tables(survey: Survey, conditions: Sequence[PacpCondition], *,
                               frozenset({"Image_Reference"})))
     inspection = csv_record(INSPECTION_COLUMNS) + _row(
         INSPECTION_COLUMNS, _inspection(survey, imperial), _TEXT_INSPECTION)
-    return dict(zip(TABLES, (inspection, "".join(conditions_csv), "".join(media)), strict=True))
+    tables = dict(zip(TABLES, (inspection, "".join(conditions_csv), "".join(media)),
+                      strict=True))
+    if ratings is not None:
+        tables[RATINGS_TABLE] = write_pacp_ratings(ratings, INSPECTION_ID)
+    return tables
 
 
 def _table(text: str, name: str, required: Sequence[str]) -> list[tuple[int, dict[str, str]]]:

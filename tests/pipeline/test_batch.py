@@ -169,3 +169,56 @@ def test_batch_output_folders_are_checked_before_anything_runs(tmp_path: Path) -
         assert len(lines) == 1 and path in lines[0] and needle in lines[0], result.output
     assert sorted(p.name for p in data.iterdir()) == ["a"]
     assert not (data / "a" / "a").exists() and not (data / "a" / "run.log").exists()
+
+
+def test_ctrl_c_stops_the_workers_and_leaves_each_output_as_it_was(
+        tmp_path: Path, simulate_small) -> None:
+    """Ctrl-C reaches the whole process group (a terminal's): exit 130, one line, no
+    dask traceback, no worker process left, and the datasets in flight keep their
+    previous outputs byte for byte, with no staging folder left behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from pipestitch.pipeline.staging import LOCK, STAGING_PREFIX
+
+    roots = [simulate_small(tmp_path / "in" / f"d{k}", "--pairs", "6", "--seed", str(k))
+             for k in range(2)]
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "pipestitch.cli", "batch", *map(str, roots),
+               "--out", str(out), "--quiet"]
+    assert subprocess.run(command, capture_output=True, timeout=600).returncode == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != LOCK}
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    deadline = time.monotonic() + 300
+    while not list(out.glob(f"*/{STAGING_PREFIX}*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the batch ended before any run had started"
+    os.killpg(proc.pid, signal.SIGINT)
+    output = proc.communicate(timeout=120)[0].decode()
+    assert proc.returncode == 130, output
+    assert "Traceback" not in output and "interrupted" in output
+    assert not _group_alive(proc.pid, within_s=10.0)   # no worker process is left
+    assert not list(out.glob(f"*/{STAGING_PREFIX}*"))
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != LOCK}
+    changed = {p.relative_to(out) for p in before.keys() | after.keys()
+               if before.get(p) != after.get(p)}
+    assert {p.name for p in changed} <= {"run.log"}, changed   # the log says "interrupted"
+
+
+def _group_alive(pgid: int, within_s: float) -> bool:
+    """Whether a process of the group ``pgid`` still runs after ``within_s`` seconds."""
+    import os
+    import time
+
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return False
+        time.sleep(0.1)
+    return True

@@ -7,6 +7,8 @@ import json
 import os
 import shutil
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +19,7 @@ from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.run import run_dataset
 from pipestitch.pipeline.staging import (
     JOURNAL,
+    LOCK,
     RUN_OUTPUTS,
     STAGING_PREFIX,
     StagedOutput,
@@ -26,10 +29,11 @@ from pipestitch.pipeline.staging import (
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
-    """Every file of ``folder`` but a failed run's kept staging folder."""
+    """Every file of ``folder`` but a failed run's kept staging folder and the lock."""
     return {str(p.relative_to(folder)): p.read_bytes()
             for p in sorted(folder.rglob("*"))
-            if p.is_file() and not p.relative_to(folder).parts[0].startswith(STAGING_PREFIX)}
+            if p.is_file() and p.name != LOCK
+            and not p.relative_to(folder).parts[0].startswith(STAGING_PREFIX)}
 
 
 def _staging(out: Path) -> Path:
@@ -271,7 +275,7 @@ def test_a_commit_killed_midway_is_finished_by_the_next_command(tmp_path: Path, 
     assert not (out / "ovality.csv").exists()            # the old run's, not made anew
     assert (out / "tiles" / "mine.txt").read_text() == "the user's"
     assert not (out / JOURNAL).exists()
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert not [p for p in out.iterdir() if p.name.startswith(".") and p.name != LOCK]
     assert not finish_interrupted_commit(out)            # nothing left to do
 
 
@@ -305,3 +309,53 @@ def test_a_journal_that_cannot_be_trusted_is_refused_and_named(tmp_path: Path,
     with pytest.raises(DatasetError, match=JOURNAL):
         finish_interrupted_commit(tmp_path)
     assert (tmp_path / "my_notes.txt").read_text() == "mine"
+
+
+_HOLDER = """
+import sys, time
+from pipestitch.pipeline.staging import out_lock
+with out_lock(sys.argv[1], "run"):
+    print("held", flush=True)
+    time.sleep(60)
+"""
+
+
+def _hold_lock(out: Path) -> subprocess.Popen[str]:
+    """Another process that holds OUT's lock until it is killed."""
+
+    proc = subprocess.Popen([sys.executable, "-c", _HOLDER, str(out)], stdout=subprocess.PIPE,
+                            text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_command_into_the_same_out_is_refused_while_the_first_works(
+        dataset: Path, previous: Path) -> None:
+    """Two runs, or a run and a measure, into one OUT at once: the second exits 2 naming the
+    first, and leaves OUT as it was; once the first ends however it ends (here killed
+    outright), the folder is free again."""
+    import signal as signals
+
+    from pipestitch.pipeline.measuring import measure_run
+
+    before = _snapshot(previous)
+    holder = _hold_lock(previous)
+    try:
+        with pytest.raises(DatasetError, match=rf"pipestitch run, PID {holder.pid}\)"):
+            run_dataset(dataset, previous, show_progress=False)
+        with pytest.raises(DatasetError, match="is writing into this folder"):
+            measure_run(previous)
+        assert _snapshot(previous) == before
+        assert not list(previous.glob(f"{STAGING_PREFIX}*"))
+    finally:
+        holder.send_signal(signals.SIGKILL)
+        holder.wait()
+    measure_run(previous)   # the killed holder's lock went with it
+
+
+def test_the_lock_is_re_entrant_within_one_process(tmp_path: Path) -> None:
+    """``export`` re-codes and ``measure`` measures then codes under one lock."""
+    out = tmp_path / "out"
+    with StagedOutput(out), staging.out_lock(out, "measure"):
+        assert staging._held[str(out.resolve())] == 2
+    assert not staging._held

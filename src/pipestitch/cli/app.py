@@ -332,11 +332,13 @@ def measure(
     from pipestitch.pipeline.check import check_finite
     from pipestitch.pipeline.coding import check_observations, code_run
     from pipestitch.pipeline.measuring import measure_run
+    from pipestitch.pipeline.staging import out_lock
 
     check_finite(crown_deg, "--crown-deg")
     check_observations(out)   # refused user rows: before defects.csv is written
-    path, defects = measure_run(out, crown_deg=crown_deg)
-    coded = code_run(out, crown_deg=crown_deg)  # clocks by the best reference, observations
+    with out_lock(out, "measure"):
+        path, defects = measure_run(out, crown_deg=crown_deg)
+        coded = code_run(out, crown_deg=crown_deg)  # clocks by the best reference
     typer.echo(f"clock reference: {coded.reference.source}; "
                f"{len(coded.observations)} observations in {out / 'observations.csv'}")
     holes = sum(1 for d in defects if d.kind == "hole")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import shutil
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -26,7 +27,7 @@ from pipestitch.errors import DatasetError, PipestitchError
 from pipestitch.io.outputs import write_csv
 from pipestitch.pipeline.check import check_out_folder_path
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.staging import check_out_folder
+from pipestitch.pipeline.staging import STAGING_PREFIX, check_out_folder, finish_interrupted_commit
 from pipestitch.pipeline.stitching import MosaicSettings
 
 __all__ = ["BatchResult", "output_names", "run_batch", "run_one", "write_batch_summary"]
@@ -184,10 +185,29 @@ def _client(scheduler: str | None, workers: int) -> Iterator[object]:
         with Client(scheduler, timeout="30s") as client:
             yield client
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
-            Client(cluster) as client:
+    with _workers_ignore_ctrl_c():
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start the local cluster's processes with SIGINT ignored (they inherit it): Ctrl-C
+    reaches the whole process group, and only this process must act on it, by closing
+    the cluster in order; a worker that died of it first would print dask's tracebacks."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def run_batch(roots: Sequence[str | Path], out_dir: str | Path, *,
@@ -225,10 +245,27 @@ def run_batch(roots: Sequence[str | Path], out_dir: str | Path, *,
                          f"{retries}, {threads}")
     outs = [Path(out_dir) / name for name in output_names(roots)]
     _check_outputs(Path(out_dir), roots, outs)
-    from distributed import as_completed  # here: importing dask takes a while
 
     results: dict[int, BatchResult] = {}
     token = uuid.uuid4().hex[:8]  # task keys unique on a scheduler shared by batches
+    started = time.time()
+    try:
+        _submit_all(roots, outs, results, token, scheduler=scheduler, workers=workers,
+                    retries=retries, threads=threads, on_done=on_done)
+    except KeyboardInterrupt:
+        _clear_interrupted([o for k, o in enumerate(outs) if k not in results], started)
+        raise
+    ordered = [results[k] for k in range(len(roots))]
+    write_batch_summary(Path(out_dir) / "batch_summary.csv", ordered)
+    return ordered
+
+
+def _submit_all(roots: list[Path], outs: list[Path], results: dict[int, BatchResult],
+                token: str, *, scheduler: str | None, workers: int, retries: int,
+                threads: int, on_done: Callable[[BatchResult], None] | None) -> None:
+    """Run every dataset on the cluster, filling ``results`` as each completes."""
+    from distributed import as_completed  # here: importing dask takes a while
+
     with _client(scheduler, workers) as client:
         futures = {client.submit(run_one, str(root), str(out), threads=threads,
                                  retries=retries, pure=False,
@@ -242,9 +279,20 @@ def run_batch(roots: Sequence[str | Path], out_dir: str | Path, *,
                 results[k] = _crashed(roots[k], outs[k], exc)
             if on_done is not None:
                 on_done(results[k])
-    ordered = [results[k] for k in range(len(roots))]
-    write_batch_summary(Path(out_dir) / "batch_summary.csv", ordered)
-    return ordered
+
+
+def _clear_interrupted(outs: Sequence[Path], started: float) -> None:
+    """After Ctrl-C, the runs that were in flight on the workers (stopped with their
+    cluster) leave each output folder as it was: a commit they began is finished from
+    its journal, and the staging folders they made since ``started`` are removed (a
+    failed run's staging folder kept by an earlier command is left alone)."""
+    for out in outs:
+        with contextlib.suppress(PipestitchError):
+            finish_interrupted_commit(out)
+        for staging in out.glob(f"{STAGING_PREFIX}*"):
+            with contextlib.suppress(OSError):
+                if staging.stat().st_mtime >= started - 1.0:
+                    shutil.rmtree(staging, ignore_errors=True)
 
 
 def write_batch_summary(path: Path, results: Sequence[BatchResult]) -> Path:

@@ -11,7 +11,7 @@ from pipestitch.io.outputs import DEFECT_COLUMNS, mosaic_from_uint8, read_mosaic
 from pipestitch.io.tiles import read_column_blocks
 from pipestitch.measure.blocks import BlockDefects
 from pipestitch.measure.defects import Defect, MosaicGeometry
-from pipestitch.pipeline.staging import finish_interrupted_commit
+from pipestitch.pipeline.staging import finish_interrupted_commit, out_lock
 
 __all__ = ["measure_mosaic", "measure_run", "write_defects_csv"]
 
@@ -50,6 +50,11 @@ def measure_run(out: str | Path, *, crown_deg: float | None = None) -> tuple[Pat
     anything is written (:func:`pipestitch.io.outputs.read_mosaic`).
     """
     out = Path(out)
+    with out_lock(out, "measure"):
+        return _measure(out, crown_deg)
+
+
+def _measure(out: Path, crown_deg: float | None) -> tuple[Path, list[Defect]]:
     finish_interrupted_commit(out)
     image, meta = read_mosaic(out)
     crown = 270.0 if crown_deg is None else crown_deg

@@ -18,6 +18,12 @@ the staging folder, the outputs to move and those to remove. The next command th
 writes or reads OUT (``run``, ``measure``, ``export``) finds it and finishes the
 commit from the staging folder (:func:`finish_interrupted_commit`) before doing
 anything else, so OUT never stays a mix of two runs.
+
+Only one command writes into an OUT at a time: ``run``, ``measure``, ``export`` and the
+review page's edits hold an advisory lock on ``OUT/.pipestitch-lock`` while they work
+(:func:`out_lock`); a second one is refused at once (exit 2) with the holder named. The
+operating system drops the lock when its holder ends, however it ends, so a killed run
+never leaves OUT locked.
 """
 
 from __future__ import annotations
@@ -27,15 +33,17 @@ import os
 import shutil
 import signal
 import threading
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.check import check_out_folder_path
 
-__all__ = ["JOURNAL", "RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput", "check_out_folder",
-           "finish_interrupted_commit"]
+__all__ = ["JOURNAL", "LOCK", "RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput",
+           "check_out_folder", "finish_interrupted_commit", "out_lock"]
 
 # Everything `pipestitch run` may write into OUT (and earlier versions wrote).
 RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.json",
@@ -46,6 +54,7 @@ RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.
 CARRIED = ("observations.csv", "standards.json")
 STAGING_PREFIX = ".pipestitch-partial-"
 JOURNAL = ".pipestitch-commit.json"
+LOCK = ".pipestitch-lock"
 
 
 def check_out_folder(dataset: Path, out: Path) -> None:
@@ -83,10 +92,23 @@ class StagedOutput:
         self.out = Path(out)
         self.path = self.out / f"{STAGING_PREFIX}{os.getpid()}"
         self._done = False
+        self._lock = out_lock(self.out, "run")
 
     def __enter__(self) -> StagedOutput:
         try:
             self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DatasetError(self.out, f"cannot write the output folder ({exc})") from None
+        self._lock.__enter__()
+        try:
+            self._prepare()
+        except BaseException:
+            self._lock.__exit__(None, None, None)
+            raise
+        return self
+
+    def _prepare(self) -> None:
+        try:
             finish_interrupted_commit(self.out)
             shutil.rmtree(self.path, ignore_errors=True)
             self.path.mkdir()
@@ -95,7 +117,6 @@ class StagedOutput:
                     shutil.copy2(self.out / name, self.path / name)
         except OSError as exc:
             raise DatasetError(self.out, f"cannot write the output folder ({exc})") from None
-        return self
 
     def keep(self) -> Path:
         """Keep the staging folder (a failed run's partial outputs) and return it."""
@@ -121,8 +142,95 @@ class StagedOutput:
             self._done = True
 
     def __exit__(self, *exc: object) -> None:
-        if not self._done:
-            shutil.rmtree(self.path, ignore_errors=True)
+        try:
+            if not self._done:
+                shutil.rmtree(self.path, ignore_errors=True)
+        finally:
+            self._lock.__exit__(None, None, None)
+
+
+_held: Counter[str] = Counter()   # this process's locks, by folder (nested commands)
+_handles: dict[str, IO[str]] = {}
+_held_guard = threading.Lock()
+
+
+@contextmanager
+def out_lock(out: str | Path, command: str) -> Iterator[None]:
+    """Hold ``OUT``'s lock for the block: one writing command at a time per folder.
+
+    Re-entrant within a process (``export`` re-codes, ``measure`` measures then codes).
+    The lock is the operating system's advisory lock on ``OUT/.pipestitch-lock``
+    (``flock``; ``msvcrt.locking`` on Windows), released when the holder ends however
+    it ends. ``out`` must exist.
+
+    Raises
+    ------
+    DatasetError
+        When another process holds the lock (naming its command and PID), or the lock
+        file cannot be made.
+    """
+    key = str(Path(out).resolve())
+    with _held_guard:
+        if not _held[key]:
+            _handles[key] = _acquire(Path(out), command)
+        _held[key] += 1
+    try:
+        yield
+    finally:
+        with _held_guard:
+            _held[key] -= 1
+            if not _held[key]:
+                del _held[key]
+                _release(_handles.pop(key))
+
+
+def _acquire(out: Path, command: str) -> IO[str]:
+    if not out.is_dir():
+        raise DatasetError(out, "folder not found")
+    path = out / LOCK
+    try:
+        handle = path.open("a+", encoding="utf-8")
+    except OSError as exc:
+        raise DatasetError(out, f"cannot write the output folder ({exc})") from None
+    if not _try_lock(handle):
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        raise DatasetError(out, f"another pipestitch command ({holder}) is writing into this "
+                                "folder; wait for it to finish or choose another --out")
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pipestitch {command}, PID {os.getpid()}\n")
+    handle.flush()
+    return handle
+
+
+def _try_lock(handle: IO[str]) -> bool:
+    try:
+        import fcntl
+    except ImportError:   # Windows
+        import msvcrt
+        try:
+            handle.seek(0)
+            msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
+        return True
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def _release(handle: IO[str]) -> None:
+    try:
+        import fcntl
+        fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+    except ImportError:   # Windows: closing the file releases its lock
+        pass
+    finally:
+        handle.close()
 
 
 def finish_interrupted_commit(out: str | Path) -> bool:

@@ -331,12 +331,15 @@ def _hold_lock(out: Path) -> subprocess.Popen[str]:
 
 def test_a_second_command_into_the_same_out_is_refused_while_the_first_works(
         dataset: Path, previous: Path) -> None:
-    """Two runs, or a run and a measure, into one OUT at once: the second exits 2 naming the
-    first, and leaves OUT as it was; once the first ends however it ends (here killed
-    outright), the folder is free again."""
+    """Two commands writing into one OUT at once (run, measure, export, an edit in the
+    review page): the second is refused naming the first (exit 2; the page gets 409) and
+    leaves OUT as it was; once the first ends however it ends (here killed outright),
+    the folder is free again."""
     import signal as signals
 
+    from pipestitch.pipeline.coding import export_run
     from pipestitch.pipeline.measuring import measure_run
+    from pipestitch.pipeline.review import Edit, EditError, edit_observations, read_observations
 
     before = _snapshot(previous)
     holder = _hold_lock(previous)
@@ -345,6 +348,11 @@ def test_a_second_command_into_the_same_out_is_refused_while_the_first_works(
             run_dataset(dataset, previous, show_progress=False)
         with pytest.raises(DatasetError, match="is writing into this folder"):
             measure_run(previous)
+        with pytest.raises(DatasetError, match="is writing into this folder"):
+            export_run(previous, "en13508")
+        with pytest.raises(EditError, match="is writing into this folder") as refused:
+            edit_observations(previous, Edit("delete", 0, None, read_observations(previous)[1]))
+        assert refused.value.status == 409   # the page says: try again
         assert _snapshot(previous) == before
         assert not list(previous.glob(f"{STAGING_PREFIX}*"))
     finally:

@@ -4,7 +4,8 @@ Skipped cleanly where there is no Chromium (as test_report_browser.py). One simu
 run of the reference test piece (holes of 6 mm, 24 mm apart along and around the
 pipe): the defect overlays sit on defects.csv's positions at full zoom (within 1 px),
 the ruler reads the 24 mm spacing within 0.2 mm, and an observation edited on the
-served page reaches the EN 13508-2 and PACP files that `pipestitch export` writes.
+served page reaches report.html and the EN 13508-2 and PACP files that `pipestitch
+export` writes, once, also after the run is coded again.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ import pytest
 from typer.testing import CliRunner
 
 from pipestitch.cli.app import app
+from pipestitch.pipeline.coding import code_run
 from pipestitch.pipeline.review_server import ReviewServer
+from pipestitch.standards.observations import parse_observations_csv
 
 sync_api = pytest.importorskip("playwright.sync_api")
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -193,3 +196,14 @@ def test_an_observation_edited_in_the_page_reaches_the_exports(run_out: Path,
     pacp = (out / "observations_pacp.csv").read_text()
     assert "crack checked in review" in pacp
     assert "crack checked in review" in (out / "pacp7" / "PACP_Conditions.csv").read_text()
+    assert "crack checked in review" in (out / "report.html").read_text()
+    # coded again (as `measure` or a new reference does): the edit once, the auto row gone
+    edited = next(o for o in parse_observations_csv((out / "observations.csv").read_text())
+                  if o.remark == "crack checked in review")
+    code_run(out)
+    observations = parse_observations_csv((out / "observations.csv").read_text())
+    assert [o.remark for o in observations].count("crack checked in review") == 1
+    assert "auto:" + edited.ref[len("reviewed:"):] not in {o.ref for o in observations}
+    assert runner.invoke(app, ["export", str(out), "--format", "en13508"]).exit_code == 0
+    en = (out / "observations.txt").read_bytes().decode("latin-1")
+    assert en.count("crack checked in review") == 1

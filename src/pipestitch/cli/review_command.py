@@ -30,8 +30,9 @@ def review(
     frames, the profile and pose tracks, and observations to add, edit or delete.
 
     Serves OUT on 127.0.0.1 only (no internet needed) until Ctrl-C. Edits are checked by
-    the server and saved to OUT/observations.csv (then `pipestitch export` writes them);
-    OUT/review.html, written too, shows the same page read-only from the file.
+    the server and saved to OUT/observations.csv, its exports and the observations of
+    OUT/report.html; an edited or deleted auto: row stays so when the run is coded
+    again. OUT/review.html, written too, shows the same page read-only from the file.
 
     Example: pipestitch review out/test_piece
     """

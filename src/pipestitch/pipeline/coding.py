@@ -7,7 +7,9 @@ when given, the dataset (imu.csv, probe.toml, survey.toml), so it runs after
 
 * ``observations.csv``: the coded observations, user-editable; re-coding replaces the
   rows whose ref starts with ``auto:`` and keeps the others byte for byte, as written
-  (a row that does not parse is refused with a DatasetError naming the line);
+  (a row that does not parse is refused with a DatasetError naming the line); an
+  ``auto:`` row edited or deleted in review is not generated again
+  (standards/observations_review.py);
 * ``ovality.csv``: per profile section the named ovality/deflection figures (%);
 * ``standards.json``: the reference used, the survey header, the dataset and nominal
   diameter (so a later ``export`` needs neither);
@@ -38,7 +40,7 @@ from pipestitch.io.probe_toml import read_probe_toml
 from pipestitch.io.survey_toml import SurveyFile, read_survey_toml
 from pipestitch.measure.defects import Defect, clock_position
 from pipestitch.pipeline.measuring import write_defects_csv
-from pipestitch.pipeline.staging import finish_interrupted_commit
+from pipestitch.pipeline.staging import finish_interrupted_commit, out_lock
 from pipestitch.report.html import StandardsView
 from pipestitch.standards import (
     CONTINUOUS_MIN_M,
@@ -71,6 +73,7 @@ from pipestitch.standards.observations import (
     read_observations_file,
     user_rows,
 )
+from pipestitch.standards.observations_review import DELETED_KEY, deleted_keys, without_superseded
 
 __all__ = ["EXPORTS", "CodedRun", "check_observations", "code_run", "export_run",
            "resolve_reference"]
@@ -299,10 +302,12 @@ def code_run(out: str | Path, *, dataset: str | Path | None = None,
                                       reference=reference)
     earlier = _earlier_observations(out)
     kept = [r.observation for r in user_rows(earlier)] if earlier is not None else []
+    deleted = deleted_keys(previous)     # auto rows deleted in `review` (edited: by ref)
+    auto = without_superseded(auto, kept, deleted)
     observations = sorted(auto + kept, key=lambda o: o.distance_m)
     survey = _survey(out, dataset, meta, sections, start_z, nominal, reference, meta_file)
     coded = CodedRun(reference, survey, observations, defects, sections)
-    _write(out, coded, dataset, nominal, start_z, auto, earlier, coding)
+    _write(out, coded, dataset, nominal, start_z, auto, earlier, coding, deleted)
     return coded
 
 
@@ -359,7 +364,7 @@ def _survey(out: Path, dataset: Path | None, meta: dict, sections: list[ProfileS
 
 def _write(out: Path, coded: CodedRun, dataset: Path | None, nominal: float,
            start_z: float, auto: list[Observation], earlier: ObservationsFile | None,
-           coding: Coding) -> None:
+           coding: Coding, deleted: list[str]) -> None:
     paths = coded.paths
     text = write_observations_csv(sorted(auto, key=lambda o: o.distance_m), keep=earlier)
     paths["observations"] = atomic_write_text(out / "observations.csv", text)
@@ -375,7 +380,7 @@ def _write(out: Path, coded: CodedRun, dataset: Path | None, nominal: float,
         "dataset": str(dataset.resolve()) if dataset is not None else None,
         "nominal_diameter_mm": nominal, "start_z_mm": start_z,
         "start": "first wall seen: the mosaic's first column (z0_mm), else the first ring",
-        "coding": asdict(coding), "ovality_definitions": DEFINITIONS,
+        "coding": asdict(coding), "ovality_definitions": DEFINITIONS, DELETED_KEY: deleted,
     })
     for fmt in AUTOMATIC:
         paths[fmt] = _write_export(out / EXPORTS[fmt], fmt, coded.survey, coded.observations,
@@ -417,6 +422,12 @@ def export_run(out: str | Path, fmt: str, *, dest: str | Path | None = None,
     if units is not None and units not in UNITS:
         raise ValueError(f"--units: expected one of {', '.join(UNITS)}, got {units!r}")
     out = Path(out)
+    with out_lock(out, "export"):
+        return _export(out, fmt, dest, crown_deg, dataset, units)
+
+
+def _export(out: Path, fmt: str, dest: str | Path | None, crown_deg: float | None,
+            dataset: str | Path | None, units: str | None) -> Path:
     finish_interrupted_commit(out)
     if not (out / "poses.csv").is_file() and not (out / "observations.csv").is_file():
         raise DatasetError(out, "not a run folder (no poses.csv or observations.csv; run "

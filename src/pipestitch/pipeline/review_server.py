@@ -14,7 +14,9 @@ page loads (tiles), the source frames of a point, and the observation edits:
 
 Requests whose Host is not this server's (DNS rebinding), and edits that are not JSON
 or come from another origin, are refused with 403. It writes only
-``OUT/observations.csv``, the exports made from it and ``OUT/review.html``.
+``OUT/observations.csv``, the exports made from it, ``OUT/standards.json`` (the
+generated rows deleted in review), the observations of ``OUT/report.html`` and
+``OUT/review.html``.
 """
 
 from __future__ import annotations
@@ -110,7 +112,8 @@ def _source_frames(out: Path, dataset: str | Path | None) -> SourceFrames:
         standards = out / "standards.json"
         recorded = json.loads(standards.read_text(encoding="utf-8")) if standards.is_file() else {}
         dataset = recorded.get("dataset")
-    poses = FramePoses.from_rows(read_run_csv(out / "poses.csv"))
+    poses = FramePoses.from_rows(read_run_csv(out / "poses.csv"),
+                                 read_run_csv(out / "profile.csv"))
     return SourceFrames(dataset, poses, deg_per_px=float(full["deg_per_px"]),
                         mm_per_px=float(full["mm_per_px_axial"]))
 

@@ -2,16 +2,19 @@
 
 A mosaic point (z, theta) is the point (theta - roll, z - z_frame) of a frame's own
 wall grid (mosaic/blend.py, ``frame_grid``); it is projected into that frame with the
-frame's pose and section (poses.csv), as the unwrap does. The picture returned is the
-LED frame in grey with the laser frame's ring drawn over it in red and the point
-circled in yellow, reduced to at most ``MAX_WIDTH`` pixels: how an inspector checks
-what the camera actually saw.
+frame's pose (poses.csv) and section, as the unwrap does: the ellipse fitted to the
+frame's ring where profile.csv has one (its semi-axes ``min_radius_mm`` and
+``max_radius_mm``, the major axis at mosaic theta ``major_axis_theta_deg``, i.e. at
+that angle less the frame's roll in the frame), else the circle of ``radius_mm``.
+The picture returned is the LED frame in grey with the laser frame's ring drawn over
+it in red and the point circled in yellow, reduced to at most ``MAX_WIDTH`` pixels:
+how an inspector checks what the camera actually saw.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -27,28 +30,64 @@ __all__ = ["FramePoses", "SourceFrames"]
 
 MAX_WIDTH = 640
 POSE_COLUMNS = ("alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg", "radius_mm")
+SECTION_COLUMNS = ("ovality", "min_radius_mm", "max_radius_mm", "major_axis_theta_deg")
+ROLL, RADIUS = POSE_COLUMNS.index("roll_deg"), POSE_COLUMNS.index("radius_mm")
+
+
+def _finite_row(row: dict[str, str], columns: tuple[str, ...]) -> tuple[int, tuple[float, ...]]:
+    """(frame, the values of ``columns``); ValueError when one is missing or not finite."""
+    try:
+        frame, values = int(row["frame"]), tuple(float(row[c]) for c in columns)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("not a finite row") from None
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError("not a finite row")
+    return frame, values
+
+
+def _fitted_sections(profile: list[dict[str, str]],
+                     poses: dict[int, tuple[float, ...]]) -> dict[int, PipeSection]:
+    """Per frame with a pose, the ellipse profile.csv gives (in the frame's own angles)."""
+    sections = {}
+    for row in profile:
+        try:
+            frame, (_, low, high, axis_deg) = _finite_row(row, SECTION_COLUMNS)
+            if frame in poses:
+                sections[frame] = PipeSection(high, low,
+                                              math.radians(axis_deg - poses[frame][ROLL]))
+        except ValueError:     # no ellipse fitted (ovality nan), or not a valid one
+            continue
+    return sections
 
 
 @dataclass(frozen=True)
 class FramePoses:
     """Per frame (poses.csv) the pose the mosaic used: ``values[frame]`` in the order of
-    ``POSE_COLUMNS``."""
+    ``POSE_COLUMNS``; ``sections[frame]`` the ellipse fitted to its ring, where there is
+    one (profile.csv)."""
 
     values: dict[int, tuple[float, ...]]
+    sections: dict[int, PipeSection] = field(default_factory=dict)
 
     @classmethod
-    def from_rows(cls, rows: list[dict[str, str]]) -> FramePoses:
-        """From poses.csv's rows (frames without a finite pose left out)."""
+    def from_rows(cls, rows: list[dict[str, str]],
+                  profile: list[dict[str, str]] | None = None) -> FramePoses:
+        """From poses.csv's rows (frames without a finite pose left out) and
+        profile.csv's (frames without a fitted ellipse get the circle)."""
         values = {}
         for row in rows:
             try:
-                pose = tuple(float(row[c]) for c in POSE_COLUMNS)
-                frame = int(row["frame"])
-            except (KeyError, TypeError, ValueError):
+                frame, pose = _finite_row(row, POSE_COLUMNS)
+            except ValueError:
                 continue
-            if all(math.isfinite(v) for v in pose):
-                values[frame] = pose
-        return cls(values)
+            values[frame] = pose
+        return cls(values, _fitted_sections(profile or [], values))
+
+    def section(self, frame: int) -> PipeSection:
+        """The section ``frame`` was unwrapped with: its fitted ellipse, else its circle.
+        KeyError when the frame has no pose."""
+        circle = PipeSection.circle(2 * self.values[frame][RADIUS])
+        return self.sections.get(frame, circle)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
@@ -88,12 +127,12 @@ class SourceFrames:
 
     def point_in_frame(self, frame: int, z_mm: float, theta_deg: float) -> tuple[float, float]:
         """Pixel (col, row) of mosaic point (z, theta) in ``frame`` (NaN: not seen)."""
-        alpha, beta, dx, dy, z_frame, roll, radius = self.poses.values[frame]
+        alpha, beta, dx, dy, z_frame, roll, _ = self.poses.values[frame]
         grid = StripGrid(self.deg_per_px, self.mm_per_px, z_mm - z_frame, 1,
                          theta0_deg=theta_deg - roll)
         map_x, map_y = unwrap_maps(self._opened().config.camera_model(),
                                    Pose.from_degrees(alpha, beta, dx, dy),
-                                   PipeSection.circle(2 * radius), grid)
+                                   self.poses.section(frame), grid)
         x, y = float(map_x[0, 0]), float(map_y[0, 0])
         return (x, y) if x >= 0 and y >= 0 else (math.nan, math.nan)
 

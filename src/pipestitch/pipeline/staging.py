@@ -42,7 +42,7 @@ from typing import IO
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.pipeline.check import check_out_folder_path
 
-__all__ = ["JOURNAL", "LOCK", "RUN_OUTPUTS", "STAGING_PREFIX", "StagedOutput",
+__all__ = ["JOURNAL", "LOCK", "RUN_OUTPUTS", "STAGING_PREFIX", "OutputBusy", "StagedOutput",
            "check_out_folder", "finish_interrupted_commit", "out_lock"]
 
 # Everything `pipestitch run` may write into OUT (and earlier versions wrote).
@@ -149,6 +149,10 @@ class StagedOutput:
             self._lock.__exit__(None, None, None)
 
 
+class OutputBusy(DatasetError):
+    """Another process holds the output folder's lock (:func:`out_lock`)."""
+
+
 _held: Counter[str] = Counter()   # this process's locks, by folder (nested commands)
 _handles: dict[str, IO[str]] = {}
 _held_guard = threading.Lock()
@@ -165,9 +169,10 @@ def out_lock(out: str | Path, command: str) -> Iterator[None]:
 
     Raises
     ------
+    OutputBusy
+        When another process holds the lock (naming its command and PID).
     DatasetError
-        When another process holds the lock (naming its command and PID), or the lock
-        file cannot be made.
+        When ``out`` is not a folder or the lock file cannot be made.
     """
     key = str(Path(out).resolve())
     with _held_guard:
@@ -196,8 +201,8 @@ def _acquire(out: Path, command: str) -> IO[str]:
         handle.seek(0)
         holder = handle.read().strip() or "another process"
         handle.close()
-        raise DatasetError(out, f"another pipestitch command ({holder}) is writing into this "
-                                "folder; wait for it to finish or choose another --out")
+        raise OutputBusy(out, f"another pipestitch command ({holder}) is writing into this "
+                              "folder; wait for it to finish or choose another --out")
     handle.seek(0)
     handle.truncate()
     handle.write(f"pipestitch {command}, PID {os.getpid()}\n")

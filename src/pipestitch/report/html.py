@@ -23,13 +23,17 @@ from pipestitch.measure.defects import Defect
 from pipestitch.standards import DEFINITIONS, Observation, Survey
 from pipestitch.standards.observations import ProfileSection
 
-__all__ = ["FrameRow", "ReportData", "StandardsView", "render_report"]
+__all__ = ["FrameRow", "ReportData", "StandardsView", "observation_section", "render_report",
+           "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
 MAX_LISTED = 200         # rows of a list (exceedances, problems) shown; the rest in its CSV
 BIN_M = 1.0              # the summary's section length along the pipe
 PROBLEMS_CSV = "problems.csv"
+# The coded observations lie between these (user text is escaped: "<!--" never occurs in
+# it), so an edit in the review page re-renders only them (with_observation_section).
+OBSERVATIONS_BEGIN, OBSERVATIONS_END = "<!-- observations -->", "<!-- /observations -->"
 TABLES = (("poses.csv", "pose of every frame (both mirror hypotheses)"),
           ("profile.csv", "diameter and ovality of every ring"),
           ("ovality.csv", "named ovality figures of every section"),
@@ -244,14 +248,14 @@ def _clock_note(data: ReportData) -> str:
                        f"(reference: {data.standards.reference_source})")
 
 
-def _observation_section(data: ReportData) -> str:
-    view = data.standards
+def _observation_body(view: StandardsView | None) -> str:
     if view is None:
         return "<p>Not coded (the standards stage did not run).</p>"
     note = (f'<p class="note">Clock reference: <b>{html.escape(view.reference_source)}</b> '
             f"({html.escape(view.reference_detail)}); 12 = crown, 3 = right, 6 = invert, "
             "9 = left, clockwise looking along the survey. Distance from the first wall seen "
             "(the mosaic's left edge), m. Codes: EN 13508-2 main codes (docs/standards.md); "
+            "edit them in <code>pipestitch review OUT</code> (which updates this list), or "
             "edit observations.csv and run <code>pipestitch export</code> to re-export.</p>")
     if not view.observations:
         return note + "<p>No observations.</p>"
@@ -261,6 +265,22 @@ def _observation_section(data: ReportData) -> str:
     headers = ["distance (m)", "code", "char. 1", "char. 2", "quant. 1", "quant. 2", "clock",
                "continuous", "remark", "reference"]
     return note + _listed(len(view.observations), "observations.csv") + _table(headers, rows)
+
+
+def observation_section(view: StandardsView | None) -> str:
+    """The report's coded observations (``view``: the standards stage's results, None when
+    it did not run), between the markers :func:`with_observation_section` finds."""
+    return f"{OBSERVATIONS_BEGIN}\n{_observation_body(view)}\n{OBSERVATIONS_END}"
+
+
+def with_observation_section(report: str, view: StandardsView | None) -> str | None:
+    """The report text ``report`` with its coded observations rendered again from
+    ``view``; None when it has no such section (a report of an older version)."""
+    begin = report.find(OBSERVATIONS_BEGIN)
+    end = report.find(OBSERVATIONS_END, begin + 1)
+    if begin < 0 or end < 0:
+        return None
+    return report[:begin] + observation_section(view) + report[end + len(OBSERVATIONS_END):]
 
 
 _SURVEY_FIELDS = (("pipe_ref", "pipe"), ("start_node", "start node"),
@@ -436,7 +456,7 @@ mosaic's coordinates; clock: {_clock_note(data)}, clockwise looking along the su
 (right-hand axis of the mosaic).</p>
 {_defect_table(data)}
 <h2>Coded observations</h2>
-{_observation_section(data)}
+{observation_section(data.standards)}
 <h2>Diameter exceedances</h2>
 {_exceedances(data)}
 <h2>Ovality and deflection</h2>

@@ -307,6 +307,10 @@ function openForm(o) {
   state.editing = o ? o.index : null;
   $("obs-form-title").textContent = o ? "Edit observation (row " + (o.index + 1) + ")" : "New observation";
   FIELDS.forEach((f) => { form.elements[f].value = o ? q(o[f]) : ""; });
+  // a generated row's ref names the row its edit supersedes: the server keeps it
+  form.elements.ref.readOnly = Boolean(o) && /^(auto|reviewed):/.test(o.ref);
+  form.elements.ref.title = form.elements.ref.readOnly
+    ? "kept: it names the generated row this edit replaces on re-coding" : "";
   if (!o && state.last) {
     form.elements.distance_m.value = Math.max(0, (state.last.z - D.start_z_mm) / 1000).toFixed(2);
     form.elements.clock_from.value = clockText(state.last.theta).split(":")[0];
@@ -434,8 +438,8 @@ function setup() {
   $("mode").textContent = served ? "editing: saved to observations.csv"
     : "read-only (run `pipestitch review OUT` to edit)";
   $("obs-note").textContent = "Distance from the first wall seen; 12 o'clock = crown at mosaic \u03b8 " +
-    D.crown_theta_deg.toFixed(1) + "\u00b0 (" + D.reference + "). An edited auto: row is kept as reviewed:" +
-    " (re-coding regenerates the auto: rows).";
+    D.crown_theta_deg.toFixed(1) + "\u00b0 (" + D.reference + "). Re-coding regenerates the auto: rows," +
+    " except those edited here (kept as reviewed:) or deleted here.";
   Object.entries(D.codes).forEach(([code, name]) => {
     const o = document.createElement("option"); o.value = code; o.label = code + " " + name;
     $("codes").appendChild(o);

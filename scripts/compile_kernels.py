@@ -24,6 +24,7 @@ import argparse
 import hashlib
 import importlib
 import os
+import re
 import subprocess
 import sys
 import time
@@ -33,14 +34,17 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 
 # (module, kernel, argument types). Types: f4 f8 i8 u1 b1 are float32, float64, int64,
 # uint8 and bool scalars; "f4:2" is a C-contiguous 2-d float32 array, a trailing "A"
-# any layout, a trailing "r" read-only.
+# any layout, a trailing "r" read-only; "Name(f8 i8)" a named tuple of the kernel's
+# module (its class ``Name``) with fields of those types.
+PLANE = "Plane(f8 f8:1r f8:2r)"
+FIT_SETTINGS = "FitSettings(f8 f8 f8 f8 i8 f8 i8 i8)"
 KERNELS: tuple[tuple[str, str, str], ...] = (
     ("pose._fit_kernels", "fit_pixels",
-     "f8:2 i8:1A i8:1A i8 f8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8 f8:2 f8 f8:1r f8:2r"
-     " i8 f8 i8 f8 i8"),
+     f"Candidates(f8:2 i8:1A i8:1A i8) RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) {PLANE}"
+     f" {FIT_SETTINGS} f8:2"),
     # fit_pixels' refinement subtree as fit_frame calls it (compiled apart in parallel)
-    ("pose._fit_kernels", "refine_frame", "f8:1 f8:2 b1:1 i8 f8 f8:1r f8:2r i8 f8"),
-    ("pose._fit_kernels", "rays_to_plane", "f8:2 f8 f8:1r f8:2r"),
+    ("pose._fit_kernels", "refine_frame", f"f8:1 f8:2 b1:1 i8 {PLANE} {FIT_SETTINGS}"),
+    ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
     ("pose._ring_kernels", "divide_by_reflectance", "f4:2 f4:2 f4:2 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
     ("camera.kernels", "rays_of", "i8 f8:2 f8:1 f8:1 f8:1 f8:1 i8:1"),
@@ -68,13 +72,16 @@ FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the n
 AFTER_BIG = ("mosaic._unwrap_kernels", "column_medians")   # after the tree, to balance
 
 
-def parse_types(text: str) -> tuple:
+def parse_types(text: str, namespace: object = None) -> tuple:
     """Numba argument types of a :data:`KERNELS` entry's type string.
 
     Parameters
     ----------
     text : str
-        Space-separated types, e.g. ``"f4:2 f8 i8:1A f8:1r"``.
+        Space-separated types, e.g. ``"f4:2 f8 i8:1A f8:1r Plane(f8 f8:1r f8:2r)"``.
+    namespace : module, optional
+        Where the named tuples' classes are looked up (the kernel's module); needed only
+        when ``text`` names one.
 
     Returns
     -------
@@ -83,18 +90,27 @@ def parse_types(text: str) -> tuple:
     """
     from numba.core import types
 
+    out = []
+    for struct, fields, token in re.findall(r"(\w+)\(([^()]*)\)|(\S+)", text):
+        if not struct:
+            out.append(_scalar_or_array(token))
+            continue
+        members = [_scalar_or_array(t) for t in fields.split()]
+        out.append(types.BaseTuple.from_types(members, getattr(namespace, struct)))
+    return tuple(out)
+
+
+def _scalar_or_array(token: str) -> object:
+    """Numba type of one token of a type string (:func:`parse_types`), e.g. ``"f4:2A"``."""
+    from numba.core import types
+
     scalars = {"f4": types.float32, "f8": types.float64, "i8": types.int64,
                "u1": types.uint8, "b1": types.boolean}
-    out = []
-    for token in text.split():
-        name, _, rest = token.partition(":")
-        if not rest:
-            out.append(scalars[name])
-            continue
-        layout = "A" if "A" in rest else "C"
-        out.append(types.Array(scalars[name], int(rest.rstrip("Ar")), layout,
-                               readonly="r" in rest))
-    return tuple(out)
+    name, _, rest = token.partition(":")
+    if not rest:
+        return scalars[name]
+    layout = "A" if "A" in rest else "C"
+    return types.Array(scalars[name], int(rest.rstrip("Ar")), layout, readonly="r" in rest)
 
 
 def groups(n_jobs: int) -> list[list[int]]:
@@ -139,8 +155,8 @@ def compile_entries(indices: list[int]) -> float:
     t0 = time.perf_counter()
     for i in indices:
         module, name, sig = KERNELS[i]
-        kernel = getattr(importlib.import_module(f"pipestitch.{module}"), name)
-        kernel.compile(parse_types(sig))
+        namespace = importlib.import_module(f"pipestitch.{module}")
+        getattr(namespace, name).compile(parse_types(sig, namespace))
     return time.perf_counter() - t0
 
 

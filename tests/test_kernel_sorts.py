@@ -6,8 +6,8 @@ import numba
 import numpy as np
 import pytest
 
-from pipestitch.mosaic._unwrap_kernels import _select
-from pipestitch.pose._fit_kernels import _argsort_small
+from pipestitch.mosaic._unwrap_kernels import select
+from pipestitch.pose._fit_kernels import argsort_small
 
 RNG = np.random.default_rng(11)
 
@@ -26,7 +26,7 @@ def test_select_gives_the_order_statistics_of_np_partition(kind: str) -> None:
             values[:] = 1.5
         for k in {0, n // 2, n - 1}:
             a = np.concatenate([values, np.full(3, np.nan, np.float32)])   # tail untouched
-            _select(a, n, k)
+            select(a, n, k)
             want = np.partition(values, k)
             assert a[k] == want[k]
             assert np.all(a[:k] <= a[k]) and np.all(a[k + 1:n] >= a[k])
@@ -45,6 +45,6 @@ def test_argsort_small_is_numbas_argsort() -> None:
         for _ in range(50):
             d = np.round(RNG.normal(size=n), 1)          # ties
             d[RNG.random(n) < 0.1] = np.nan
-            got = _argsort_small(d)
+            got = argsort_small(d)
             np.testing.assert_array_equal(got, _numba_argsort(d))
             np.testing.assert_array_equal(got, np.argsort(d, kind="stable"))

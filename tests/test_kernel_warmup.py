@@ -61,9 +61,11 @@ def _load_script():
 def test_every_listed_kernel_exists_and_parses() -> None:
     ck = _load_script()
     for module, name, sig in ck.KERNELS:
-        kernel = getattr(importlib.import_module(f"pipestitch.{module}"), name)
+        namespace = importlib.import_module(f"pipestitch.{module}")
+        kernel = getattr(namespace, name)
         assert hasattr(kernel, "compile"), (module, name)
-        assert len(ck.parse_types(sig)) == kernel.py_func.__code__.co_argcount, (module, name)
+        types = ck.parse_types(sig, namespace)
+        assert len(types) == kernel.py_func.__code__.co_argcount, (module, name)
 
 
 def test_groups_cover_every_kernel_once() -> None:

@@ -9,7 +9,15 @@ from hypothesis import strategies as st
 
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose import _fit_kernels as _k
+from pipestitch.pose._fit_kernels import (
+    Plane,
+    conic_through,
+    lu,
+    ransac_conic,
+    solve_vector,
+    sym_eig,
+    wall_pass,
+)
 from pipestitch.pose.fit import (
     ConicModel,
     LaserPlane,
@@ -272,10 +280,14 @@ def test_conic_fit_matches_the_svd_reference() -> None:
     pts = np.column_stack([3 + 31 * np.cos(t), -2 + 29 * np.sin(t)]) @ [[0.8, 0.6], [-0.6, 0.8]]
     pts += rng.normal(0, 0.05, pts.shape)
     model = ConicModel.from_estimate(pts)
+    # the same unit vector by two solvers (Jacobi on the scatter, SVD of the design):
+    # 1e-15 apart here; the bound leaves room for Jacobi's stopping test on harder
+    # rings, and a wrong monomial or scaling would be off by order 1
     np.testing.assert_allclose(model.coef * np.sign(model.coef[0]), _svd_conic(pts), atol=1e-9)
     # the conic through five points is the same whether solved exactly or by the scatter
+    # (1e-14 apart here: elimination with pivoting against an SVD of a 5 x 6 matrix)
     five = pts[:5]
-    through = _k.conic_through(five)
+    through = conic_through(five)
     assert through[2]
     np.testing.assert_allclose(through[0] * np.sign(through[0][0]), _svd_conic(five), atol=1e-8)
     assert np.abs(ConicModel.from_estimate(five).residuals(five)).max() < 1e-9
@@ -292,7 +304,7 @@ def test_ransac_kernel_finds_the_same_inliers_as_skimage() -> None:
     clutter = clutter[ConicModel.from_estimate(ring).residuals(clutter) > 1.5][:300]
     pts = np.vstack([ring, clutter])
     truth = np.arange(len(pts)) < 600
-    _, _, inliers, ok = _k.ransac_conic(pts, np.random.default_rng(0).random((200, 5)), 0.3)
+    _, _, inliers, ok = ransac_conic(pts, np.random.default_rng(0).random((200, 5)), 0.3)
     reference = ransac(pts, ConicModel, min_samples=5, residual_threshold=0.3, max_trials=200,
                        rng=np.random.default_rng(0))[1]
     assert ok
@@ -313,15 +325,19 @@ def test_wall_pass_matches_finite_differences(normal) -> None:
     det, cam = _synthetic_detection(Pose.from_degrees(5.0, -4.0, 3.0, 2.0), plane_normal=normal)
     uv = plane_points(det.pixels, cam, D, normal)[0]
     x = np.array([np.deg2rad(5.1), np.deg2rad(-3.9), 3.05, 1.98, 32.4])
-    resid, cost, _, jtwj, jtwr, jtj = _k.wall_pass(x, uv[:, 0].copy(), uv[:, 1].copy(), D,
-                                                   plane.normal, plane.basis, 0.05)
+    resid, cost, _, jtwj, jtwr, jtj = wall_pass(x, uv[:, 0].copy(), uv[:, 1].copy(),
+                                                Plane(D, plane.normal, plane.basis), 0.05)
+    # the same residuals in another order of operations: 2e-14 apart here (mm)
     np.testing.assert_allclose(resid, _radial_residuals(x, uv, plane), atol=1e-12)
     jac = np.column_stack([(_radial_residuals(x + h, uv, plane)
                             - _radial_residuals(x - h, uv, plane)) / 2e-7
                            for h in np.eye(5) * 1e-7])
     weight = 1 / np.sqrt(1 + (resid / 0.05) ** 2)
+    # the same sum, reassociated (the kernel's loop is vectorised): a few ulps
     assert cost == pytest.approx(0.05**2 * np.sum(np.sqrt(1 + (resid / 0.05) ** 2) - 1),
                                  rel=1e-12)
+    # central differences, h = 1e-7 on ~30 mm points, carry ~1e-8 of rounding per entry:
+    # the products agree to 6e-7 at most here; a wrong Jacobian term is off by order 1
     np.testing.assert_allclose(jtj, jac.T @ jac, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(jtwj, (jac * weight[:, None]).T @ jac, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(jtwr, (jac * weight[:, None]).T @ resid, rtol=1e-6, atol=1e-9)
@@ -417,19 +433,21 @@ def test_small_linear_algebra_matches_numpy() -> None:
             lam = np.geomspace(1.0 / cond, 1.0, n) * rng.uniform(0.5, 2.0)
             a = (q * lam) @ q.T
             a = (a + a.T) / 2
-            w, v = _k.sym_eig(a)
+            w, v = sym_eig(a)
             w_ref, v_ref = np.linalg.eigh(a)
+            # two backward-stable solvers: eigenvalues within a few ulps of the largest
             np.testing.assert_allclose(w, w_ref, atol=1e-14 * lam.max())
-            # each eigenvector up to sign, to the accuracy the gap allows
+            # each eigenvector up to sign, to the accuracy the gap allows (eps |a| / gap)
             for j in range(n):
                 gap = np.min(np.abs(np.delete(w_ref, j) - w_ref[j]))
                 assert min(np.abs(v[:, j] - v_ref[:, j]).max(),
                            np.abs(v[:, j] + v_ref[:, j]).max()) < 1e-13 * lam.max() / gap
             b = rng.normal(size=n)
-            np.testing.assert_allclose(a @ _k.solve_vector(a, b), b, atol=1e-15 * cond * 10)
-            assert _k.lu(a)[2] == pytest.approx(np.linalg.det(a), rel=1e-8)
+            # a stable solve's residual grows with the condition: ~eps · cond, 10x margin
+            np.testing.assert_allclose(a @ solve_vector(a, b), b, atol=1e-15 * cond * 10)
+            assert lu(a)[2] == pytest.approx(np.linalg.det(a), rel=1e-8)
     with pytest.raises(np.linalg.LinAlgError):
-        _k.solve_vector(np.zeros((3, 3)), np.ones(3))
+        solve_vector(np.zeros((3, 3)), np.ones(3))
 
 
 def test_plane_points_lie_on_the_tilted_plane() -> None:

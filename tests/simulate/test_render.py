@@ -154,23 +154,6 @@ def test_fast_laser_only_rendering_matches_the_pair() -> None:
         assert diff.mean() < 0.05 and np.mean(diff > 8) < 1e-4
 
 
-def test_texture_wider_than_opencv_remaps_is_sampled_exactly() -> None:
-    """A long run's wall texture passes OpenCV's 32767-column limit of cv2.remap."""
-    from pipestitch.simulate.render import _remap_points, _remap_wrap
-
-    rows, cols = 64, 80_000
-    r, c = np.mgrid[0:rows, 0:cols].astype(np.float32)
-    texture = (0.001 * c + 0.1 * np.sin(r / 5)).astype(np.float32)   # smooth: bilinear ~ exact
-    rng = np.random.default_rng(0)
-    # One frame may reach more than 32767 columns (far down the pipe): 3 crops here.
-    x = rng.uniform(1_000, 79_000, 3000).astype(np.float32)
-    y = rng.uniform(5, 55, 3000).astype(np.float32)
-    expected = 0.001 * x + 0.1 * np.sin(y / 5)
-    np.testing.assert_allclose(_remap_points(texture, x, y), expected, atol=2e-3)
-    got = _remap_wrap(texture, x.reshape(30, 100), y.reshape(30, 100))
-    np.testing.assert_allclose(got.ravel(), expected, atol=2e-3)
-
-
 def test_rendering_in_worker_processes_gives_the_same_frames(tmp_path, simulate_small) -> None:
     """Each pair has its own noise generator: forked workers write the same files."""
     one = simulate_small(tmp_path / "one", "--pairs", "3", "--seed", "5")

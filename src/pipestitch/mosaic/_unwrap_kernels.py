@@ -194,7 +194,7 @@ def column_medians(values: np.ndarray, min_count: float) -> np.ndarray:
         if n > min_count:
             mid = n // 2
             part = columns[j]
-            _select(part, n, mid)
+            select(part, n, mid)
             if n % 2:
                 out[j] = part[mid]
             else:
@@ -203,7 +203,7 @@ def column_medians(values: np.ndarray, min_count: float) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _select(a: np.ndarray, n: int, k: int) -> None:
+def select(a: np.ndarray, n: int, k: int) -> None:
     """Reorder ``a[:n]`` (finite values) in place so that ``a[k]`` is its k-th smallest
     value, none larger before it and none smaller after (what ``np.partition`` gives:
     the same order statistics). Quickselect with a median-of-three pivot: numba's

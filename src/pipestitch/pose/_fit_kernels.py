@@ -11,19 +11,25 @@ around them and the definitions (loss, conic normalisation, closed form) are
 documented there.
 
 Conventions: ``pts`` / ``uv`` (N, 2) are in-plane coordinates (mm), a plane point
-being d·n + u·e1 + v·e2 in the probe frame (``distance``, ``normal``, ``basis`` of
+being d·n + u·e1 + v·e2 in the probe frame (a :class:`Plane`: the fields of
 :class:`pipestitch.pose.fit.LaserPlane`); a pose vector is (alpha, beta, dx, dy,
 radius); the rotation is R = Rx(alpha)·Ry(beta) (:mod:`pipestitch.geometry.rotations`).
-Nothing here draws random numbers: RANSAC's samples come from the caller's seeded
-generator. Every kernel uses ``error_model="numpy"``: a division by zero gives inf or
-NaN as the numpy code did, not an exception (and leaves loops free to vectorise).
+The kernels take their inputs by name: the candidates (:class:`Candidates`), the
+camera's compiled unprojection (:class:`pipestitch.camera.base.RayKernel`), the plane
+and the fit's settings (:class:`FitSettings`) are named tuples. Nothing here draws
+random numbers: RANSAC's samples come from the caller's seeded generator. Every kernel
+uses ``error_model="numpy"``: a division by zero gives inf or NaN as the numpy code
+did, not an exception (and leaves loops free to vectorise).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
+from pipestitch.camera.base import RayKernel
 from pipestitch.camera.kernels import rays_of
 
 EPS = float(np.spacing(1.0))   # skimage's RANSAC clips its trial-count ratio to this
@@ -36,6 +42,43 @@ RMS_POINTS = 128               # px RMS on ~this many ring points: an RMS to ~6 
 MONOMIALS = np.array([[2, 0], [1, 1], [0, 2], [1, 0], [0, 1], [0, 0]])   # x^i y^j of a conic
 # Float options of the vectorised loops: reassociation lets LLVM sum in vector lanes.
 FAST = {"reassoc", "contract", "nsz", "arcp"}
+
+
+# --- the kernels' named inputs ----------------------------------------------------------
+# Named tuples: numba passes them as structs (free inside compiled code; about a
+# microsecond each to type at a call from Python). Their fields' types are part of a
+# kernel's signature: scripts/compile_kernels.py lists them.
+
+class Plane(NamedTuple):
+    """The laser plane n·p = d as the kernels take it (the fields of
+    :class:`pipestitch.pose.fit.LaserPlane`): a plane point (u, v) is
+    d·n + u·basis[0] + v·basis[1] in the probe frame."""
+
+    distance_mm: float
+    normal: np.ndarray   # (3,) unit normal, float64
+    basis: np.ndarray    # (2, 3) in-plane unit vectors, float64
+
+
+class Candidates(NamedTuple):
+    """A frame's ring candidates (the arrays of :class:`pipestitch.pose.ring.RingDetection`)."""
+
+    pixels: np.ndarray    # (N, 2) float64, (col, row)
+    azimuth: np.ndarray   # (N,) int64: the ray each lies on
+    rank: np.ndarray      # (N,) int64: 0 for its ray's strongest
+    n_azimuths: int       # rays searched
+
+
+class FitSettings(NamedTuple):
+    """What a frame's fit is given (:func:`fit_frame`); lengths on the plane, mm."""
+
+    gate_mm: float         # a candidate this close to the conic is on the ring
+    reselect_mm: float     # ... when the inliers are re-selected, one per ray
+    loss_scale_mm: float   # the soft-L1 loss's scale (the point noise)
+    radius_mm: float       # the radius held when n_free is 4 (NaN when it is fitted)
+    n_free: int            # parameters fitted: 4 (radius held) or 5
+    min_coverage: float    # below this share of rays with a candidate: NO_RING
+    min_hit: int           # fewer rays than this keeping a candidate: LOW_COVERAGE
+    max_points: int        # kept ring points returned, subsampled to at most this
 
 
 # --- small dense linear algebra (2 x 2 to 6 x 6) ------------------------------------
@@ -68,12 +111,12 @@ def sym_eig(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 if a[p, q] != 0.0:
                     _rotate(a, v, p, q)
     d = np.diag(a).copy()
-    order = _argsort_small(d)
+    order = argsort_small(d)
     return d[order], v[:, order].copy()
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _argsort_small(d: np.ndarray) -> np.ndarray:
+def argsort_small(d: np.ndarray) -> np.ndarray:
     """``np.argsort(d)`` of a few values: numba's argsort sorts up to 15 by insertion,
     as here (same comparison, NaN last, so the same order, ties included); its general
     quicksort is a second of compiling for six numbers."""
@@ -528,23 +571,23 @@ MIN_CANDIDATES = 12   # fewer ring candidates than this: no ring (status NO_RING
 
 
 @numba.njit(cache=True, error_model="numpy")
-def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold: float,
-                reselect_threshold: float, uniforms: np.ndarray, distance: float,
-                normal: np.ndarray,
-                basis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+def select_ring(rays: np.ndarray, candidates: Candidates, plane: Plane, settings: FitSettings,
+                uniforms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """The ring among the candidates: (uv, kept mask over the N candidates, starts,
     rays hit, status).
 
     ``rays`` are the unit rays of the N candidates (then of any further pixels:
     ``uv`` holds the plane coordinates of all, :func:`rays_to_plane`).
-    :func:`initial_conic` on the candidates that meet the plane, else
-    :func:`ransac_conic` with ``uniforms`` (status NEEDS_SAMPLES when they are empty:
-    call again with them), then :func:`reselect`; status NO_ELLIPSE when no conic
-    with >= 12 inliers exists. ``starts`` are the conic's closed-form poses
-    (:func:`conic_poses`; status NOT_A_SECTION when it has none) and ``rays hit``
-    the number of azimuths with a kept candidate.
+    :func:`initial_conic` on the candidates that meet the plane (gate
+    ``settings.gate_mm``), else :func:`ransac_conic` with ``uniforms`` (status
+    NEEDS_SAMPLES when they are empty: call again with them), then :func:`reselect`
+    (gate ``settings.reselect_mm``); status NO_ELLIPSE when no conic with >= 12
+    inliers exists. ``starts`` are the conic's closed-form poses (:func:`conic_poses`;
+    status NOT_A_SECTION when it has none) and ``rays hit`` the number of azimuths
+    with a kept candidate.
     """
-    uv, valid = rays_to_plane(rays, distance, normal, basis)
+    azimuth, rank, threshold = candidates.azimuth, candidates.rank, settings.gate_mm
+    uv, valid = rays_to_plane(rays, plane)
     idx = np.flatnonzero(valid[:azimuth.size])
     # the candidates that meet the plane, gathered in one loop (numba's fancy indexing
     # inlines much generic code, cold right after a ring extraction)
@@ -563,20 +606,19 @@ def select_ring(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, thresho
         dist = np.empty(0)   # of another conic
     if not ok or np.count_nonzero(inliers) < 12:
         return uv, kept, none, 0, NO_ELLIPSE
-    keep, coef, scale = reselect(pts, az, inliers, coef, scale, reselect_threshold, dist)
+    keep, coef, scale = reselect(pts, az, inliers, coef, scale, settings.reselect_mm, dist)
     hit = np.zeros(az.max() + 1, np.bool_)
     for i in range(idx.size):
         if keep[i]:
             kept[idx[i]] = hit[az[i]] = True
-    starts = conic_poses(*conic_normalised(coef, scale), distance, normal, basis)
+    starts = conic_poses(*conic_normalised(coef, scale), plane)
     if starts.shape[0] == 0:
         return uv, kept, none, 0, NOT_A_SECTION
     return uv, kept, starts, np.count_nonzero(hit), FOUND
 
 
 @numba.njit(cache=True, error_model="numpy")
-def ring_query(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray,
-               n_azimuths: int) -> tuple[np.ndarray, int, float]:
+def ring_query(candidates: Candidates) -> tuple[np.ndarray, int, float]:
     """What a fit unprojects, and the detection's coverage, in one call.
 
     Returns (:func:`step_query` of the pixels at ``stride``, ``stride``, coverage):
@@ -584,6 +626,8 @@ def ring_query(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray,
     (~6 % on an RMS), coverage is the fraction of the ``n_azimuths`` rays with a
     candidate (:attr:`pipestitch.pose.ring.RingDetection.coverage`).
     """
+    pixels, azimuth, rank = candidates.pixels, candidates.azimuth, candidates.rank
+    n_azimuths = candidates.n_azimuths
     hit = np.zeros(max(n_azimuths, azimuth.max() + 1 if azimuth.size else 0), np.bool_)
     n_strong = 0
     for i in range(azimuth.size):
@@ -621,12 +665,12 @@ def rotation_rows(alpha: float, beta: float) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def conic_poses(q: np.ndarray, lin: np.ndarray, c0: float, distance: float,
-                normal: np.ndarray, basis: np.ndarray) -> np.ndarray:
+def conic_poses(q: np.ndarray, lin: np.ndarray, c0: float, plane: Plane) -> np.ndarray:
     """Closed-form (alpha, beta, dx, dy, radius) of both mirrors; (0, 5) if none.
 
     See :func:`pipestitch.pose.fit.pose_from_conic` for the derivation.
     """
+    distance, normal, basis = plane
     evals, evecs = sym_eig(q)
     w_norm = np.sqrt(max(0.0, 1 - evals[0]))
     r2 = dot(lin, solve_vector(q, lin)) - c0
@@ -655,27 +699,25 @@ def conic_poses(q: np.ndarray, lin: np.ndarray, c0: float, distance: float,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def plane_to_world(x: np.ndarray, distance: float, normal: np.ndarray,
-                   basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def plane_to_world(x: np.ndarray, plane: Plane) -> tuple[np.ndarray, np.ndarray]:
     """(A, c): plane point u lies at world (x, y) = A u + c for pose vector ``x``."""
+    distance, normal, basis = plane
     rot = rotation_rows(x[0], x[1])[:2].copy()
     return matmul(rot, np.ascontiguousarray(basis.T)), matvec(rot, distance * normal) + x[2:4]
 
 
 @numba.njit(cache=True, error_model="numpy")
-def model_conic(x: np.ndarray, distance: float, normal: np.ndarray,
-                basis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def model_conic(x: np.ndarray, plane: Plane) -> tuple[np.ndarray, np.ndarray, float]:
     """The ring conic (q, lin, c0) in plane coordinates of pose vector ``x``."""
-    a_mat, c = plane_to_world(x, distance, normal, basis)
+    a_mat, c = plane_to_world(x, plane)
     a_t = np.ascontiguousarray(a_mat.T)
     return matmul(a_t, a_mat), matvec(a_t, c), dot(c, c) - x[4] ** 2
 
 
 @numba.njit(cache=True, error_model="numpy")
-def mirror_of(x: np.ndarray, distance: float, normal: np.ndarray,
-              basis: np.ndarray) -> np.ndarray:
+def mirror_of(x: np.ndarray, plane: Plane) -> np.ndarray:
     """The other pose of x's own conic (farthest in |d alpha| + |d beta|), same radius."""
-    sols = conic_poses(*model_conic(x, distance, normal, basis), distance, normal, basis)
+    sols = conic_poses(*model_conic(x, plane), plane)
     out = x.copy()
     best = -1.0
     for k in range(sols.shape[0]):
@@ -690,10 +732,10 @@ def mirror_of(x: np.ndarray, distance: float, normal: np.ndarray,
 # --- robust least squares of the radial residuals ---------------------------------------
 
 @numba.njit(cache=True, error_model="numpy")
-def _point_coefficients(x: np.ndarray, distance: float, normal: np.ndarray,
-                        basis: np.ndarray) -> np.ndarray:
+def _point_coefficients(x: np.ndarray, plane: Plane) -> np.ndarray:
     """(6, 3) K: row k of :func:`rotation_rows` applied to the plane point of (u, v) is
     K[k, 0] + K[k, 1] u + K[k, 2] v; the offset (dx, dy) is added to rows 0 and 1."""
+    distance, normal, basis = plane
     rot = rotation_rows(x[0], x[1])
     out = np.empty((6, 3))
     for k in range(6):
@@ -711,8 +753,8 @@ def _point_coefficients(x: np.ndarray, distance: float, normal: np.ndarray,
 # vectorise the loop and its sums (3x faster than with arrays of sums). Results move
 # by float rounding only, and are the same on every call.
 @numba.njit(cache=True, error_model="numpy", fastmath=FAST)
-def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
-              normal: np.ndarray, basis: np.ndarray, f_scale: float) -> tuple[
+def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane,
+              f_scale: float) -> tuple[
         np.ndarray, float, float, np.ndarray, np.ndarray, np.ndarray]:
     """Everything one pose vector needs from the plane points (u, v), in one pass.
 
@@ -727,7 +769,7 @@ def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
     resid : (N,) residuals; cost : soft-L1 cost; wrr : Σ w r²;
     jtwj, jtwr : weighted normal equations (5 x 5, 5); jtj : unweighted J^T J (5 x 5).
     """
-    k = _point_coefficients(x, distance, normal, basis)
+    k = _point_coefficients(x, plane)
     n = u.size
     resid = np.empty(n)
     inv_f = 1.0 / f_scale
@@ -790,29 +832,27 @@ def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
         s2 += nx
         s3 += ny
     # the radius column of the Jacobian is -1
-    jtwj = _symmetric5(w00, w01, w02, w03, -wa0, w11, w12, w13, -wa1, w22, w23, -wa2, w33,
-                       -wa3, sw)
-    jtj = _symmetric5(h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2, h33, -s3,
-                      float(n))
+    jtwj = _symmetric5((w00, w01, w02, w03, -wa0, w11, w12, w13, -wa1, w22, w23, -wa2, w33,
+                        -wa3, sw))
+    jtj = _symmetric5((h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2, h33, -s3,
+                       float(n)))
     return (resid, f_scale**2 * cost, wrr, jtwj, np.array([g0, g1, g2, g3, -swr]), jtj)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _symmetric5(m00: float, m01: float, m02: float, m03: float, m04: float, m11: float,
-                m12: float, m13: float, m14: float, m22: float, m23: float, m24: float,
-                m33: float, m34: float, m44: float) -> np.ndarray:
-    """The symmetric 5 x 5 matrix with the given upper triangle (row by row)."""
+def _symmetric5(upper: tuple[float, ...]) -> np.ndarray:
+    """The symmetric 5 x 5 matrix with the upper triangle ``upper`` (15 values, row by row)."""
+    m00, m01, m02, m03, m04, m11, m12, m13, m14, m22, m23, m24, m33, m34, m44 = upper
     return np.array([[m00, m01, m02, m03, m04], [m01, m11, m12, m13, m14],
                      [m02, m12, m22, m23, m24], [m03, m13, m23, m33, m34],
                      [m04, m14, m24, m34, m44]])
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=FAST)
-def residual_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
-                  normal: np.ndarray, basis: np.ndarray,
+def residual_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane,
                   f_scale: float) -> tuple[np.ndarray, float]:
     """The residuals and soft-L1 cost of :func:`wall_pass` alone (no Jacobian)."""
-    k = _point_coefficients(x, distance, normal, basis)
+    k = _point_coefficients(x, plane)
     resid = np.empty(u.size)
     inv_f = 1.0 / f_scale
     cost = 0.0
@@ -826,8 +866,7 @@ def residual_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
-                 normal: np.ndarray, basis: np.ndarray, n_free: int,
+def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane, n_free: int,
                  f_scale: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Damped IRLS Gauss-Newton; ends with a step below ``STOP_SIGMA`` of every
     parameter's sigma, taken with the residuals alone (:func:`residual_pass`).
@@ -841,7 +880,7 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
     ``numpy.linalg.LinAlgError`` when the normal equations are singular.
     """
     x = x.copy()
-    resid, cost, wrr, hess, grad, jtj = wall_pass(x, u, v, distance, normal, basis, f_scale)
+    resid, cost, wrr, hess, grad, jtj = wall_pass(x, u, v, plane, f_scale)
     damping = 1e-9
     dof = max(1, u.size - n_free)
     for _ in range(GN_MAX_ITER):
@@ -856,11 +895,11 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
         # sigma of each parameter (weighted normal equations, residual variance)
         sigma2 = np.diag(solve(a, np.eye(n_free))) * max(wrr / dof, 1e-12)
         if np.all(step**2 <= STOP_SIGMA**2 * sigma2):
-            last = residual_pass(trial, u, v, distance, normal, basis, f_scale)
+            last = residual_pass(trial, u, v, plane, f_scale)
             if last[1] <= cost:
                 x, (resid, cost) = trial, last
             break
-        out = wall_pass(trial, u, v, distance, normal, basis, f_scale)
+        out = wall_pass(trial, u, v, plane, f_scale)
         if out[1] <= cost:
             x, (resid, cost, wrr, hess, grad, jtj) = trial, out
             damping /= 10
@@ -872,42 +911,44 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, distance: float,
-                normal: np.ndarray, basis: np.ndarray, n_free: int, f_scale: float) -> tuple[
+def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane, n_free: int,
+                f_scale: float) -> tuple[
         np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`gauss_newton` from ``start``, then the mirror of the optimum.
 
     Returns (x, cost, resid, jtj) of the optimum and (mirror, resid, jtj) of its
     mirror (:func:`mirror_of`), residuals and unweighted J^T J at each.
     """
-    x, cost, resid, jtj = gauss_newton(start, u, v, distance, normal, basis, n_free, f_scale)
-    mirror = mirror_of(x, distance, normal, basis)
-    m_pass = wall_pass(mirror, u, v, distance, normal, basis, f_scale)
+    x, cost, resid, jtj = gauss_newton(start, u, v, plane, n_free, f_scale)
+    mirror = mirror_of(x, plane)
+    m_pass = wall_pass(mirror, u, v, plane, f_scale)
     return x, cost, resid, jtj, mirror, m_pass[0], m_pass[5]
 
 
 @numba.njit(cache=True, error_model="numpy")
 def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: int,
-                 distance: float, normal: np.ndarray, basis: np.ndarray, n_free: int,
-                 f_scale: float) -> tuple[
+                 plane: Plane, settings: FitSettings) -> tuple[
         np.ndarray, float, float, np.ndarray]:
     """Both hypotheses of a frame from the kept candidates, with their statistics.
 
     ``uv`` are the plane coordinates of the N candidates (``kept`` marks the ring's),
     then of candidates[::stride] moved one column, then one row (:func:`step_query`,
-    for :func:`px_rms`). Returns (summary, cost, rms_px, information (2, 4, 4)); row 0
-    of the summary is the optimum, row 1 its mirror, each the pose vector (5), then at
-    SUMMARY_RMS its rms_mm, at SUMMARY_OK 1.0 where its sigma is valid, and from
-    SUMMARY_SIGMA the sigma of the n_free parameters.
+    for :func:`px_rms`). The least squares (:func:`refine_both`) fits the first
+    ``settings.n_free`` parameters of ``start`` with the loss scale
+    ``settings.loss_scale_mm``. Returns (summary, cost, rms_px, information
+    (2, 4, 4)); row 0 of the summary is the optimum, row 1 its mirror, each the pose
+    vector (5), then at SUMMARY_RMS its rms_mm, at SUMMARY_OK 1.0 where its sigma is
+    valid, and from SUMMARY_SIGMA the sigma of the n_free parameters.
     """
+    n_free = settings.n_free
     n = kept.size
     m = (n + stride - 1) // stride
     idx = np.flatnonzero(kept)
     u, v = np.empty(idx.size), np.empty(idx.size)
     for i in range(idx.size):
         u[i], v[i] = uv[idx[i], 0], uv[idx[i], 1]
-    x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, u, v, distance, normal,
-                                                              basis, n_free, f_scale)
+    x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, u, v, plane, n_free,
+                                                              settings.loss_scale_mm)
     # px RMS on the kept points of the subsample the steps were taken at: candidate
     # k * stride, its residual (the kept points' running count) and its two steps
     pts, res = np.empty((m, 2)), np.empty(m)
@@ -922,7 +963,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
                 row[count, j] = uv[n + m + k, j]
             count += 1
         position += kept[i]
-    a_mat, c = plane_to_world(x, distance, normal, basis)
+    a_mat, c = plane_to_world(x, plane)
     rms_px = px_rms(pts[:count], res[:count], col[:count], row[:count], a_mat, c)
     # one row per hypothesis, so Python converts one array (each conversion has a cost)
     summary, info = np.empty((2, SUMMARY_SIGMA + n_free)), np.empty((2, 4, 4))
@@ -941,18 +982,17 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
 
 
 @numba.njit(cache=True, error_model="numpy")
-def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold: float,
-              reselect_threshold: float, uniforms: np.ndarray, distance: float,
-              normal: np.ndarray, basis: np.ndarray, min_hit: int, radius: float,
-              n_free: int, f_scale: float, stride: int, pixels: np.ndarray,
-              max_points: int) -> tuple:
+def fit_frame(rays: np.ndarray, stride: int, candidates: Candidates, plane: Plane,
+              settings: FitSettings, uniforms: np.ndarray) -> tuple:
     """A frame's whole fit in one call: :func:`select_ring`, then :func:`refine_frame`
     from the first closed-form start, then :func:`ring_subsample` of the kept points.
 
     One entry from Python instead of three: right after a ring extraction every entry's
-    argument handling and code are cold, and cost more than the arithmetic. ``radius``
-    replaces the start's radius when ``n_free`` is 4 (held); ``min_hit`` is the number
-    of rays that must keep a candidate (else status LOW_COVERAGE).
+    argument handling and code are cold, and cost more than the arithmetic. ``rays``
+    and ``stride`` are the unit rays of :func:`ring_query`'s pixels and its stride;
+    ``settings.radius_mm`` replaces the start's radius when ``settings.n_free`` is 4
+    (held); ``settings.min_hit`` rays must keep a candidate (else status LOW_COVERAGE);
+    ``uniforms`` are RANSAC's samples (:func:`select_ring`).
 
     Returns
     -------
@@ -960,19 +1000,17 @@ def fit_frame(rays: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, threshold
     pixels): the last six as :func:`refine_frame` and :func:`ring_subsample` give them,
     empty unless status is FOUND.
     """
-    uv, kept, starts, hit, status = select_ring(rays, azimuth, rank, threshold,
-                                                reselect_threshold, uniforms, distance,
-                                                normal, basis)
-    if status == FOUND and hit < min_hit:
+    uv, kept, starts, hit, status = select_ring(rays, candidates, plane, settings, uniforms)
+    if status == FOUND and hit < settings.min_hit:
         status = LOW_COVERAGE
     if status != FOUND:
-        return no_fit(status, hit, n_free)
+        return no_fit(status, hit, settings.n_free)
     start = starts[0].copy()
-    if n_free == 4:
-        start[4] = radius
-    summary, cost, rms_px, info = refine_frame(start, uv, kept, stride, distance, normal,
-                                               basis, n_free, f_scale)
-    ring_uv, ring_px = ring_subsample(uv[:kept.size], pixels, kept, max_points)
+    if settings.n_free == 4:
+        start[4] = settings.radius_mm
+    summary, cost, rms_px, info = refine_frame(start, uv, kept, stride, plane, settings)
+    ring_uv, ring_px = ring_subsample(uv[:kept.size], candidates.pixels, kept,
+                                      settings.max_points)
     return (status, hit, np.count_nonzero(kept), summary, cost, rms_px, info, ring_uv, ring_px)
 
 
@@ -985,27 +1023,20 @@ def no_fit(status: int, hit: int, n_free: int) -> tuple:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def fit_pixels(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, n_azimuths: int,
-               min_coverage: float, kind: int, cam_a: np.ndarray, cam_b: np.ndarray,
-               cam_c: np.ndarray, cam_d: np.ndarray, cam_index: np.ndarray,
-               threshold: float, reselect_threshold: float, uniforms: np.ndarray,
-               distance: float, normal: np.ndarray, basis: np.ndarray, min_hit: int,
-               radius: float, n_free: int, f_scale: float, max_points: int) -> tuple:
+def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings: FitSettings,
+               uniforms: np.ndarray) -> tuple:
     """:func:`ring_query`, the camera's rays of the query and :func:`fit_frame`: one entry.
 
-    For cameras with a compiled unprojection (``kind``, ``cam_*``: a
-    :class:`pipestitch.camera.base.RayKernel`), so that a frame enters compiled code
-    once. Returns (detection coverage, :func:`fit_frame`'s tuple); status NO_RING
-    without unprojecting when fewer than 12 candidates or less than ``min_coverage``
-    of the rays have one.
+    For cameras with a compiled unprojection (``camera``: its ``ray_kernel``), so that
+    a frame enters compiled code once. Returns (detection coverage, :func:`fit_frame`'s
+    tuple); status NO_RING without unprojecting when fewer than 12 candidates or less
+    than ``settings.min_coverage`` of the rays have one.
     """
-    query, stride, found = ring_query(pixels, azimuth, rank, n_azimuths)
-    if pixels.shape[0] < MIN_CANDIDATES or found < min_coverage:
-        return found, no_fit(NO_RING, 0, n_free)
-    rays = rays_of(kind, query, cam_a, cam_b, cam_c, cam_d, cam_index)
-    return found, fit_frame(rays, azimuth, rank, threshold, reselect_threshold, uniforms,
-                            distance, normal, basis, min_hit, radius, n_free, f_scale, stride,
-                            pixels, max_points)
+    query, stride, found = ring_query(candidates)
+    if candidates.pixels.shape[0] < MIN_CANDIDATES or found < settings.min_coverage:
+        return found, no_fit(NO_RING, 0, settings.n_free)
+    rays = rays_of(camera.kind, query, camera.a, camera.b, camera.c, camera.d, camera.index)
+    return found, fit_frame(rays, stride, candidates, plane, settings, uniforms)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -1056,12 +1087,12 @@ def uncertainty(resid: np.ndarray, jtj: np.ndarray,
 # --- plane points and the image-side residual -------------------------------------------
 
 @numba.njit(cache=True, error_model="numpy")
-def rays_to_plane(rays: np.ndarray, distance: float, normal: np.ndarray,
-                  basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def rays_to_plane(rays: np.ndarray, plane: Plane) -> tuple[np.ndarray, np.ndarray]:
     """In-plane coordinates (N, 2) where each ray meets the plane n·p = d, and the mask.
 
     Rows of rays that miss the plane (behind it, grazing, NaN) are NaN.
     """
+    distance, normal, basis = plane
     n = rays.shape[0]
     valid = np.empty(n, np.bool_)
     uv = np.empty((n, 2))

@@ -65,6 +65,7 @@ RESELECT_SIGMAS = 5.0    # ... when the inliers are re-selected, one per ray
 RESCALE_RMS = 2.0        # inliers' rms above this many sigmas: the noise was underestimated
 RESCALE_ROUNDS = 3
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
+KEPT_POINTS = 720     # a frame's ring inliers kept for later fits (RingPoints), at most
 
 
 @dataclass(frozen=True, slots=True)
@@ -267,8 +268,7 @@ def pose_from_conic(q: np.ndarray, lin: np.ndarray, c0: float, plane_distance_mm
     a = P w + sqrt(1 - |w|²) n (the axis points forward, like the normal).
     """
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    sols = _k.conic_poses(_as_points(q), _as_points(lin), float(c0), plane.distance_mm,
-                          plane.normal, plane.basis)
+    sols = _k.conic_poses(_as_points(q), _as_points(lin), float(c0), _kernel_plane(plane))
     return [(Pose(*(float(v) for v in s[:4])), float(s[4])) for s in sols]
 
 
@@ -278,15 +278,18 @@ def model_conic(pose: Pose, radius_mm: float, plane: LaserPlane) -> tuple[np.nda
 
     Inverse of :func:`pose_from_conic`: both mirror poses give the same conic.
     """
-    q, lin, c0 = _k.model_conic(_pose_vector(pose, radius_mm), plane.distance_mm, plane.normal,
-                                plane.basis)
+    q, lin, c0 = _k.model_conic(_pose_vector(pose, radius_mm), _kernel_plane(plane))
     return q, lin, float(c0)
 
 
 def plane_to_world(pose: Pose, plane: LaserPlane) -> tuple[np.ndarray, np.ndarray]:
     """(A, c): a plane point u (in-plane coordinates) lies at world (x, y) = A u + c."""
-    return _k.plane_to_world(_pose_vector(pose, 0.0), plane.distance_mm, plane.normal,
-                             plane.basis)
+    return _k.plane_to_world(_pose_vector(pose, 0.0), _kernel_plane(plane))
+
+
+def _kernel_plane(plane: LaserPlane) -> _k.Plane:
+    """The plane as the kernels take it (float distance: one compiled signature)."""
+    return _k.Plane(float(plane.distance_mm), plane.normal, plane.basis)
 
 
 def _pose_vector(pose: Pose, radius_mm: float) -> np.ndarray:
@@ -354,7 +357,7 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
             out.status, f"too few ring points fit ({coverage:.0%} of the ring)")
         return PoseFit(False, reason, coverage=coverage if out.status == _k.LOW_COVERAGE
                        else out.coverage)
-    # the ring's inliers kept: <= 720 points, float32, <= 12 kB a frame
+    # the ring's inliers kept: <= KEPT_POINTS, float32, <= 12 kB a frame
     return PoseFit(True, "", _hypotheses(out.summary, out.cost, out.rms_px, out.information),
                    out.n_kept, coverage, "circle",
                    RingPoints(out.ring_uv, out.ring_pixels, plane, noise))
@@ -484,30 +487,38 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     curve, so this needs no nonlinear fit. ``radius`` NaN fits the radius, else holds
     it. Refinement: :func:`_hypotheses`.
     """
-    pixels = _as_points(detection.pixels)
-    azimuth, rank = _as_index(detection.azimuth), _as_index(detection.rank)
-    n_az = detection.n_azimuths
-    fit = (GATE_SIGMAS * noise_mm, RESELECT_SIGMAS * noise_mm)
-    n_free = 4 if radius == radius else 5
-    rest = (plane.distance_mm, plane.normal, plane.basis, _min_rays(min_coverage, n_az),
-            radius, n_free, noise_mm)
+    candidates = _k.Candidates(_as_points(detection.pixels), _as_index(detection.azimuth),
+                               _as_index(detection.rank), int(detection.n_azimuths))
+    settings = _fit_settings(noise_mm, min_coverage, radius, detection.n_azimuths)
+    on_plane = _kernel_plane(plane)
     kernel = getattr(camera, "ray_kernel", None)
 
     def run(uniforms: np.ndarray) -> tuple[float, tuple]:
         if kernel is not None:
-            return _k.fit_pixels(pixels, azimuth, rank, n_az, min_coverage, *kernel, *fit,
-                                 uniforms, *rest, 720)
-        query, stride, found = _k.ring_query(pixels, azimuth, rank, n_az)
-        if pixels.shape[0] < _k.MIN_CANDIDATES or found < min_coverage:
-            return found, _k.no_fit(_k.NO_RING, 0, n_free)
+            return _k.fit_pixels(candidates, kernel, on_plane, settings, uniforms)
+        query, stride, found = _k.ring_query(candidates)
+        if len(candidates.pixels) < _k.MIN_CANDIDATES or found < settings.min_coverage:
+            return found, _k.no_fit(_k.NO_RING, 0, settings.n_free)
         rays = _as_points(camera.unproject(query))
-        return found, _k.fit_frame(rays, azimuth, rank, *fit, uniforms, *rest, stride,
-                                   pixels, 720)
+        return found, _k.fit_frame(rays, stride, candidates, on_plane, settings, uniforms)
 
     found, out = run(np.empty((0, 5)))
     if out[0] == _k.NEEDS_SAMPLES:
         found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
     return KernelFit(found, *out)
+
+
+def _fit_settings(noise_mm: float, min_coverage: float, radius: float,
+                  n_azimuths: int) -> _k.FitSettings:
+    """The fit kernel's settings for a frame with point noise ``noise_mm`` (its loss
+    scale; the gates are ``GATE_SIGMAS`` and ``RESELECT_SIGMAS`` of it); ``radius``
+    NaN fits the radius, else holds it. Python floats and ints: one compiled signature."""
+    noise = float(noise_mm)
+    return _k.FitSettings(gate_mm=GATE_SIGMAS * noise, reselect_mm=RESELECT_SIGMAS * noise,
+                          loss_scale_mm=noise, radius_mm=float(radius),
+                          n_free=4 if radius == radius else 5,
+                          min_coverage=float(min_coverage),
+                          min_hit=_min_rays(min_coverage, n_azimuths), max_points=KEPT_POINTS)
 
 
 def _hypotheses(summary: np.ndarray, cost: float, rms_px: float,
@@ -589,4 +600,4 @@ def _plane_coords(pixels: np.ndarray, camera: CameraModel,
     kernel = getattr(camera, "ray_kernel", None)
     rays = (_k.rays_of(kernel[0], _as_points(pixels), *kernel[1:]) if kernel is not None
             else _as_points(camera.unproject(pixels)))
-    return _k.rays_to_plane(rays, plane.distance_mm, plane.normal, plane.basis)
+    return _k.rays_to_plane(rays, _kernel_plane(plane))

@@ -27,8 +27,8 @@ from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
 from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
 
-__all__ = ["RingDetection", "detect_ring", "laser_channel", "prepare_laser_frame",
-           "ring_band_px"]
+__all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
+           "prepare_laser_frame", "ring_band_px", "row_percentile"]
 
 
 @dataclass(frozen=True)
@@ -117,13 +117,33 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,
 
 
 @functools.lru_cache(maxsize=8)
-def _polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
-                band_px: tuple[float, float] | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sampling maps of rays from the image of the optical axis out to the lens edge
-    (or over the image radii ``band_px`` only).
+def polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
+               band_px: tuple[float, float] | None = None,
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sampling maps of the rays :func:`detect_ring` searches: from the image of the
+    optical axis out to the lens edge (or over the image radii ``band_px`` only).
 
     The same for every frame of a run: cached (read-only arrays).
+
+    Parameters
+    ----------
+    camera : CameraModel
+        Camera model.
+    n_azimuths : int
+        Number of rays, evenly spaced in azimuth from 0.
+    step_px : float
+        Spacing of the samples along a ray, px.
+    band_px : (float, float), optional
+        Image radii about the image of the optical axis to sample between.
+
+    Returns
+    -------
+    map_x, map_y : numpy.ndarray, shape (n_azimuths, n_samples), float32
+        Image column and row of each sample (``cv2.remap``'s maps).
+    radii : numpy.ndarray, shape (n_samples,)
+        Image radius of each sample column, px.
+    centre : numpy.ndarray, shape (2,)
+        The image of the optical axis (col, row).
     """
     centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
     edge_theta = min(camera.max_incidence_rad, np.deg2rad(100.0))
@@ -148,19 +168,30 @@ CROP_PAD_PX = 4
 
 
 @functools.lru_cache(maxsize=8)
-def _polar_crop(camera: CameraModel, n_azimuths: int, step_px: float,
-                band_px: tuple[float, float] | None = None,
-                ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
-    """The part of the frame the polar maps read ((rows, cols) slices) and the maps
-    relative to it.
+def polar_crop(camera: CameraModel, n_azimuths: int, step_px: float,
+               band_px: tuple[float, float] | None = None,
+               ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+    """The part of the frame :func:`polar_grid`'s maps read, and the maps relative to it.
 
     Converting and blurring only that part gives the polar samples of the whole frame
     exactly: the maps move by whole pixels (exact in float32 below 2**24, and so are the
     interpolation weights), and every pixel read, and every pixel the blur of a pixel
     read reaches, is inside the part unless it is outside the frame, where the constant
     border applies as before. Cached (read-only arrays).
+
+    Parameters
+    ----------
+    camera, n_azimuths, step_px, band_px
+        As :func:`polar_grid`.
+
+    Returns
+    -------
+    part : (slice, slice)
+        The (rows, cols) of the frame read; the whole frame when the rays miss it.
+    map_x, map_y : numpy.ndarray, float32
+        :func:`polar_grid`'s maps, relative to the part's first column and row.
     """
-    map_x, map_y, _, _ = _polar_grid(camera, n_azimuths, step_px, band_px)
+    map_x, map_y, _, _ = polar_grid(camera, n_azimuths, step_px, band_px)
 
     def span(m: np.ndarray, size: int) -> tuple[int, int]:
         lo, hi = float(np.nanmin(m)), float(np.nanmax(m))
@@ -254,8 +285,8 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         # ring inside the band is what the whole ray would give; whole pixels (cache key).
         reach = 16 * sigma + 2
         band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
-    _, _, radii, centre = _polar_grid(camera, n_azimuths, step, band_px)
-    crop, map_x, map_y = _polar_crop(camera, n_azimuths, step, band_px)
+    _, _, radii, centre = polar_grid(camera, n_azimuths, step, band_px)
+    crop, map_x, map_y = polar_crop(camera, n_azimuths, step, band_px)
     part = np.asarray(img)[crop]
     # grey and the reflectance's temporaries do not outlive this call: scratch buffers
     grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
@@ -319,7 +350,7 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     inside = (cols >= 0) & (cols < polar.shape[1])
     profile = np.where(inside, polar[rows[:, None], np.clip(cols, 0, polar.shape[1] - 1)],
                        np.nan)
-    base = _row_percentile(profile, 20.0)
+    base = row_percentile(profile, 20.0)
     peak = np.nanmax(profile[:, half - 2:half + 3], axis=1)
     level = (base + (peak - base) / 2)[:, None]
     below = ~(profile >= level)   # NaN (outside the frame) counts as below
@@ -332,10 +363,24 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     return float(np.median(fwhm)) / FWHM_PER_SIGMA
 
 
-def _row_percentile(values: np.ndarray, q: float) -> np.ndarray:
-    """Each row's ``q``-th percentile of its finite values (linear interpolation, as
-    ``np.nanpercentile(values, q, axis=1)`` gives, which loops over the rows in Python:
-    ~30 ms a frame for the ring's ~700 rays; one sort of the whole array instead)."""
+def row_percentile(values: np.ndarray, q: float) -> np.ndarray:
+    """Each row's ``q``-th percentile of its finite values, NaN for a row without one.
+
+    Linear interpolation, as ``np.nanpercentile(values, q, axis=1)`` gives, which loops
+    over the rows in Python (~30 ms a frame for the ring's ~700 rays); this sorts the
+    whole array once instead.
+
+    Parameters
+    ----------
+    values : numpy.ndarray, shape (N, M)
+        Rows of values; NaN are left out.
+    q : float
+        Percentile, 0 to 100.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N,)
+    """
     ordered = np.sort(values, axis=1)          # NaN last
     n = np.count_nonzero(np.isfinite(values), axis=1)
     pos = np.maximum(n - 1, 0) * (q / 100.0)

@@ -28,6 +28,7 @@ import numpy as np
 
 from pipestitch.camera import CameraModel, pixel_grid
 from pipestitch.geometry import PipeSection, Pose, ray_wall_distance
+from pipestitch.simulate._remap import remap_points, remap_wrap
 from pipestitch.simulate.optics import Optics
 
 __all__ = ["Optics", "Renderer", "WallTexture"]
@@ -41,56 +42,6 @@ class WallTexture:
     deg_per_px: float
     mm_per_px_axial: float
     z0_mm: float
-
-
-REMAP_MAX = 32766   # cv2.remap: source and maps below SHRT_MAX columns and rows
-
-
-def _remap_wrap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """``cv2.remap`` (bilinear, wrapping) that also takes textures wider than it allows.
-
-    A long run's wall texture passes 32767 columns: the columns the maps reach are then
-    handed to OpenCV in crops of fewer columns (with a margin for the interpolation),
-    each sampling the map entries that fall in it. A frame sees the wall from behind
-    the camera to far down the pipe, so one frame may need several crops.
-    """
-    if image.shape[1] <= REMAP_MAX:
-        return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-    map_x = np.mod(map_x, image.shape[1])   # BORDER_WRAP's columns, before cropping
-    finite = np.isfinite(map_x)
-    lo = int(np.floor(map_x[finite].min())) if finite.any() else 0
-    chunk = REMAP_MAX - 8
-    part = np.where(finite, np.floor((map_x - lo) / chunk), -1).astype(np.int64)
-    out = np.zeros(map_x.shape, image.dtype)
-    for k in np.unique(part[part >= 0]):
-        mask = part == k
-        # Only the columns this part reaches (a frame sees a few thousand): copying
-        # whole 32k-column crops of a 20 m texture for every frame took seconds.
-        reach = map_x[mask]
-        c0 = max(int(np.floor(reach.min())) - 2, 0)
-        c1 = min(int(np.ceil(reach.max())) + 4, image.shape[1])
-        crop = np.ascontiguousarray(image[:, c0:c1])
-        sample = cv2.remap(crop, (map_x - c0).astype(np.float32), map_y, cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_WRAP)
-        out[mask] = sample[mask]
-    return out
-
-
-def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``image`` at scattered points (rows wrap around).
-
-    cv2.remap wants 2-D maps of fewer than 32767 columns, so the points are laid out
-    in rows of 1024.
-    """
-    n = x.size
-    width = 1024
-    rows = max(1, -(-n // width))
-    # padding repeats the first point, so it does not widen the columns reached
-    mx = np.full(rows * width, x.flat[0] if n else 0.0, np.float32)
-    my = np.full(rows * width, y.flat[0] if n else 0.0, np.float32)
-    mx[:n], my[:n] = x, y
-    out = _remap_wrap(image, mx.reshape(rows, width), my.reshape(rows, width))
-    return out.ravel()[:n]
 
 
 class Renderer:
@@ -240,7 +191,7 @@ class Renderer:
             sx = tex.shape[1] / self.wall.albedo.shape[1]
             map_x = (col + 0.5) * sx - 0.5
             map_y = (row + 0.5) * sy - 0.5
-            sample = _remap_wrap(tex, map_x, map_y)
+            sample = remap_wrap(tex, map_x, map_y)
             out += weight * sample
         return out
 
@@ -280,7 +231,7 @@ class Renderer:
         row, col = self._texture_coords(origin + s[near, None] * dirs[near])
         inside = (col >= 0) & (col <= self.wall.albedo.shape[1] - 1)
         lit = self._visible_index[near[inside]]
-        albedo = self._full(_remap_points(self._pyramid[0], col, row)[inside], lit, 0.0)
+        albedo = self._full(remap_points(self._pyramid[0], col, row)[inside], lit, 0.0)
         tr = {"plane_mm": self._full(plane, self._visible_index, -10.0),
               "hit": self._full(np.ones(lit.size), lit, 0.0) > 0}
         laser = self._laser_signal(tr, albedo, rng)

@@ -104,18 +104,32 @@ def lattice_to_grid(lat: np.ndarray, grid: WallGrid) -> np.ndarray:
 WARP_CHUNK = 8192     # output columns per cv2.warpAffine call (it fails on very wide images)
 
 
-def scale_wrapped(src: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
+def scale_wrapped(src: np.ndarray, n_rows: int, n_cols: int, *,
+                  chunk_cols: int = WARP_CHUNK) -> np.ndarray:
     """Bicubic rescale of a periodic image (both axes wrap) to n_rows x n_cols.
 
     Output node (i, j) samples the source at (i·rows/n_rows, j·cols/n_cols). Done in
     chunks of output columns, each from a wrapped crop of the source with a margin, so
     that OpenCV's remap-based warp never sees a source or output wider than it handles
     (a 20 m wall at full resolution crashed it).
+
+    Parameters
+    ----------
+    src : numpy.ndarray, shape (rows, cols) or (rows, cols, channels)
+        The periodic image.
+    n_rows, n_cols : int
+        Output size.
+    chunk_cols : int
+        At most this many output (and source) columns per warp.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_rows, n_cols, ...), float32
     """
     sy, sx = src.shape[0] / n_rows, src.shape[1] / n_cols
     pad = 4
     rows = np.arange(-pad, src.shape[0] + pad) % src.shape[0]
-    chunk = max(1, min(WARP_CHUNK, int(WARP_CHUNK / max(sx, 1.0))))
+    chunk = max(1, min(chunk_cols, int(chunk_cols / max(sx, 1.0))))
     out = np.empty((n_rows, n_cols) + src.shape[2:], np.float32)
     for c0 in range(0, n_cols, chunk):
         c1 = min(n_cols, c0 + chunk)

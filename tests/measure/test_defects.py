@@ -13,13 +13,14 @@ R = 32.5
 
 
 def _mosaic(defects: list[Defect], texture: str = "aluminium", seed: int = 0,
-            noise: float = 0.01) -> tuple[np.ndarray, MosaicGeometry]:
-    grid = WallGrid.square(R, 0.135, 0.0, 120.0)
+            noise: float = 0.01, *, radius_mm: float = R, mm_per_px: float = 0.135,
+            length_mm: float = 120.0) -> tuple[np.ndarray, MosaicGeometry]:
+    grid = WallGrid.square(radius_mm, mm_per_px, 0.0, length_mm)
     rng = np.random.default_rng(seed)
     wall = make_wall(texture, grid, rng=rng)
     image = draw_defects(wall, grid, defects) + rng.normal(0, noise, wall.shape)
     return (image.astype(np.float32),
-            MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm, R))
+            MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm, radius_mm))
 
 
 @pytest.mark.parametrize("texture,spots", [("aluminium", True), ("corrosion", False)])
@@ -38,6 +39,24 @@ def test_holes_and_spots_are_found_and_sized(texture: str, spots: bool) -> None:
         assert d.diameter_mm == pytest.approx(t.diameter_mm, abs=0.15)
         assert d.area_mm2 == pytest.approx(np.pi / 4 * t.diameter_mm**2, rel=0.06)
         assert not d.partial and d.confidence > (0.9 if texture == "aluminium" else 0.0)
+
+
+@pytest.mark.parametrize("texture,spots", [("aluminium", True), ("corrosion", False)])
+def test_defects_of_a_large_pipe_are_found_and_sized(texture: str, spots: bool) -> None:
+    """A 300 mm pipe's mosaic at 0.62 mm/px with holes of 28 and 12 mm and a 36 mm
+    stain: the background window follows the pipe's radius (75 mm). A fixed 16 mm window
+    (our 65 mm pipe's) made the 28 mm hole its own background: a "spot" on aluminium
+    with two false spots beside the stain, four spots on corrosion."""
+    truth = [Defect("hole", 120.0, 150.0, 28.0), Defect("hole", 280.0, 40.0, 12.0)]
+    truth += [Defect("spot", 420.0, 250.0, 36.0)] if spots else []
+    image, geometry = _mosaic(truth, texture, radius_mm=150.0, mm_per_px=0.62,
+                              length_mm=550.0)
+    found = find_defects(image, geometry)
+    assert [d.kind for d in found] == [t.kind for t in truth]
+    for d, t in zip(found, truth, strict=True):
+        assert d.z_mm == pytest.approx(t.z_mm, abs=0.3)        # half a pixel
+        assert d.theta_deg == pytest.approx(t.theta_deg, abs=0.2)
+        assert d.diameter_mm == pytest.approx(t.diameter_mm, rel=0.01)
 
 
 def test_a_hole_across_theta_zero_stays_whole() -> None:

@@ -11,6 +11,7 @@ from pipestitch.mosaic.register import (
     Link,
     MotionPrior,
     measure_shift,
+    odometer_noise_mm,
     registration_image,
     solve_positions,
     spectrum,
@@ -106,3 +107,41 @@ def test_global_solve_leaves_unconnected_frames_unplaced() -> None:
     assert np.all(np.isfinite(pos.z_mm[:3])) and np.all(np.isnan(pos.z_mm[3:]))
     pos = solve_positions(5, links, odometry_mm={i: 5.0 * i for i in range(5)})
     assert np.allclose(np.diff(pos.z_mm), 5.0, atol=1e-6)
+
+
+def _run_with_odometer(noise_mm: float, step_mm: float, seed: int = 0) -> tuple[
+        np.ndarray, list[Link], dict[int, float]]:
+    """60 frames ~``step_mm`` apart linked to the next two (0.005 mm error, 0.02 mm
+    sigma) and an odometer 3 % long whose increments have ``noise_mm`` of noise."""
+    rng = np.random.default_rng(seed)
+    z = np.cumsum(rng.normal(step_mm, 0.1 * step_mm, 60))
+    links = [Link(i, j, z[j] - z[i] + rng.normal(0, 0.005), 0.0, 0.5, 0.02, 0.02)
+             for i in range(60) for j in (i + 1, i + 2) if j < 60]
+    odometer = 1.03 * z + np.cumsum(rng.normal(0, noise_mm, 60))
+    return z, links, dict(enumerate(odometer))
+
+
+def test_a_coarse_odometers_noise_is_measured_not_read_as_slips() -> None:
+    """A cable counter with 2 mm of noise per 25 mm step (a 300 mm pipe's run): its
+    sigma is measured from the increments the links measure too. At a fixed 0.5 mm,
+    a quarter of its increments were reported as slips (beyond 3 sigma)."""
+    z, links, odometer = _run_with_odometer(2.0, 25.0)
+    assert odometer_noise_mm(links, odometer) == pytest.approx(2.0, rel=0.3)
+    pos = solve_positions(60, links, odometry_mm=odometer)
+    slips = [o for o in pos.outliers if o[2] == "odometer"]
+    assert len(slips) <= 1
+    assert np.allclose(np.diff(pos.z_mm), np.diff(z), atol=0.02)
+
+
+def test_a_fine_odometers_slip_is_found() -> None:
+    """An encoder with 0.02 mm of noise per 5 mm step slips by 1 mm once: twice a fixed
+    0.5 mm sigma (kept, not reported), fifty times its measured one (reported)."""
+    _, links, odometer = _run_with_odometer(0.02, 5.0, seed=1)
+    odometer.update({k: v - 1.0 for k, v in odometer.items() if k >= 30})
+    assert odometer_noise_mm(links, odometer) < 0.05
+    pos = solve_positions(60, links, odometry_mm=odometer)
+    assert [o for o in pos.outliers if o[2] == "odometer"] == [(29, 30, "odometer")]
+
+
+def test_without_common_texture_the_odometers_noise_follows_its_step() -> None:
+    assert odometer_noise_mm([], {i: 25.0 * i for i in range(10)}) == pytest.approx(2.5)

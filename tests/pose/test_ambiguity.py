@@ -6,18 +6,20 @@ import numpy as np
 import pytest
 
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
-from pipestitch.pose.ambiguity import envelope_costs, resolve_run
+from pipestitch.pose.ambiguity import coincide, envelope_costs, resolve_run
 from pipestitch.pose.fit import ConicModel, Hypothesis, PoseFit, pose_from_conic
 
 D = 16.0
 R = 32.5
 
 
-def exact_fit(pose: Pose) -> PoseFit:
-    """Both hypotheses of a noise-free ring (closed form), true one first or second."""
-    ring = laser_ring(pose, PipeSection(R), D, n_points=90)
-    sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), D)
-    hyps = tuple(Hypothesis(p, r, 0.0, 0.0, 0.0) for p, r in sols)
+def exact_fit(pose: Pose, radius_mm: float = R, plane_mm: float = D,
+              std: dict[str, float] | None = None) -> PoseFit:
+    """Both hypotheses of a noise-free ring (closed form), true one first or second,
+    each with the 1-sigma ``std`` a fit would report (none by default)."""
+    ring = laser_ring(pose, PipeSection(radius_mm), plane_mm, n_points=90)
+    sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), plane_mm)
+    hyps = tuple(Hypothesis(p, r, 0.0, 0.0, 0.0, dict(std or {})) for p, r in sols)
     return PoseFit(True, "", hyps, 90, 1.0)
 
 
@@ -80,3 +82,17 @@ def test_both_hypotheses_impossible_is_flagged() -> None:
     unary[2] = [80.0, 90.0]  # e.g. an oval pipe read as 15° of tilt
     choices = resolve_run(fits, unary)
     assert choices[2].ambiguous and choices[2].reason == "infeasible"
+
+
+def test_hypotheses_coincide_within_the_frames_own_uncertainty() -> None:
+    """0.05° of tilt 170 mm from the plane: the hypotheses are 0.1° and 0.3 mm apart,
+    inside the 1-sigma a 300 mm pipe's frame has there (0.15° and 0.45 mm, measured on
+    frames rendered through a 1232 x 1028 lens); the same frame known to a 65 mm
+    pipe's precision at 3° of tilt (0.06°, 0.016 mm) is ambiguous."""
+    pose = Pose.from_degrees(0.05, 0.0, 10.0, -5.0)
+    coarse = {"alpha": np.deg2rad(0.15), "beta": np.deg2rad(0.15), "dx_mm": 0.45, "dy_mm": 0.45}
+    fine = {"alpha": np.deg2rad(0.06), "beta": np.deg2rad(0.06), "dx_mm": 0.016, "dy_mm": 0.016}
+    assert coincide(exact_fit(pose, 150.0, 170.0, coarse))
+    assert not coincide(exact_fit(pose, 150.0, 170.0, fine))
+    choice = resolve_run([exact_fit(pose, 150.0, 170.0, coarse)], np.zeros((1, 2)))[0]
+    assert choice.reason == "coincide" and not choice.ambiguous

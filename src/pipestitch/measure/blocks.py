@@ -16,12 +16,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipestitch.measure.defects import BACKGROUND_MM, Defect, MosaicGeometry, find_defects
+from pipestitch.measure.defects import Defect, MosaicGeometry, find_defects
 
 __all__ = ["BlockDefects"]
 
 CORE_COLS = 2048
-MARGIN_MM = 4 * BACKGROUND_MM       # 64 mm: background window and the largest defect
+MARGIN_WINDOWS = 4   # margin in background windows (2 radii): the window and the largest defect
 
 
 class BlockDefects:
@@ -41,7 +41,7 @@ class BlockDefects:
                  core_cols: int | None = None) -> None:
         self.geometry, self.up = geometry, up_theta_deg
         self.core = core_cols or CORE_COLS
-        self.margin = math.ceil(MARGIN_MM / geometry.mm_per_px)
+        self.margin = math.ceil(MARGIN_WINDOWS * geometry.background_mm / geometry.mm_per_px)
         self.defects: list[Defect] = []
         self._buffer = np.zeros((0, 0), np.float32)
         self._first = 0          # mosaic column of the buffer's column 0

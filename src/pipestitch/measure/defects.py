@@ -1,15 +1,17 @@
 """Defects on the unrolled wall: holes and spots, located and sized in millimetres.
 
 On the mosaic (float albedo, NaN where not seen) the local background is a running
-median over a window much larger than a defect (so a defect does not pull it), and
-the local contrast ``value / background - 1`` is thresholded relative to its own
-robust noise (scikit-image labels and region properties do the rest):
+median over a window much larger than a defect (half the pipe's radius: a defect of
+interest is a fraction of the pipe's size, whatever its size, so a defect does not
+pull it), and the local contrast ``value / background - 1`` is thresholded relative to
+its own robust noise (scikit-image labels and region properties do the rest):
 
 * detection: |contrast| above 6 sigma, kept within [0.15, 0.8] (a busy texture
   such as corrosion has a large sigma, yet a hole must still count; a stain that is
   only ~50 % darker is then indistinguishable from the texture's own pits and is not
-  reported; bright regions always need 6 sigma), regions of at least a 1 mm disc (and
-  at least 5 mosaic pixels across on a coarse mosaic);
+  reported; bright regions always need 6 sigma), regions of at least a disc of 3 %
+  of the pipe's radius across (1 mm in a 65 mm pipe; and at least 5 mosaic pixels
+  across on a coarse mosaic);
 * sizing: each region is re-thresholded at half its own depth inside a box around it,
   so a blurred edge does not bias the size (the 50 % level of a symmetric blur sits
   on the true rim); a dark region that is not cut by unseen wall is then outlined
@@ -49,12 +51,15 @@ from pipestitch.measure.outline import RimOutline, rim_outline
 
 __all__ = ["Defect", "MosaicGeometry", "clock_position", "find_defects"]
 
+# No constant below is in millimetres: intensities are fractions of the local wall or
+# multiples of the mosaic's measured noise, lengths multiples of the pipe's measured
+# radius or of the mosaic's pixel.
 HOLE_LIGHT_FRACTION = 0.15  # a hole's interior returns at most this of its rim's light
 MIN_CONTRAST = 0.15        # weaker regions are texture, not defects
 NOISE_SIGMAS = 6.0
 MAX_THRESHOLD = 0.8        # on a busy texture: still find what is 80 % off (holes)
-BACKGROUND_MM = 16.0       # running-median window (several defect diameters)
-MIN_DIAMETER_MM = 1.0
+BACKGROUND_RADII = 0.5     # running-median window (several defect diameters; 16 mm at 65)
+MIN_DIAMETER_RADII = 0.03  # smallest defect reported (1 mm in a 65 mm pipe)
 MIN_DIAMETER_PX = 5        # and never fewer mosaic pixels across (coarse mosaics)
 EDGE_MARGIN_PX = 3         # nodes this close to unseen wall are not trusted
 
@@ -67,6 +72,11 @@ class MosaicGeometry:
     mm_per_px: float
     z0_mm: float
     radius_mm: float
+
+    @property
+    def background_mm(self) -> float:
+        """Width of the running-median background window on the wall."""
+        return BACKGROUND_RADII * self.radius_mm
 
     @property
     def arc_mm_per_px(self) -> float:
@@ -101,14 +111,14 @@ def clock_position(theta_deg: float, up_theta_deg: float = 270.0) -> str:
 def _background(image: np.ndarray, valid: np.ndarray, window_px: int) -> np.ndarray:
     """Running median of the seen wall (unseen nodes filled from their neighbourhood).
 
-    Computed at an eighth of the resolution (a median over a 16 mm window does not need
-    more) with rows wrapping around the pipe.
+    Computed at an eighth of the resolution (a median over a window of several defect
+    diameters does not need more) with rows wrapping around the pipe.
     """
     fill = cv2.GaussianBlur(np.where(valid, image, 0).astype(np.float32), (0, 0), 8)
     support = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), 8)
     filled = np.where(valid, image, fill / np.maximum(support, 1e-6)).astype(np.float32)
     small = cv2.resize(filled, None, fx=0.125, fy=0.125, interpolation=cv2.INTER_AREA)
-    size = max(3, window_px // 8 | 1)
+    size = max(3, -(-window_px // 8) | 1)   # odd, and never narrower than asked
     pad = size // 2 + 1
     padded = np.pad(small, ((pad, pad), (pad, pad)), mode="wrap")
     padded[:, :pad] = padded[:, pad:pad + 1]
@@ -202,7 +212,7 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
         return []
     trusted = cv2.erode(valid.astype(np.uint8), np.ones((2 * EDGE_MARGIN_PX + 1,) * 2,
                                                        np.uint8)).astype(bool)
-    window = round(BACKGROUND_MM / geometry.mm_per_px)
+    window = round(geometry.background_mm / geometry.mm_per_px)
     background = _background(image, valid, window)
     contrast = np.where(valid, np.nan_to_num(image) / np.maximum(background, 1e-6) - 1, 0)
     # The noise from every other row and column (a quarter of the nodes: the same
@@ -213,7 +223,7 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
     bright = max(NOISE_SIGMAS * sigma, MIN_CONTRAST)
     mask = trusted & ((contrast < -dark) | (contrast > bright))
     pitch = max(geometry.mm_per_px, geometry.arc_mm_per_px)
-    min_diameter_mm = max(MIN_DIAMETER_MM, MIN_DIAMETER_PX * pitch)
+    min_diameter_mm = max(MIN_DIAMETER_RADII * geometry.radius_mm, MIN_DIAMETER_PX * pitch)
     min_area = np.pi / 4 * min_diameter_mm**2 / (geometry.mm_per_px * geometry.arc_mm_per_px)
     shift = _roll_for_labelling(mask)
     rolled = [np.roll(a, shift, axis=0) for a in (mask, contrast, valid)]

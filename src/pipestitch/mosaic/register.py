@@ -8,7 +8,8 @@ weighted by their quality and tapered along z only, so the correlation is circul
 in theta as the pipe is. Every frame is linked to the next one and the one after, and
 the positions of the whole run are then solved at once by robust least squares over
 all links and the odometer (a soft-L1 loss, by reweighted sparse solves), so a bad link
-or an odometer slip is outvoted instead of being chained into every later frame.
+or an odometer slip is outvoted instead of being chained into every later frame. The
+odometer's noise is measured on the run (:func:`odometer_noise_mm`), not assumed.
 """
 
 from __future__ import annotations
@@ -32,8 +33,9 @@ from pipestitch.mosaic._register_kernels import (
 )
 from pipestitch.mosaic.unwrap import Strip, StripGrid, local_contrast
 
-__all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "phase_shift", "predict_motion",
-           "registration_image", "solve_positions", "spectrum", "strip_contrast"]
+__all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "odometer_noise_mm", "phase_shift",
+           "predict_motion", "registration_image", "solve_positions", "spectrum",
+           "strip_contrast"]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
 PRIOR_FLOOR = 0.1       # weight of the motion prior far from the expected motion
@@ -342,9 +344,38 @@ def _soft_l1_solve(a: csr_matrix, b: np.ndarray, f_scale: float,
     return x
 
 
+MIN_ODOMETER_CHECKS = 5     # increments a link measures too, to measure the odometer by
+ODOMETER_STEP_FRACTION = 0.1   # without them: its noise as this fraction of its step
+
+
+def odometer_noise_mm(links: Sequence[Link], odometry_mm: Mapping[int, float]) -> float:
+    """The odometer's 1-sigma per increment, measured on the run.
+
+    Every odometer increment between consecutive readings that a registration link
+    measures too is compared with it: the robust spread (1.4826 MAD) of the link's dz
+    less the increment times their median ratio (the odometer's scale). That spread
+    holds the link's error too, which is far smaller (a tenth of a pixel); it is at
+    least the links' median sigma. An odometer slip is an outlier there and does not
+    widen it. With fewer than ``MIN_ODOMETER_CHECKS`` such increments (no common
+    texture: the odometer alone places the frames, whatever its sigma),
+    ``ODOMETER_STEP_FRACTION`` of its median increment.
+    """
+    readings = sorted(f for f, v in odometry_mm.items() if np.isfinite(v))
+    steps = {(a, b): odometry_mm[b] - odometry_mm[a] for a, b in itertools.pairwise(readings)}
+    checks = [(ln.dz_mm, steps[ln.i, ln.j], ln.dz_sigma_mm) for ln in links
+              if (ln.i, ln.j) in steps and steps[ln.i, ln.j] != 0]
+    if len(checks) < MIN_ODOMETER_CHECKS:
+        typical = float(np.median(np.abs(list(steps.values())))) if steps else 0.0
+        return max(ODOMETER_STEP_FRACTION * typical, 1e-6)
+    dz, inc, link_sigma = np.array(checks).T
+    resid = dz - float(np.median(dz / inc)) * inc
+    spread = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    return max(spread, float(np.median(link_sigma)))
+
+
 def solve_positions(n_frames: int, links: Sequence[Link], *,
                     odometry_mm: Mapping[int, float] | None = None,
-                    odometer_sigma_mm: float = 0.5, odometer_scale_sigma: float = 0.05,
+                    odometer_sigma_mm: float | None = None, odometer_scale_sigma: float = 0.05,
                     placed: Sequence[int] | None = None) -> Positions:
     """Global robust solve of every frame's z and roll from registration links and odometry.
 
@@ -356,7 +387,10 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
         Registration measurements (any pairs).
     odometry_mm : mapping, optional
         Odometer reading per frame; consecutive differences (times a fitted scale,
-        prior 1 ± ``odometer_scale_sigma``) are measurements with ``odometer_sigma_mm``.
+        prior 1 ± ``odometer_scale_sigma``) are measurements with ``odometer_sigma_mm``
+        (default: measured on the run, :func:`odometer_noise_mm`).
+    odometer_scale_sigma : float
+        1-sigma of the prior on the odometer's scale (a fraction: no unit to adapt).
     placed : sequence of int, optional
         Frames to solve for (default all); the others stay NaN.
 
@@ -375,6 +409,8 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
     odo = {f: v for f, v in (odometry_mm or {}).items() if f in col and np.isfinite(v)}
     odo_pairs = list(itertools.pairwise(sorted(odo)))
     odo_extra = [(len(z_rows) + k, odo[b] - odo[a], 0.0) for k, (a, b) in enumerate(odo_pairs)]
+    if odo_pairs and odometer_sigma_mm is None:
+        odometer_sigma_mm = odometer_noise_mm(reg, odo)
     z_rows += [(col[a], col[b], 0.0, odometer_sigma_mm) for a, b in odo_pairs]
     n_measured = len(z_rows)
     n_extra = 1 if odo_pairs else 0

@@ -17,6 +17,9 @@ Each frame's margin is the difference between the best total cost with its state
 forced to either hypothesis; below ``min_margin`` the frame is flagged ambiguous.
 Frames whose two hypotheses coincide (tilt near zero) are not ambiguous: both give
 the same pose within the uncertainty.
+
+"Coincide" is within the frame's own 1-sigma pose uncertainty (the fit's ``std``, from
+its pixel noise), not a fixed 0.05° / 0.05 mm.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 from pipestitch.geometry import BodyEnvelope, PipeSection
 from pipestitch.pose.fit import Hypothesis, PoseFit
 
-__all__ = ["BODY_TOLERANCE_MM", "Choice", "clearance_sigma_mm", "envelope_costs",
+__all__ = ["BODY_TOLERANCE_MM", "Choice", "clearance_sigma_mm", "coincide", "envelope_costs",
            "hypothesis_distance", "resolve_run"]
 
 
@@ -80,10 +83,44 @@ def clearance_sigma_mm(h: Hypothesis, body: BodyEnvelope) -> float:
     0.08-0.34°), combined with ``BODY_TOLERANCE_MM``. So a frame seen through a coarse
     lens, a far laser plane or a noisy line is judged with the leeway its own pose has.
     """
-    s = {k: float(v) if np.isfinite(v) else 0.0 for k, v in h.std.items()}
-    tilt = float(np.hypot(s.get("alpha", 0.0), s.get("beta", 0.0)))
-    offset = float(np.hypot(s.get("dx_mm", 0.0), s.get("dy_mm", 0.0)))
+    tilt, offset = pose_sigma(h)
     return float(np.hypot(BODY_TOLERANCE_MM, body.length_mm * tilt + offset))
+
+
+# Exact (noise-free) fits report no uncertainty: their poses are the same below this
+# (radians, and this fraction of the pipe's radius for offsets), i.e. within rounding.
+EXACT = 1e-6
+
+
+def pose_sigma(h: Hypothesis) -> tuple[float, float]:
+    """1-sigma of the tilt (radians) and of the offset (mm) of ``h``, from the fit's own
+    ``std`` (0 where it gives none)."""
+    s = {k: float(v) if np.isfinite(v) else 0.0 for k, v in h.std.items()}
+    return (float(np.hypot(s.get("alpha", 0.0), s.get("beta", 0.0))),
+            float(np.hypot(s.get("dx_mm", 0.0), s.get("dy_mm", 0.0))))
+
+
+def _fit_sigma(fit: PoseFit) -> np.ndarray:
+    """The larger 1-sigma (tilt rad, offset mm) of a frame's hypotheses, at least rounding."""
+    sigmas = np.max([pose_sigma(h) for h in fit.hypotheses], axis=0)
+    radius = max(h.radius_mm for h in fit.hypotheses)
+    return np.maximum(sigmas, [EXACT, EXACT * radius])
+
+
+def coincide(fit: PoseFit) -> bool:
+    """Whether a frame's two hypotheses are the same pose within its own uncertainty.
+
+    They coincide when their difference is below 1 sigma of the fit (tilt and offset
+    together: sqrt((dtilt / sigma_tilt)² + (doffset / sigma_offset)²) < 1, each sigma
+    the larger of the two hypotheses'): choosing either then errs by less than the pose
+    is known to. At the frame's own sigma, not a fixed 0.05° / 0.05 mm: the same
+    separation is well inside the uncertainty of a 300 mm pipe's frame (0.15°, 0.45 mm
+    at 0.05° of tilt, plane 170 mm ahead) and outside that of a 65 mm pipe's at 3° of
+    tilt (0.06°, 0.016 mm).
+    """
+    h0, h1 = fit.hypotheses
+    sigma = _fit_sigma(fit)
+    return hypothesis_distance(h0, h1, angle_scale_rad=sigma[0], offset_scale_mm=sigma[1]) < 1.0
 
 
 def envelope_costs(fit: PoseFit, body: BodyEnvelope | None) -> np.ndarray:
@@ -135,8 +172,7 @@ def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
 def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
                 pairwise: dict[int, np.ndarray] | None = None,
                 step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
-                min_margin: float = 5.0, coincide_deg: float = 0.05,
-                coincide_mm: float = 0.05, infeasible_cost: float = 50.0) -> list[Choice]:
+                min_margin: float = 5.0, infeasible_cost: float = 50.0) -> list[Choice]:
     """Choose a hypothesis per frame from per-frame costs and temporal continuity.
 
     Parameters
@@ -153,8 +189,6 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
         Typical pose change between consecutive frames (transition scale).
     min_margin : float
         Margin below which a frame is flagged ambiguous (5 ≈ 150:1 odds).
-    coincide_deg, coincide_mm : float
-        Hypotheses closer than this are the same pose: not ambiguous.
     infeasible_cost : float
         When both hypotheses cost at least this much, neither is physically possible:
         the frame is flagged "infeasible" (ambiguous) and gives the chain no evidence.
@@ -188,15 +222,11 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
         bwd[k] = np.min(trans[k] + (u[k + 1] + bwd[k + 1])[None, :], axis=1)
     total = fwd + bwd
     for k, i in enumerate(idx):
-        h0, h1 = fits[i].hypotheses
         margin = float(abs(total[k, 0] - total[k, 1]))
         chosen = int(np.argmin(total[k]))
-        same = (np.rad2deg(np.hypot(h0.pose.alpha - h1.pose.alpha, h0.pose.beta - h1.pose.beta))
-                < coincide_deg and np.hypot(h0.pose.dx_mm - h1.pose.dx_mm,
-                                            h0.pose.dy_mm - h1.pose.dy_mm) < coincide_mm)
         if impossible[k]:
             choices[i] = Choice(chosen, True, "infeasible", margin)
-        elif same:
+        elif coincide(fits[i]):
             choices[i] = Choice(chosen, False, "coincide", margin)
         elif margin < min_margin:
             choices[i] = Choice(chosen, True, "undecided", margin)

@@ -52,7 +52,6 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("camera.ocam", "_pixels", "f8:2 f8:1 f8:1"),
     ("camera.ocam", "ray_loop", "f8:2 f8:1 f8:1 f8"),
     ("mosaic._unwrap_kernels", "upsample_masked", "f4:3 i8 i8 i8 f8"),
-    ("mosaic._unwrap_kernels", "column_medians", "f4:2 f8"),
     ("mosaic._unwrap_kernels", "mask_strip", "f4:2 f4:2 f4:2 f4:2 f8 b1:2"),
     ("mosaic._unwrap_kernels", "fill_invalid", "f4:2"),
     ("mosaic._unwrap_kernels", "contrast_of", "f4:2 f4:2 f4:2 f4:2"),
@@ -63,13 +62,14 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._register_kernels", "residual_moments", "f4:2 f4:2 f4:2 i8 i8"),
     ("mosaic._register_kernels", "shifted_residual_moments", "f4:2 f4:2 f4:2 f8 f8"),
     ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f8:1r f4:2"),
+    ("mosaic._flat_field_kernels", "fall_off_at", "f4:2 f4:2 f8 f8 f8 f8:1"),
     ("mosaic._blend_kernels", "feathered_weight", "f4:2 f4:2 u1:2"),
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
 )
 BIG = ("pose._fit_kernels", "fit_pixels")     # the big kernel tree: a process of its own
 FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the next one
-AFTER_BIG = ("mosaic._unwrap_kernels", "column_medians")   # after the tree, to balance
+AFTER_BIG = ("mosaic._unwrap_kernels", "mask_strip")   # after the tree, to balance
 
 
 def parse_types(text: str, namespace: object = None) -> tuple:

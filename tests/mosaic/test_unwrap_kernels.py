@@ -10,7 +10,6 @@ import pytest
 
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
-    column_medians,
     mask_strip,
     upsample_maps,
 )
@@ -59,19 +58,6 @@ def test_upsampled_maps_are_bilinear_and_masked_where_any_node_is_invalid(
     assert maps_only.quality is None and maps_only.shading is None
     np.testing.assert_array_equal(maps_only.map_x, out.map_x)
     np.testing.assert_array_equal(maps_only.map_y, out.map_y)
-
-
-def test_column_medians_are_numpy_nanmedians() -> None:
-    values = RNG.random((60, 40)).astype(np.float32)
-    values[RNG.random(values.shape) < 0.5] = np.nan
-    values[:, 0] = np.nan                      # no data
-    values[:55, 1] = np.nan                    # too little data (5 <= 6)
-    values[:, 2] = 0.25                        # ties
-    values[:51, 3] = np.nan                    # odd count (9), above the minimum
-    counts = np.isfinite(values).sum(axis=0)
-    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
-        want = np.where(counts > 6, np.nanmedian(values, axis=0), np.nan)
-    np.testing.assert_array_equal(column_medians(values, 6.0), want)
 
 
 def test_strip_mask_uses_the_nearest_pixel_as_cv2_remap_does() -> None:

@@ -261,23 +261,35 @@ def test_frames_no_longer_carry_their_rings_once_the_views_hold_them() -> None:
     assert out[0].fit.ring is None and out[0].fit.ok and out[1] is frames[1]
 
 
-def test_a_pass_keeps_only_the_column_levels_the_profile_takes(
+def test_a_pass_keeps_only_the_flat_field_data_of_the_sampled_frames(
         monkeypatch, tmp_path: Path, small_run: Path) -> None:
-    """A registration pass keeps the column levels of the frames the vignetting profile
-    samples (every profile_step-th frame, float32), not every frame's: with at most 2
-    profile frames, a 6-pair run keeps 2 of each pass's 6."""
+    """A registration pass keeps the ring levels and the overlap ratios of the frames the
+    flat field samples (every profile_step-th frame), not every frame's: with at most
+    2 profile frames, a 6-pair run keeps 2 frames' levels and at most their overlaps
+    with the LINK_SPAN frames before each."""
     from pipestitch.mosaic import blend as mosaic
-    from pipestitch.pipeline import stitching as pipeline_mosaic
+    from pipestitch.mosaic.flat_field import RadialFlatField
     from pipestitch.pipeline.run import run_dataset
+    from pipestitch.pipeline.stitching import LINK_SPAN
 
     monkeypatch.setattr(mosaic, "PROFILE_FRAMES", 2)
-    taken: list[list[np.ndarray]] = []
+    taken: dict[str, list] = {"levels": [], "pairs": []}
+    from_levels, from_pairs = RadialFlatField.from_levels, RadialFlatField.from_pairs
 
-    def spy(levels: list[np.ndarray]) -> np.ndarray:
-        taken.append(list(levels))
-        return mosaic.vignetting_profile(levels)
+    def spy_levels(levels, edges, centre):
+        taken["levels"].append(list(levels))
+        return from_levels(levels, edges, centre)
 
-    monkeypatch.setattr(pipeline_mosaic, "vignetting_profile", spy)
+    def spy_pairs(pairs, edges, centre):
+        taken["pairs"].append(list(pairs))
+        assert from_pairs(pairs, edges, centre) is not None
+        return None   # so that the levels are taken too
+
+    monkeypatch.setattr(RadialFlatField, "from_levels", staticmethod(spy_levels))
+    monkeypatch.setattr(RadialFlatField, "from_pairs", staticmethod(spy_pairs))
     run_dataset(small_run, tmp_path / "out", show_progress=False, led_cache_mb=0)
-    assert taken and all(len(levels) == 2 for levels in taken)
-    assert all(lv.dtype == np.float32 for levels in taken for lv in levels)
+    assert taken["pairs"] and all(0 < len(p) <= 2 * LINK_SPAN for p in taken["pairs"])
+    assert len({p.frames[1] for pairs in taken["pairs"] for p in pairs}) <= 2
+    assert len(taken["levels"]) == len(taken["pairs"])
+    assert all(len(levels) == 2 for levels in taken["levels"])
+    assert all(lv.dtype == np.float32 for levels in taken["levels"] for lv in levels)

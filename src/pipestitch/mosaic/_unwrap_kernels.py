@@ -1,5 +1,5 @@
 """Compiled inner loops of unwrapping (numba): upsampled maps, strip masks, local
-contrast, column levels.
+contrast.
 
 Why hand-written: every LED frame is unwrapped once or twice per run and each strip
 (about a million nodes at full size) then goes through a dozen whole-array passes; as
@@ -170,67 +170,3 @@ def contrast_of(filled: np.ndarray, valid: np.ndarray, support: np.ndarray,
             local[i, j] = local[i, j] / max(support[i, j], tiny)
             out[i, j] = filled[i, j] / max(local[i, j], tiny) - F32(1) if valid[i, j] else F32(0)
     return out
-
-
-@numba.njit(cache=True, nogil=True)
-def column_medians(values: np.ndarray, min_count: float) -> np.ndarray:
-    """Median of the finite values of each column with more than ``min_count`` of them.
-
-    NaN elsewhere. float32 values; an even count averages the two middle values in
-    float32, as ``numpy.nanmedian`` does.
-    """
-    n_rows, n_cols = values.shape
-    out = np.full(n_cols, np.nan)
-    count = np.zeros(n_cols, np.int64)
-    columns = np.empty((n_cols, n_rows), np.float32)   # finite values, column by column
-    for i in range(n_rows):
-        for j in range(n_cols):
-            v = values[i, j]
-            if np.isfinite(v):
-                columns[j, count[j]] = v
-                count[j] += 1
-    for j in range(n_cols):
-        n = count[j]
-        if n > min_count:
-            mid = n // 2
-            part = columns[j]
-            select(part, n, mid)
-            if n % 2:
-                out[j] = part[mid]
-            else:
-                out[j] = F32(part[:mid].max() + part[mid]) / F32(2)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def select(a: np.ndarray, n: int, k: int) -> None:
-    """Reorder ``a[:n]`` (finite values) in place so that ``a[k]`` is its k-th smallest
-    value, none larger before it and none smaller after (what ``np.partition`` gives:
-    the same order statistics). Quickselect with a median-of-three pivot: numba's
-    ``np.partition`` compiles a sort of its ``kth`` argument too, seconds of code."""
-    lo, hi = 0, n - 1
-    while hi > lo:
-        mid = (lo + hi) // 2
-        if a[mid] < a[lo]:
-            a[mid], a[lo] = a[lo], a[mid]
-        if a[hi] < a[lo]:
-            a[hi], a[lo] = a[lo], a[hi]
-        if a[hi] < a[mid]:
-            a[hi], a[mid] = a[mid], a[hi]
-        pivot = a[mid]
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while pivot < a[j]:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            return

@@ -4,17 +4,16 @@ The canvas follows SPEC's wall-image convention: row i at theta = i·deg_per_px
 (relative to the roll reference), column j at z = z0_mm + j·mm_per_px. Every frame is
 unwrapped straight onto the canvas nodes it covers (its grid is the canvas' shifted by
 the frame's solved z and roll, sub-pixel), so the image is resampled once. Before
-blending each strip is divided by its LED shading and the run's vignetting profile,
-and scaled by a gain matched to what the canvas already holds in the overlap
-(exposure changes); strips are blended with weights = quality x a feather that falls
-to 0 at the edges of their valid region, so seams do not show. Rows wrap around the
-pipe, so theta = 0/360 is not a seam.
+blending each strip is divided by its LED shading and the lens' fall-off learned from the
+run (:mod:`pipestitch.mosaic.flat_field`), and scaled by a gain matched to what the canvas
+already holds in the overlap (exposure changes); strips are blended with weights =
+quality x a feather that falls to 0 at the edges of their valid region, so seams do not
+show. Rows wrap around the pipe, so theta = 0/360 is not a seam.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -24,10 +23,11 @@ from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight,
 from pipestitch.mosaic.unwrap import Strip, StripGrid
 
 __all__ = ["Canvas", "Overview", "ShadedStrip", "canvas_grid", "frame_grid", "overview_factor",
-           "shade", "vignetting_profile"]
+           "shade"]
 
 FEATHER_PX = 24       # width of the feather at a strip's edges (output pixels)
 GAIN_LIMITS = (0.5, 2.0)
+GAIN_DEADBAND = 0.05  # relative: see Canvas._gain
 GAIN_MIN_NODES = 500  # overlap nodes a gain needs (else 1)
 GAIN_STRIDE = 2       # the gain's medians read every 2nd row and column of the overlap
 
@@ -64,33 +64,10 @@ PROFILE_FRAMES = 500
 
 
 def profile_step(n_frames: int) -> int:
-    """Every how many frames :func:`vignetting_profile` takes one: ≤ ``PROFILE_FRAMES``
-    frames of a run of ``n_frames``, evenly spaced (a pass keeps only their levels)."""
+    """Every how many frames the flat field (:mod:`pipestitch.mosaic.flat_field`) takes
+    one: ≤ ``PROFILE_FRAMES`` frames of a run of ``n_frames``, evenly spaced (a pass keeps
+    only their ring levels and overlap ratios, so its memory does not grow with the run)."""
     return max(1, -(-n_frames // PROFILE_FRAMES))
-
-
-def vignetting_profile(column_levels: list[np.ndarray]) -> np.ndarray:
-    """Run-level brightness profile along a strip's z (per column), median 1.
-
-    ``column_levels`` holds, per frame, the median over theta of strip / shading for every
-    column of the frame's own window grid (NaN where no data). The median over frames
-    leaves the lens' vignetting and any light falloff the shading model misses; the
-    wall's own albedo averages out because every frame sees a different piece of wall.
-    A long run's median is taken over ``PROFILE_FRAMES`` evenly spaced frames (as many
-    as the median needs, and a working memory that does not grow with the run).
-    """
-    step = profile_step(len(column_levels))
-    stack = np.array(column_levels[::step], dtype=np.float32)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # columns no frame saw: NaN
-        prof = np.nanmedian(stack, axis=0) if stack.size else np.ones(0)
-    prof = np.where(np.isfinite(prof) & (prof > 0), prof, np.nan)
-    if not np.isfinite(prof).any():
-        return np.ones(stack.shape[1] if stack.ndim == 2 else 0)
-    prof /= np.nanmedian(prof)
-    idx = np.arange(prof.size)
-    good = np.isfinite(prof)
-    return np.interp(idx, idx[good], prof[good])
 
 
 def _feather(valid: np.ndarray) -> np.ndarray:
@@ -193,16 +170,27 @@ class Canvas:
         self.total, self.weights = np.pad(self.total, grow), np.pad(self.weights, grow)
 
     def _gain(self, values: np.ndarray, weight: np.ndarray, cols: slice) -> float:
-        """Median of the canvas over the strip's median where both have data (a
+        """Median over the nodes where both have data of the canvas over the strip (a
         statistic of hundreds of thousands of nodes: every ``GAIN_STRIDE``-th row and
-        column of them is as good, at a quarter of the cost)."""
+        column of them is as good, at a quarter of the cost).
+
+        Node by node, so that the wall's pattern cancels: a ratio of the two medians
+        would follow whichever tone of a two-tone wall (a chart, a painted mark) holds
+        the majority in the overlap. A ratio within ``GAIN_DEADBAND`` of 1 is taken as
+        1: each strip's ratio carries a small bias of its own (the two views resolve
+        the wall differently, and the fall-off is known to a percent or so), which a
+        chain of gains would add up into a brightness drift along the run; a change of
+        the camera's exposure shows as a step beyond it.
+        """
         s = GAIN_STRIDE
         have = self.weights[::s, cols][:, ::s]
-        both = (weight[::s, ::s] > 0.2) & (have > 0.5)
+        mine = values[::s, ::s]
+        both = (weight[::s, ::s] > 0.2) & (have > 0.5) & (mine > 1e-6)
         if np.count_nonzero(both) * s * s < GAIN_MIN_NODES:
             return 1.0
-        current = self.total[::s, cols][:, ::s][both] / have[both]
-        ratio = np.median(current) / max(float(np.median(values[::s, ::s][both])), 1e-9)
+        ratio = np.median(self.total[::s, cols][:, ::s][both] / (have[both] * mine[both]))
+        if abs(math.log(ratio)) <= math.log1p(GAIN_DEADBAND):
+            return 1.0
         return float(np.clip(ratio, *GAIN_LIMITS))
 
     def release(self, end: int | None = None) -> tuple[int, np.ndarray, np.ndarray] | None:

@@ -28,14 +28,13 @@ from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
-    column_medians,
     contrast_of,
     fill_invalid,
     mask_strip,
     upsample_maps,
 )
 
-__all__ = ["Strip", "StripGrid", "UnwrapMaps", "column_levels", "default_mm_per_px",
+__all__ = ["Strip", "StripGrid", "UnwrapMaps", "default_mm_per_px",
            "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
            "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
@@ -257,19 +256,6 @@ def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: 
     weight = mask_strip(values, maps.map_x, maps.map_y, maps.quality, float(min_resolution),
                         hidden)
     return Strip(values, weight, maps.shading)
-
-
-def column_levels(strip: Strip) -> np.ndarray:
-    """Median over theta of strip / shading per column (NaN where a column has no data).
-
-    The vignetting (and exposure) along the strip: what is left of the values once the
-    LED shading is divided out, averaged over the wall's texture. A column needs data
-    at a tenth of its nodes; every 4th row is enough for a median over ~1000 rows (and
-    4x faster).
-    """
-    valid = strip.weight[::4] > 0
-    ratio = np.where(valid, strip.values[::4] / np.maximum(strip.shading[::4], 1e-6), np.nan)
-    return column_medians(ratio.astype(np.float32), 0.1 * ratio.shape[0])
 
 
 def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarray, np.ndarray]:

@@ -4,7 +4,7 @@ Two passes over the LED frames, each frame unwrapped straight from its pixels:
 
 1. every frame is unwrapped over its own axial window (at the mosaic's scale) and
    linked to the next two frames by phase correlation; the run's positions (z, roll)
-   are solved globally with the odometer; the vignetting profile is collected;
+   are solved globally with the odometer; the lens' fall-off is measured (flat_field);
 2. every placed frame is unwrapped again, this time onto the canvas nodes it covers
    (sub-pixel, so the image is resampled once), shaded, gain-matched and blended.
 
@@ -16,7 +16,7 @@ the run by registration or the odometer are reported and skipped.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Protocol
@@ -39,7 +39,17 @@ from pipestitch.mosaic.blend import (
     frame_grid,
     profile_step,
     shade,
-    vignetting_profile,
+)
+from pipestitch.mosaic.flat_field import (
+    FlatInput,
+    PairRatios,
+    RadialFlatField,
+    flat_input,
+    optical_centre_px,
+    pair_ratios,
+    radial_edges,
+    radial_levels,
+    unclipped_weight,
 )
 from pipestitch.mosaic.occluders import occluder_mask
 from pipestitch.mosaic.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
@@ -57,7 +67,6 @@ from pipestitch.mosaic.unwrap import (
     Strip,
     StripGrid,
     UnwrapMaps,
-    column_levels,
     default_mm_per_px,
     polar_unwrap_maps,
     seen_window_mm,
@@ -198,6 +207,8 @@ class _Unwrapper:
     settings: MosaicSettings
     radius_mm: float
     occluded: np.ndarray
+    centre: tuple[float, float]     # optical centre (px): the flat field's rings
+    edges: np.ndarray               # ring edges (px), mosaic/flat_field.py
 
     def maps(self, view: FrameView, grid: StripGrid) -> UnwrapMaps:
         if self.settings.mode == "polar":
@@ -205,10 +216,16 @@ class _Unwrapper:
         return unwrap_maps(self.camera, view.pose, view.section, grid, step=self.settings.step,
                            with_quality=True)
 
-    def strip(self, grey: np.ndarray, view: FrameView, grid: StripGrid) -> Strip:
-        return unwrap_with_quality(grey, self.maps(view, grid),
-                                   min_resolution=self.settings.min_resolution,
-                                   occluded=self.occluded)
+    def strip(self, grey: np.ndarray, view: FrameView, grid: StripGrid
+              ) -> tuple[Strip, UnwrapMaps]:
+        maps = self.maps(view, grid)
+        return unwrap_with_quality(grey, maps, min_resolution=self.settings.min_resolution,
+                                   occluded=self.occluded), maps
+
+    def flat(self, grey: np.ndarray, strip: Strip, maps: UnwrapMaps) -> FlatInput:
+        """The strip's nodes as the flat field's pairwise solve takes them."""
+        return flat_input(grey, strip.values, strip.shading, strip.weight, maps.map_x,
+                          maps.map_y, self.centre, self.edges)
 
 
 def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
@@ -248,8 +265,8 @@ class _Candidate:
     contrast: np.ndarray
     valid: np.ndarray
     image: np.ndarray
-    level: np.ndarray
     spectrum: np.ndarray
+    flat: FlatInput
 
 
 @dataclass(frozen=True)
@@ -267,6 +284,12 @@ class _Pass1:
 
     links: list[Link] = field(default_factory=list)
     levels: list[np.ndarray] = field(default_factory=list)
+    pairs: list[PairRatios] = field(default_factory=list)
+
+    def add_flat(self, levels: np.ndarray, pairs: list[PairRatios]) -> None:
+        """Keep a sampled frame's data for the flat field."""
+        self.levels.append(levels)
+        self.pairs.extend(pairs)
     done: list[int] = field(default_factory=list)
     switched: dict[int, bool] = field(default_factory=dict)
     patches: list[PatchShifts] = field(default_factory=list)
@@ -275,12 +298,12 @@ class _Pass1:
 def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
                       grid: StripGrid, timer: StageTimer) -> _Candidate:
     with timer("unwrap"):
-        strip = unwrapper.strip(grey, view, grid)
+        strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
         contrast = strip_contrast(strip)
         image = registration_image(contrast, strip.weight)
-        return _Candidate(contrast, strip.weight > 0, image, column_levels(strip),
-                          spectrum(image))
+        return _Candidate(contrast, strip.weight > 0, image, spectrum(image),
+                          unwrapper.flat(grey, strip, maps))
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
@@ -316,8 +339,9 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: StripGrid, timer: StageTimer, show_progress: bool,
               skipped: dict[int, str], *, patches: bool) -> _Pass1:
-    """Pass 1: own-window strips, links to the next frames, vignetting levels (of the
-    frames :func:`pipestitch.mosaic.blend.profile_step` samples).
+    """Pass 1: own-window strips, links to the next frames, and the flat field's data
+    (ring levels and overlap ratios) of the frames
+    :func:`pipestitch.mosaic.blend.profile_step` samples.
 
     For a frame left ambiguous by the pose step both hypotheses are unwrapped and the
     one whose strip correlates better with the previous frames is kept (``views`` is
@@ -340,10 +364,20 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                                 (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
                                 link.i, link.j)
 
+    def flat_job(cand: _Candidate, found: list[tuple[Link, _Candidate]]
+                 ) -> tuple[np.ndarray, list[PairRatios]]:
+        """A sampled frame's data for the flat field: its ring levels and its overlaps."""
+        with timer("register"):
+            levels = radial_levels(cand.flat, len(unwrapper.edges) - 1)
+            return levels, [pair_ratios(prev.flat, cand.flat,
+                                        (ln.droll_deg / own.deg_per_px,
+                                         ln.dz_mm / own.mm_per_px), (ln.i, ln.j))
+                            for ln, prev in found]
+
     out = _Pass1()
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
-    # the column levels of the frames the vignetting profile will take, not all (a
+    # the flat field's data of the frames it will take, not all (a
     # skipped frame only thins them: still evenly spaced, at most PROFILE_FRAMES)
     level_step = profile_step(len(order))
     workers = unwrapper.settings.workers
@@ -353,6 +387,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     # (memory stays bounded), kept in link order.
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         pending: deque[Future[PatchShifts]] = deque()
+        flats: deque[Future[tuple[np.ndarray, list[PairRatios]]]] = deque()
         for reg in track(ordered_map(work, order, workers), "register", total=len(order),
                          enabled=show_progress):
             if not reg.candidates:
@@ -367,17 +402,22 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 if best == 1:
                     views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
             cand = reg.candidates[best or 0]
+            sampled = len(out.done) % level_step == 0
             for link, prev in found[best or 0]:
                 out.links.append(link)
                 if patches:
                     pending.append(pool.submit(patch_job, link, prev, cand))
+            if sampled:
+                flats.append(pool.submit(flat_job, cand, found[best or 0]))
             while len(pending) > 2 * max(1, workers):
                 out.patches.append(pending.popleft().result())
+            while len(flats) > 2 * max(1, workers):
+                out.add_flat(*flats.popleft().result())
             recent.append((reg.index, cand))
-            if len(out.done) % level_step == 0:   # float32, as the profile takes them
-                out.levels.append(cand.level.astype(np.float32))
             out.done.append(reg.index)
         out.patches.extend(f.result() for f in pending)
+        for f in flats:
+            out.add_flat(*f.result())
     return out
 
 
@@ -445,14 +485,13 @@ def _refit_section(view: FrameView) -> FrameView:
 @dataclass
 class _Registration:
     """What the registration rounds leave for the stitch: per frame only its view and
-    links (the patch shifts and column levels of the passes are dropped)."""
+    links (the patch shifts and flat field data of the passes are dropped)."""
 
     views: dict[int, FrameView]
     links: list[Link]
     done: list[int]
     switched: dict[int, bool]
-    vignetting: np.ndarray          # vignetting_profile of the last pass's levels
-    grid: StripGrid                 # the last pass's grid (the profile's columns)
+    flat_field: RadialFlatField     # from the last pass's levels
 
 
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
@@ -467,7 +506,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     come out a few hundredths of a degree off per degree of correction) or found frames
     oval that it registered as circles (their strips had the wrong section). Each pass's
     patch shifts are released once the refinement has used them, and only the last
-    pass's column levels are kept, reduced to the vignetting profile at once.
+    pass's flat field data are kept, reduced to the flat field at once.
     """
     camera, switched = unwrapper.camera, {}
     total, k = max(1, rounds), 0
@@ -477,7 +516,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
                           patches=rounds > 0)
         switched.update(pass1.switched)
-        links, done, levels = pass1.links, pass1.done, pass1.levels
+        links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
         if pass1.patches:
             before = views
             with timer("refine"):
@@ -490,7 +529,9 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     # The ring points served the section refits: the stitch and the outputs do not
     # read them (~6 kB a frame, 24 MB at 4000 pairs).
     views = {i: _without_ring(v) for i, v in views.items()}
-    return _Registration(views, links, done, switched, vignetting_profile(levels), own)
+    flat = (RadialFlatField.from_pairs(pairs, unwrapper.edges, unwrapper.centre)
+            or RadialFlatField.from_levels(levels, unwrapper.edges, unwrapper.centre))
+    return _Registration(views, links, done, switched, flat)
 
 
 LINEAR_TILT_DEG = 1.0   # a round that corrects a tilt by more is followed by another
@@ -538,7 +579,7 @@ def _release_points(canvas: StripGrid, positions: Positions, placed: list[int],
 
 def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
             positions: Positions, placed: list[int], canvas: Canvas, window: tuple[float, float],
-            profile: Callable[[np.ndarray], np.ndarray], timer: StageTimer,
+            flat: RadialFlatField, timer: StageTimer,
             show_progress: bool, skipped: dict[int, str],
             sink: MosaicSink | None) -> dict[int, float]:
     """Pass 2: every placed frame onto the canvas nodes it covers.
@@ -554,10 +595,11 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
         except DatasetError as exc:  # readable in pass 1: changed on disk since
             return i, None, col, f"{exc.path.name}: {exc.problem}"
         with timer("unwrap"):
-            strip = unwrapper.strip(grey, views[i], grid)
+            strip, maps = unwrapper.strip(grey, views[i], grid)
         with timer("blend"):
-            z_local = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
-            return i, shade(strip, profile(z_local)), col, ""
+            lit = replace(strip, shading=strip.shading * flat.at(maps.map_x, maps.map_y),
+                          weight=unclipped_weight(grey, maps.map_x, maps.map_y, strip.weight))
+            return i, shade(lit, np.ones(grid.n_cols)), col, ""
 
     gains = {}
     release = _release_points(canvas.grid, positions, placed, window)
@@ -652,7 +694,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                             *windows[settings.final_coarsening], fft_sizes=True)
     coarse = StripGrid.window(radius, mm * settings.register_coarsening,
                               *windows[settings.register_coarsening], fft_sizes=True)
-    unwrapper = _Unwrapper(camera, settings, radius, occluded)
+    unwrapper = _Unwrapper(camera, settings, radius, occluded, optical_centre_px(camera),
+                           radial_edges(camera))
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     views, links = reg.views, reg.links
@@ -665,18 +708,12 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
             skipped[i] = "not registered to the run (no common texture, no odometer)"
     if not placed:
         raise StageError("no frame could be placed in the mosaic")
-    prof, own = reg.vignetting, reg.grid
-    z_own = own.z0_mm + np.arange(own.n_cols) * own.mm_per_px
-
-    def profile(z_local: np.ndarray) -> np.ndarray:
-        return np.interp(z_local, z_own, prof) if prof.size else np.ones_like(z_local)
-
     canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
     release_free_memory()   # the stitch starts from what is live, not the passes' peak
     if sink is not None:
         sink.start(canvas.grid, radius)
-    gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window, profile,
-                    timer, show_progress, skipped, sink)
+    gains = _stitch(dataset, views, unwrapper, positions, placed, canvas, window,
+                    reg.flat_field, timer, show_progress, skipped, sink)
     image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
                         [i for i in placed if i in gains], skipped, gains, reg.switched, views)

@@ -1,0 +1,158 @@
+"""The lens' fall-off learned from the run: from the ratios of overlapping frames on a
+two-tone wall and across an exposure step, clipped pixels left out of the ratios and
+the medians, and blended only where nothing else saw the wall."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipestitch.mosaic.flat_field import (
+    CLIPPED_WEIGHT,
+    FlatInput,
+    RadialFlatField,
+    flat_input,
+    pair_ratios,
+    radial_levels,
+    unclipped_weight,
+)
+
+EDGES = np.linspace(0.0, 600.0, 97)
+CENTRE = (0.0, 0.0)
+ROWS, COLS, SHIFT = 64, 200, 15      # strip size and the motion between frames (nodes)
+
+
+def _fall_off(radius: np.ndarray) -> np.ndarray:
+    return 1 - 0.35 * (radius / 500.0) ** 2
+
+
+def _radius() -> np.ndarray:
+    """Image radius of every strip node (the same for every frame: the frame's own
+    grid): an equidistant fisheye's, 400 px per radian of incidence, seeing a wall 30 mm
+    from the axis at 10-110 mm ahead (columns), a little off-centre (rows)."""
+    rows, cols = np.mgrid[0:ROWS, 0:COLS]
+    wall_mm = 30.0 + 3.0 * np.sin(2 * np.pi * rows / ROWS)
+    return 400.0 * np.arctan(wall_mm / (10.0 + 0.5 * cols))
+
+
+def _two_tone_wall(rng: np.random.Generator, n_cols: int) -> np.ndarray:
+    """Blocks of 0.15 and 0.85 (a chart): any statistic of the values follows the tone
+    that fills a ring."""
+    blocks = rng.random((ROWS // 8 + 1, n_cols // 8 + 1)) < 0.4
+    return np.where(np.kron(blocks, np.ones((8, 8)))[:ROWS, :n_cols], 0.85, 0.15)
+
+
+def _frames(exposures: list[float], seed: int = 3) -> list[FlatInput]:
+    """Frames moving SHIFT nodes along the wall each, seen through the fall-off."""
+    rng = np.random.default_rng(seed)
+    wall = _two_tone_wall(rng, COLS + SHIFT * len(exposures))
+    radius = _radius()
+    ring = (np.searchsorted(EDGES, radius, side="right") - 1).astype(np.int16)
+    noise = 1 + 0.01 * rng.standard_normal((len(exposures), ROWS, COLS))
+    return [FlatInput(np.log(wall[:, k * SHIFT:k * SHIFT + COLS] * _fall_off(radius)
+                             * exposure * noise[k]).astype(np.float32), ring)
+            for k, exposure in enumerate(exposures)]
+
+
+def _solved(frames: list[FlatInput]) -> RadialFlatField:
+    pairs = [pair_ratios(frames[k - d], frames[k], (0.0, float(SHIFT * d)), (k - d, k))
+             for k in range(1, len(frames)) for d in (1, 2) if k - d >= 0]
+    flat = RadialFlatField.from_pairs(pairs, EDGES, CENTRE)
+    assert flat is not None
+    return flat
+
+
+def _error(flat: RadialFlatField) -> float:
+    """Largest relative error of the fall-off over the radii of 90 % of the nodes (the
+    extremes are seen by few node pairs)."""
+    radius = np.linspace(*np.percentile(_radius(), [5, 95]), 50)
+    got = np.interp(radius, flat.radius_px, flat.level)
+    true = _fall_off(radius)
+    ratio = got / true
+    return float(np.max(np.abs(ratio / np.median(ratio) - 1)))
+
+
+def test_the_fall_off_comes_from_overlaps_whatever_the_wall_shows() -> None:
+    flat = _solved(_frames([1.0] * 14))
+    # 1 % of a mid-grey wall is ~1.3 levels of 8 bits, the mosaic's shading budget; a
+    # fall-off of 35 % that was not found would be off by ~10 %.
+    assert _error(flat) < 0.01
+    # The median of each ring's values over the frames follows the chart's tones.
+    levels = [radial_levels(f, len(EDGES) - 1) for f in _frames([1.0] * 14)]
+    assert _error(RadialFlatField.from_levels(levels, EDGES, CENTRE)) > 0.05
+
+
+def _input(values: np.ndarray, grey: np.ndarray | None = None) -> FlatInput:
+    """The flat field's input of a strip of ``values`` (shading 1) that is its own frame
+    (node (r, c) read at pixel (c, r)), or was read from ``grey`` at the same places."""
+    ones = np.ones_like(values)
+    map_y, map_x = np.mgrid[0:values.shape[0], 0:values.shape[1]].astype(np.float32)
+    frame = values if grey is None else grey
+    return flat_input(frame, values, ones, ones, map_x, map_y, CENTRE, EDGES)
+
+
+def test_an_exposure_step_does_not_bend_the_fall_off() -> None:
+    """The overlaps across the step are offset as a whole and left out of the solve."""
+    flat = _solved(_frames([1.0] * 7 + [1.3] * 7))
+    assert _error(flat) < 0.01
+
+
+def test_too_few_overlaps_give_no_pairwise_solve() -> None:
+    frames = _frames([1.0, 1.0])
+    few = pair_ratios(frames[0], frames[1], (0.0, float(COLS - 4)), (0, 1))
+    assert RadialFlatField.from_pairs([few], EDGES, CENTRE) is None
+
+
+def test_clipped_nodes_sort_last_in_a_ring_median() -> None:
+    """A ring with a third of its nodes clipped keeps its median; more than half: NaN.
+    The strip here is its own frame (one node per pixel, on the image row of the
+    centre), so a node reads a clipped pixel exactly where it is clipped."""
+    rng = np.random.default_rng(1)
+    values = rng.uniform(0.2, 0.6, (ROWS, COLS)).astype(np.float32)
+    true = values.copy()
+    true[::3] = 1.5                                # bright wall: its true values, above
+    clipped = np.where(true >= 1.0, 1.0, true).astype(np.float32)   # full scale
+    n = len(EDGES) - 1
+    exact = radial_levels(_input(true, np.zeros_like(true)), n)   # nothing clipped
+    got = radial_levels(_input(clipped), n)
+    seen = np.isfinite(exact)
+    assert seen.sum() > 10
+    np.testing.assert_allclose(got[seen], exact[seen], rtol=1e-6)   # float32 exp/log
+    assert not np.allclose(got[seen], radial_levels(_input(values), n)[seen])   # counted
+    mostly = np.where(np.arange(ROWS)[:, None] % 3 == 0, values, 1.0).astype(np.float32)
+    assert np.isnan(radial_levels(_input(mostly), n)).all()
+
+
+def test_clipped_nodes_are_left_out_of_the_ratios() -> None:
+    values = np.full((ROWS, COLS), 0.5, np.float32)
+    bright = values.copy()
+    bright[:, 100:] = 1.0
+    ratios = pair_ratios(_input(values), _input(bright), (0.0, 0.0), (0, 1))
+    assert len(ratios.count) and np.all(ratios.log_ratio == 0)
+
+
+@pytest.mark.parametrize("clipped_at", [(10, 10), (40, 3)])
+def test_a_node_reading_a_clipped_pixel_is_blended_only_where_nothing_else_is(
+        clipped_at: tuple[int, int]) -> None:
+    grey = np.full((50, 60), 0.5, np.float32)
+    row, col = clipped_at
+    grey[row, col] = 1.0
+    map_y, map_x = np.mgrid[0:50, 0:60].astype(np.float32) + np.float32(0.25)
+    weight = np.ones((50, 60), np.float32)
+    out = unclipped_weight(grey, map_x, map_y, weight)
+    touched = np.zeros((50, 60), bool)
+    touched[row - 1:row + 1, col - 1:col + 1] = True   # bilinear: the pixel's 4 nodes
+    np.testing.assert_array_equal(out[touched], np.float32(CLIPPED_WEIGHT))
+    np.testing.assert_array_equal(out[~touched], 1.0)
+    assert unclipped_weight(np.full_like(grey, 0.5), map_x, map_y, weight) is weight
+
+
+def test_the_compiled_fall_off_is_numpys_interpolation() -> None:
+    rng = np.random.default_rng(2)
+    flat = RadialFlatField((300.5, 200.25), 0.5 * (EDGES[:-1] + EDGES[1:]),
+                           rng.uniform(0.7, 1.2, len(EDGES) - 1))
+    map_x = rng.uniform(-50, 1300, (40, 70)).astype(np.float32)
+    map_y = rng.uniform(-50, 1100, (40, 70)).astype(np.float32)
+    radius = np.hypot(map_x.astype(np.float64) - 300.5, map_y.astype(np.float64) - 200.25)
+    want = np.interp(radius, flat.radius_px, flat.level)   # the ends held beyond
+    np.testing.assert_allclose(flat.at(map_x, map_y), want, rtol=1e-6)   # float32 out

@@ -1,4 +1,5 @@
-"""The registration rounds of a run: when another round follows."""
+"""The registration rounds of a run: when another round follows; strips of a camera
+whose exposure steps."""
 
 from __future__ import annotations
 
@@ -27,3 +28,23 @@ def test_another_round_follows_a_large_tilt_correction_or_new_ovals() -> None:
     oval_before = {**before, 0: FrameView(before[0].pose, section, oval=True)}
     assert not _another_round(oval_before, {**after, 0: FrameView(after[0].pose, section,
                                                                   oval=True)})
+
+
+def test_a_camera_whose_exposure_steps_is_stitched_at_one_brightness(tmp_path,
+                                                                     simulate_small) -> None:
+    """The simulator's auto-exposure camera exposes pairs 8-15 25 % brighter than the
+    rest: exactly those strips are scaled back (gain 1/1.25), the others are left alone."""
+    from pipestitch.pipeline.run import run_dataset
+    from pipestitch.simulate.optics import Optics
+
+    data = simulate_small(tmp_path / "ds", "--scenario", "auto_exposure", "--pairs", "24")
+    summary = run_dataset(data, tmp_path / "out", show_progress=False)
+    gains = summary.mosaic.gains
+    optics = Optics(exposure_step=0.25)
+    bright = [i for i in gains if optics.exposure(i) > 1]
+    assert bright and len(bright) < len(gains)
+    for i, gain in gains.items():
+        # each strip's gain is matched to the canvas over hundreds of thousands of
+        # nodes: the step is found to a fraction of a percent (0.1-1 % seen)
+        want = 1 / optics.exposure(i)
+        assert abs(gain / want - 1) < 0.02, (i, gain, want)

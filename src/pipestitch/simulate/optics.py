@@ -32,3 +32,11 @@ class Optics:
     # scale at the image centre, rising outward to 1.6x at the image circle, as a metal
     # part lit by the LEDs is): 0 renders them black (a shadow).
     occluder_level: float = 0.0
+    # Auto exposure: the LED frames of every other block of ``exposure_block`` pairs are
+    # exposed ``exposure_step`` brighter (0: one exposure for the whole run).
+    exposure_step: float = 0.0
+    exposure_block: int = 8
+
+    def exposure(self, index: int) -> float:
+        """Relative exposure of pair ``index``'s LED frame."""
+        return 1.0 + self.exposure_step * ((index // max(1, self.exposure_block)) % 2)

@@ -237,12 +237,14 @@ class Renderer:
         laser = self._laser_signal(tr, albedo, rng)
         return self._colourise(laser * self.visibility, (0.08, 0.12, 1.0), rng)
 
-    def render_pair(self, pose: Pose, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Render the (laser, LED) frames of one pair at ``pose``."""
+    def render_pair(self, pose: Pose, rng: np.random.Generator, *,
+                    exposure: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Render the (laser, LED) frames of one pair at ``pose`` (the LED frame at
+        ``exposure`` times the optics' ``led_gain``)."""
         tr, albedo = self._traced_albedo(pose)
         o = self.optics
         vignette = 1 - o.vignetting * (self._incidence / np.deg2rad(o.fov_deg / 2)) ** 2
-        led = o.led_gain * albedo * tr["light"] * vignette * self.visibility
+        led = o.led_gain * exposure * albedo * tr["light"] * vignette * self.visibility
         if self.occluder_light is not None:
             led = led + self.occluder_light
         laser = self._laser_signal(tr, albedo, rng) * self.visibility

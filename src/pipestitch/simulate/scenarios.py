@@ -69,6 +69,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
     Scenario("lit_arm", "the test piece seen past a metal arm and mirror mount lit by the "
              "LEDs, brighter than the far wall", n_pairs=32, texture="aluminium",
              defects="test_piece", optics=Optics(occluder_level=0.45)),
+    Scenario("auto_exposure", "corroded 65 mm pipe seen by a camera whose exposure steps "
+             "by 25 % every 8 pairs, odometer", n_pairs=30, odometer=True, defects="random",
+             optics=Optics(exposure_step=0.25)),
     Scenario("oval", "oval 65 mm pipe (ovality 5 %), corrosion texture", n_pairs=20,
              ovality=0.05, defects="random"),
     Scenario("hard", "16-bit colour frames, glints, partial rings, strong noise",
@@ -101,7 +104,8 @@ class SyntheticRun:
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(laser, LED) frames of pair ``index`` (deterministic per seed and index)."""
-        return self.renderer.render_pair(self.poses[index], self._rng(index))
+        return self.renderer.render_pair(self.poses[index], self._rng(index),
+                                         exposure=self.renderer.optics.exposure(index))
 
     def render_laser(self, index: int) -> np.ndarray:
         """Laser frame of pair ``index`` only."""

@@ -251,7 +251,8 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     r2, c2 = np.meshgrid(rows, cols, indexing="ij")
     r1, c1 = (r2 + dr) % n_rows, c2 + dc
     ring1, ring2 = first.ring[r1, c1].ravel(), second.ring[r2, c2].ravel()
-    y = (second.log_albedo[r2, c2] - first.log_albedo[r1, c1]).ravel()
+    with np.errstate(invalid="ignore"):   # clipped in both (inf - inf): left out below
+        y = (second.log_albedo[r2, c2] - first.log_albedo[r1, c1]).ravel()
     keep = (ring1 >= 0) & (ring2 >= 0) & np.isfinite(y)
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
     cell = ring1[keep].astype(np.int64) * n_bins + ring2[keep]

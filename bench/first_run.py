@@ -12,10 +12,14 @@ its own (``NUMBA_CACHE_DIR``), so nothing another process compiled is reused:
 - ``warm``: the runs after it (``--repeat``), with the cache and the files read by
   ``first`` in place.
 
-Prints each wall time and peak resident memory (getrusage of the child) and the
-ratios to the fastest warm run. Target: ``first`` <= 1.5 x ``warm``.
+Prints each wall time, pairs per second and peak resident memory (getrusage of the
+child), the ratios to the fastest warm run, and the decode floor: the time to read
+every frame of the dataset once on one thread (``cv2.imread``, in this process, after
+the runs), and the warm run's ratio to it. Targets: ``first`` <= 1.5 x ``warm``; a warm
+run >= 10 pairs/s at 1224 x 1024 and <= 3 x the decode floor.
 
 Run: python -u bench/first_run.py [--quick] [--pairs N] [--repeat N] [--work DIR]
+     python -u bench/first_run.py --dataset DIR [--no-cold]   (an existing dataset)
 """
 
 from __future__ import annotations
@@ -75,6 +79,18 @@ def timed(cmd: list[str], cache: Path) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 1024
 
 
+def decode_floor(data: Path) -> float:
+    """Seconds to decode every frame of ``data/frames`` once, on one thread."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    t0 = time.perf_counter()
+    for path in sorted((data / "frames").iterdir()):
+        if cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
+            raise SystemExit(f"{path}: not an image")
+    return time.perf_counter() - t0
+
+
 def main() -> None:
     """Simulate the dataset, time the runs, print the table and the ratios."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -85,11 +101,14 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=20)
     parser.add_argument("--repeat", type=int, default=2, help="warm runs")
     parser.add_argument("--work", type=Path, help="keep the dataset, caches and outputs here")
+    parser.add_argument("--dataset", type=Path, help="time this dataset (not simulated)")
+    parser.add_argument("--no-cold", action="store_true", help="leave out the cold run")
     args = parser.parse_args()
-    pairs = 2 if args.quick else args.pairs
     work = args.work or Path(tempfile.mkdtemp(prefix="pipestitch-first-run-"))
     work.mkdir(parents=True, exist_ok=True)
-    data = work / "data"
+    data = args.dataset or work / "data"
+    pairs = (len(list((data / "frames").glob("led_*"))) if args.dataset
+             else 2 if args.quick else args.pairs)
     try:
         if not data.is_dir():
             subprocess.run([*pipestitch(), "simulate", "--scenario", args.scenario, "--size",
@@ -99,7 +118,7 @@ def main() -> None:
         caches = {name: Path(tempfile.mkdtemp(prefix=f"numba-{name}-", dir=work))
                   for name in ("cold", "setup")}
         rows: list[tuple[str, float, float]] = []
-        if not args.quick:
+        if not (args.quick or args.no_cold):
             rows.append(("cold (empty cache)", *timed([*run, str(work / "out-cold")],
                                                       caches["cold"])))
         rows.append(("set-up: compile_kernels.py",
@@ -110,14 +129,18 @@ def main() -> None:
             rows.append((f"warm run {k + 1}", *timed([*run, str(work / f"out-warm{k}")],
                                                      caches["setup"])))
         warm = min(wall for name, wall, _ in rows if name.startswith("warm"))
-        print(f"pipestitch run, {pairs} pairs of {args.scenario!r} at {args.size} size, "
-              f"{os.cpu_count()} cores")
-        print(f"{'what':<28} {'wall s':>8} {'peak MB':>8} {'x warm':>7}")
+        what = args.dataset or f"{args.scenario!r} at {args.size} size"
+        print(f"pipestitch run, {pairs} pairs of {what}, {os.cpu_count()} cores")
+        print(f"{'what':<28} {'wall s':>8} {'pairs/s':>8} {'peak MB':>8} {'x warm':>7}")
         for name, wall, mb in rows:
-            print(f"{name:<28} {wall:8.2f} {mb:8.0f} {wall / warm:7.2f}")
+            rate = f"{pairs / wall:8.2f}" if "compile" not in name else f"{'':8}"
+            print(f"{name:<28} {wall:8.2f} {rate} {mb:8.0f} {wall / warm:7.2f}")
         first = next(wall for name, wall, _ in rows if name.startswith("first"))
         print(f"first run / warm: {first / warm:.2f} (target <= 1.5)")
-        if not args.quick:
+        floor = decode_floor(data)
+        print(f"decode floor (every frame once, one thread): {floor:.2f} s; warm run / "
+              f"decode: {warm / floor:.2f} (target <= 3)")
+        if not (args.quick or args.no_cold):
             cold = rows[0][1]
             print(f"cold run / warm: {cold / warm:.2f}; set-up compile + first run: "
                   f"{rows[1][1] + first:.1f} s against {cold:.1f} s cold")

@@ -135,7 +135,7 @@ def main() -> None:
                                   show_progress=False,
                                   settings=MosaicSettings(mode=mode))
             r = evaluate(dataset, summary, radius)
-            mm = summary.mosaic.grid.mm_per_px
+            mm = summary.mosaic.grid.mm_per_px_axial
             print(f"{mode:>7} | {100 * r['recall']:5.0f}% | {r['false']:5d} | "
                   f"{r['spacing_mean']:+8.3f} +- {r['spacing_std']:.3f} (n={r['spacing_n']}) | "
                   f"{r['diam_mean']:+10.3f} +- {r['diam_std']:.3f}     | {mm:.3f}", flush=True)

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.measure.blocks import BlockDefects
 from pipestitch.measure.defects import MosaicGeometry, clock_position, find_defects
-from pipestitch.simulate.textures import Defect, WallGrid, draw_defects, make_wall
+from pipestitch.simulate.textures import Defect, draw_defects, make_wall
 
 R = 32.5
 

@@ -6,9 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.measure.defects import MosaicGeometry, find_defects
 from pipestitch.measure.outline import rim_outline
-from pipestitch.simulate.textures import Defect, WallGrid, draw_defects, make_wall
+from pipestitch.simulate.textures import Defect, draw_defects, make_wall
 
 
 def _disc(shape: tuple[int, int], centre_rc: tuple[float, float], radius_mm: float,

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from pipestitch.camera import default_camera
-from pipestitch.geometry import PipeSection
+from pipestitch.geometry import PipeSection, WallGrid
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
-from pipestitch.simulate.textures import Defect, WallGrid, make_wall
+from pipestitch.simulate.textures import Defect, make_wall
 
 R = 32.5
 

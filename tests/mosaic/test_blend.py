@@ -7,17 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.mosaic.blend import Canvas, Overview, frame_grid, shade
-from pipestitch.mosaic.unwrap import (
-    Strip,
-    StripGrid,
-)
+from pipestitch.mosaic.unwrap import Strip
 
 R = 32.5
 
 
 def test_frame_grid_places_frames_by_z_and_roll() -> None:
-    canvas_grid = StripGrid(0.5, 0.1, -10.0, 1000)
+    canvas_grid = WallGrid(radius_mm=R, deg_per_px=0.5,
+                           mm_per_px_axial=0.1, z0_mm=-10.0, n_cols=1000)
     grid, col = frame_grid(canvas_grid, 12.34, 2.0, (-5.0, 30.0))
     assert grid.theta0_deg == -2.0
     assert canvas_grid.z0_mm + col * 0.1 - 12.34 == pytest.approx(grid.z0_mm)
@@ -25,7 +24,7 @@ def test_frame_grid_places_frames_by_z_and_roll() -> None:
 
 
 def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain(texture) -> None:
-    grid = StripGrid(1.0, 0.1, 0.0, 120)
+    grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=120)
     canvas = Canvas(grid)
     level = np.ones(80)
     wall = texture((360, 120), seed=5)
@@ -50,7 +49,7 @@ def test_an_exposure_step_is_matched_and_a_small_offset_is_not(texture,
     bias each strip's ratio carries does not add up along the run into a drift."""
     from pipestitch.mosaic.blend import GAIN_DEADBAND
 
-    grid = StripGrid(1.0, 0.1, 0.0, 120)
+    grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=120)
     canvas = Canvas(grid)
     wall = texture((360, 120), seed=6)
     ones = np.ones((360, 80), np.float32)
@@ -65,7 +64,7 @@ def test_an_exposure_step_is_matched_and_a_small_offset_is_not(texture,
 def test_canvas_released_in_blocks_equals_the_whole_canvas(texture) -> None:
     """Streaming: columns released as soon as no later strip reaches them give exactly
     the mosaic of a canvas held whole, and the window stays the width of the strips."""
-    grid = StripGrid(1.0, 0.1, 0.0, 2000)
+    grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=2000)
     wall = texture((360, 2000), seed=7)
     ones = np.ones((360, 300), np.float32)
     starts = list(range(0, 1701, 100))
@@ -92,10 +91,11 @@ def test_canvas_released_in_blocks_equals_the_whole_canvas(texture) -> None:
 
 def test_overview_keeps_the_wall_image_convention() -> None:
     """A reduced mosaic.png: row i at theta = i x its deg_per_px, column j at its z0 +
-    j x its mm_per_px, values the local mean; half-seen groups are data, others 0."""
-    grid = StripGrid(360 / 1500, 0.135, -12.0, 5003)
+    j x its mm_per_px_axial, values the local mean; half-seen groups are data, others 0."""
+    grid = WallGrid(radius_mm=R, deg_per_px=360 / 1500,
+                    mm_per_px_axial=0.135, z0_mm=-12.0, n_cols=5003)
     theta = np.arange(1500)[:, None] * grid.deg_per_px
-    z = grid.z0_mm + np.arange(5003)[None, :] * grid.mm_per_px
+    z = grid.z0_mm + np.arange(5003)[None, :] * grid.mm_per_px_axial
     image = np.rint(128 + 60 * np.sin(np.deg2rad(theta)) + 0.1 * z).astype(np.uint8)
     image[:, 4000:4003] = 0                       # three unseen columns
     ov = Overview(grid, max_pixels=1_000_000)
@@ -105,7 +105,7 @@ def test_overview_keeps_the_wall_image_convention() -> None:
     f, g = ov.factor, ov.grid
     assert f == 3 and out.shape == (g.n_rows, g.n_cols) == (500, 1668)
     th = np.arange(g.n_rows)[:, None] * g.deg_per_px
-    zz = g.z0_mm + np.arange(g.n_cols)[None, :] * g.mm_per_px
+    zz = g.z0_mm + np.arange(g.n_cols)[None, :] * g.mm_per_px_axial
     expect = 128 + 60 * np.sin(np.deg2rad(th)) + 0.1 * zz
     data = out > 0
     assert np.abs(out[data] - np.broadcast_to(expect, out.shape)[data]).max() <= 1.01

@@ -5,12 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from pipestitch.camera import default_camera
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic.refine import PATCHES_AROUND, node_jacobian, patch_shifts
-from pipestitch.mosaic.unwrap import (
-    StripGrid,
-    unwrap_maps,
-)
+from pipestitch.mosaic.unwrap import unwrap_maps
 
 R = 32.5
 
@@ -39,7 +36,7 @@ def test_patch_shifts_measure_local_motion(texture, shifted) -> None:
 def test_node_jacobian_predicts_the_strip_warp_of_a_pose_error() -> None:
     """Unwrap one frame with the true pose and with a slightly wrong one: the wall
     moves between the two strips by G·e, as node_jacobian says."""
-    grid = StripGrid.window(R, 0.135, 5.0, 40.0)
+    grid = WallGrid.window(R, 0.135, 5.0, 40.0)
     true = Pose.from_degrees(1.0, -0.5, 2.0, 1.0)
     error = np.array([np.deg2rad(0.3), np.deg2rad(-0.2), 0.1, -0.05])
     wrong = Pose(true.alpha + error[0], true.beta + error[1], true.dx_mm + error[2],

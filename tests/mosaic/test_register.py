@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.mosaic.register import (
     Link,
     MotionPrior,
@@ -17,16 +18,13 @@ from pipestitch.mosaic.register import (
     spectrum,
     strip_contrast,
 )
-from pipestitch.mosaic.unwrap import (
-    Strip,
-    StripGrid,
-)
+from pipestitch.mosaic.unwrap import Strip
 
 R = 32.5
 
 
 def test_registration_recovers_axial_shift_and_roll(texture, shifted) -> None:
-    grid = StripGrid(360 / 720, 0.1, 0.0, 300)
+    grid = WallGrid(radius_mm=R, deg_per_px=360 / 720, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=300)
     wall = texture((720, 420))
     first = wall[:, :300]
     second = shifted(wall, 13.4, 37.3)[:, :300]     # frame j: 3.73 mm on, 6.7 deg of roll
@@ -45,7 +43,8 @@ def test_registration_with_a_motion_prior_on_strips_of_any_parity(shape: tuple[i
     # The correlation runs on packed spectra, whose layout depends on the parity of
     # both sizes; the prior (odometer-like, 0.3 mm and 0.5 deg off) must not bias it.
     n_rows, n_cols = shape
-    grid = StripGrid(360 / n_rows, 0.1, 0.0, n_cols)
+    grid = WallGrid(radius_mm=R, deg_per_px=360 / n_rows,
+                    mm_per_px_axial=0.1, z0_mm=0.0, n_cols=n_cols)
     wall = texture((n_rows, n_cols + 120), seed=1)
     second = shifted(wall, 13.4, 37.3)[:, :n_cols]
     images = [registration_image(strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))),

@@ -11,9 +11,8 @@ import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.camera.frames import to_grey
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic.unwrap import (
-    StripGrid,
     default_mm_per_px,
     polar_unwrap_maps,
     strip_window_mm,
@@ -22,7 +21,7 @@ from pipestitch.mosaic.unwrap import (
 )
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
-from pipestitch.simulate.textures import WallGrid, make_wall
+from pipestitch.simulate.textures import make_wall
 
 R = 32.5
 
@@ -53,7 +52,7 @@ def _strip_score(renderer: Renderer, wall: tuple[WallGrid, np.ndarray], true_pos
     """SSIM and geometric RMS of one LED frame unwrapped with ``used_pose``."""
     _, led = renderer.render_pair(true_pose, np.random.default_rng(0))
     mm = default_mm_per_px(CAMERA, R)
-    grid = StripGrid.window(R, mm, 0.0, 30.0)
+    grid = WallGrid.window(R, mm, 0.0, 30.0)
     maps = unwrap_maps(CAMERA, used_pose, PipeSection(R), grid, step=4, with_quality=True)
     strip = unwrap_with_quality(to_grey(led), maps)
     image = np.where(strip.weight > 0, strip.values / strip.shading, np.nan)
@@ -79,7 +78,7 @@ def test_offset_tilted_frame_needs_its_pose(renderer: Renderer, wall) -> None:
 
 
 def test_coarse_maps_match_exact_projection() -> None:
-    grid = StripGrid.window(R, 0.135, -13.0, 50.0)
+    grid = WallGrid.window(R, 0.135, -13.0, 50.0)
     pose = Pose.from_degrees(3, -2, 4, -3)
     mx, my = unwrap_maps(CAMERA, pose, PipeSection(R), grid)
     fast = unwrap_maps(CAMERA, pose, PipeSection(R), grid, step=4, with_quality=True)
@@ -90,7 +89,7 @@ def test_coarse_maps_match_exact_projection() -> None:
 
 
 def test_quality_falls_with_distance_and_shading_with_offset() -> None:
-    grid = StripGrid.window(R, 0.135, 0.0, 60.0)
+    grid = WallGrid.window(R, 0.135, 0.0, 60.0)
     m = unwrap_maps(CAMERA, Pose.from_degrees(0, 0, 5.0, 0), PipeSection(R), grid, step=4,
                     with_quality=True)
     q = m.quality.mean(axis=0)
@@ -103,7 +102,7 @@ def test_quality_falls_with_distance_and_shading_with_offset() -> None:
 def test_polar_baseline_equals_centred_unwrap_for_a_centred_principal_point() -> None:
     cam = dataclasses.replace(CAMERA, center_col=(CAMERA.width - 1) / 2,
                               center_row=(CAMERA.height - 1) / 2, c=1.0, d=0.0, e=0.0)
-    grid = StripGrid.window(R, 0.2, 5.0, 40.0)
+    grid = WallGrid.window(R, 0.2, 5.0, 40.0)
     ours = unwrap_maps(cam, Pose(), PipeSection(R), grid)
     polar = polar_unwrap_maps(cam, R, grid)
     assert np.max(np.abs(ours[0] - polar.map_x)) < 1e-3

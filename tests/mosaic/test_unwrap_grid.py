@@ -1,16 +1,14 @@
-"""The strip grid: validation, where a wall feature lands, the window of the wall a run
+"""Strips on the wall grid: where a wall feature lands, the window of the wall a run
 resolves.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from pipestitch.camera import default_camera
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic.unwrap import (
-    StripGrid,
     default_mm_per_px,
     seen_window_mm,
     strip_window_mm,
@@ -24,20 +22,13 @@ from pipestitch.simulate.render import Renderer
 R = 32.5
 
 
-def test_strip_grid_validation() -> None:
-    g = StripGrid.window(R, 0.5, 20.0, 60.0)
-    assert g.n_cols == 80 and abs(g.n_rows * 0.5 - 2 * np.pi * R) < 0.5
-    with pytest.raises(ValueError, match="integer"):
-        StripGrid(0.7, 0.5, 0.0, 10)
-
-
 def test_unwrapped_hole_lands_at_its_wall_position(holed_renderer: Renderer) -> None:
     pose = Pose.from_degrees(2.5, -1.5, 3.0, -2.0, 0.0, 20.0)
     _, led = holed_renderer.render_pair(pose, np.random.default_rng(1))
-    grid = StripGrid.window(R, 0.1, 20.0, 70.0)
+    grid = WallGrid.window(R, 0.1, 20.0, 70.0)
     strip = unwrap(prepare_laser_frame(led), holed_renderer.camera, pose, PipeSection(R), grid)
     # The hole at theta = 200°, world z = 60 mm is 40 mm ahead of the camera (roll 0).
-    row, col = round(200.0 / grid.deg_per_px), round((40.0 - grid.z0_mm) / grid.mm_per_px)
+    row, col = round(200.0 / grid.deg_per_px), round((40.0 - grid.z0_mm) / grid.mm_per_px_axial)
     patch = strip[row - 60:row + 61, col - 60:col + 61]
     dark = patch < 0.3 * np.nanmedian(patch)
     rr, cc = np.nonzero(dark)
@@ -60,9 +51,9 @@ def test_seen_window_keeps_every_resolved_node_and_cuts_the_rest() -> None:
     seen = seen_window_mm(cam, [(p, section) for p in poses], R, mm, window)
     assert window[0] <= seen[0] < seen[1] <= window[1]
     assert seen[1] - seen[0] < 0.85 * (window[1] - window[0])
-    grid = StripGrid.window(R, mm, *window)
+    grid = WallGrid.window(R, mm, *window)
     frame = np.ones((cam.height, cam.width), np.float32)
-    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px_axial
     for pose in poses:
         strip = unwrap_with_quality(frame, unwrap_maps(cam, pose, section, grid, step=1,
                                                        with_quality=True))

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.evaluate import WallImage, score_mosaic, truth_on_grid
-from pipestitch.simulate.textures import WallGrid, make_wall
+from pipestitch.simulate.textures import make_wall
 
 R = 32.5
 

@@ -13,13 +13,13 @@ import cv2
 import numpy as np
 import pytest
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures import (
     DEFECT_KINDS,
     HOLE_ALBEDO,
     SPOT_FACTOR,
     TEXTURE_KINDS,
     Defect,
-    WallGrid,
     aluminium_texture,
     chart_texture,
     corrosion_texture,
@@ -75,57 +75,6 @@ def _measure(cov: np.ndarray, grid: WallGrid, theta_c: float, z_c: float
     return area, float((cov * ds).sum() / total), float((cov * dz).sum() / total)
 
 
-# ------------------------------------------------------------------------- grid
-
-
-def test_grid_rows_and_coordinates() -> None:
-    g = WallGrid(radius_mm=20.0, mm_per_px_axial=0.1, deg_per_px=0.25, z0_mm=-3.0, n_cols=50)
-    assert g.n_rows == 1440
-    assert g.shape == (1440, 50)
-    theta, z = g.theta_z()
-    assert theta.shape == (1440,) and z.shape == (50,)
-    assert theta[0] == 0.0 and theta[-1] == pytest.approx(360.0 - 0.25)
-    assert np.allclose(np.diff(theta), 0.25)
-    assert z[0] == -3.0 and z[-1] == pytest.approx(-3.0 + 49 * 0.1)
-    assert g.mm_per_px_circ == pytest.approx(20.0 * math.radians(0.25))
-    assert g.to_json() == {"mm_per_px_axial": 0.1, "deg_per_px": 0.25, "z0_mm": -3.0,
-                           "radius_mm": 20.0}
-
-
-@pytest.mark.parametrize("bad", [
-    {"deg_per_px": 0.7},                 # 360 / 0.7 is not an integer
-    {"deg_per_px": 0.0},
-    {"radius_mm": -1.0},
-    {"mm_per_px_axial": 0.0},
-    {"n_cols": 0},
-    {"z0_mm": float("nan")},
-])
-def test_grid_rejects_bad_values(bad: dict) -> None:
-    args = {"radius_mm": 10.0, "mm_per_px_axial": 0.1, "deg_per_px": 0.5, "z0_mm": 0.0,
-            "n_cols": 10} | bad
-    with pytest.raises(ValueError):
-        WallGrid(**args)
-
-
-def test_grid_accepts_float_roundoff() -> None:
-    n = 5105
-    assert WallGrid(32.5, 0.04, 360.0 / n, 0.0, 3).n_rows == n
-
-
-@pytest.mark.parametrize(("radius", "pitch"), [(32.5, 0.04), (41.5, 0.07), (5.0, 0.1), (25.0, 0.3)])
-def test_square_grid_pitch(radius: float, pitch: float) -> None:
-    g = WallGrid.square(radius, pitch, 10.0, 70.0)
-    n = 360.0 / g.deg_per_px
-    assert abs(n - round(n)) < 1e-9
-    # Rounding the row count moves the arc pitch by at most half a row per turn.
-    assert abs(g.mm_per_px_circ - pitch) <= 0.5 * pitch / g.n_rows + 1e-12
-    assert g.mm_per_px_axial == pitch
-    _, z = g.theta_z()
-    assert z[0] == 10.0 and abs(z[-1] - 70.0) <= 0.5 * pitch
-    with pytest.raises(ValueError):
-        WallGrid.square(radius, pitch, 5.0, 5.0)
-
-
 # ------------------------------------------------------------------------- textures
 
 
@@ -165,8 +114,8 @@ def test_seamless_across_wrap(kind: str, walls: dict) -> None:
 def test_seam_statistic_detects_a_cut(kind: str, small_grid: WallGrid) -> None:
     """Control: the same statistic flags a texture cut out of a longer turn."""
     g = small_grid
-    longer = WallGrid(g.radius_mm, g.mm_per_px_axial, 360.0 / round(1.37 * g.n_rows), g.z0_mm,
-                      g.n_cols)
+    longer = WallGrid(radius_mm=g.radius_mm, deg_per_px=360.0 / round(1.37 * g.n_rows),
+                      mm_per_px_axial=g.mm_per_px_axial, z0_mm=g.z0_mm, n_cols=g.n_cols)
     img = make_wall(kind, longer, rng=np.random.default_rng(5))[:g.n_rows]
     inner, wrap = _row_steps(img)
     assert wrap > np.quantile(inner, 0.999)
@@ -178,7 +127,8 @@ def test_chart_seamless_across_wrap() -> None:
     The grid puts every cell boundary on a pixel centre (125 rows per cell), so all
     boundaries are sampled alike and their row steps are comparable.
     """
-    g = WallGrid(8.0, 0.08, 360.0 / 625, 0.0, 376)
+    g = WallGrid(radius_mm=8.0, deg_per_px=360.0 / 625, mm_per_px_axial=0.08, z0_mm=0.0,
+                 n_cols=376)
     assert round(2 * math.pi * g.radius_mm / 10.0) == 5    # 5 cells of 125 rows
     img = chart_texture(g, np.random.default_rng(5))
     inner, wrap = _row_steps(img)
@@ -202,8 +152,10 @@ def test_chart_contrast_and_structure_everywhere(walls: dict, small_grid: WallGr
 def test_chart_is_defined_in_mm() -> None:
     """The chart at 0.05 mm/px, filtered to 0.1 mm/px, matches the chart at 0.1 mm/px."""
     n = 628
-    coarse = WallGrid(10.0, 0.1, 360.0 / n, 3.0, 300)
-    fine = WallGrid(10.0, 0.05, 360.0 / (2 * n), 3.0, 599)
+    coarse = WallGrid(radius_mm=10.0, deg_per_px=360.0 / n, mm_per_px_axial=0.1, z0_mm=3.0,
+                      n_cols=300)
+    fine = WallGrid(radius_mm=10.0, deg_per_px=360.0 / (2 * n), mm_per_px_axial=0.05, z0_mm=3.0,
+                    n_cols=599)
     c = chart_texture(coarse, np.random.default_rng(7))
     f = chart_texture(fine, np.random.default_rng(7))
     k = np.array([0.25, 0.5, 0.25], np.float32)
@@ -319,7 +271,8 @@ def test_hole_area_and_centre(radius: float, pitch: float, theta: float, z: floa
 
 def test_hole_across_wrap_is_whole() -> None:
     """A hole at theta = 0 has the same pixel pattern as a hole away from the wrap."""
-    g = WallGrid(10.0, 0.05, 360.0 / 1256, 0.0, 300)
+    g = WallGrid(radius_mm=10.0, deg_per_px=360.0 / 1256, mm_per_px_axial=0.05, z0_mm=0.0,
+                 n_cols=300)
     bg = np.full(g.shape, 0.5, np.float32)
     at0 = draw_defects(bg, g, [Defect("hole", 7.5, 0.0, 3.0)])
     at90 = draw_defects(bg, g, [Defect("hole", 7.5, 90.0, 3.0)])

@@ -1,5 +1,5 @@
-"""Probe geometry: pose, rotations, pipe sections, intersections, clock positions
-(pure, vectorised maths; no I/O).
+"""Probe geometry: pose, rotations, pipe sections, intersections, clock positions, the
+(theta, z) pixel grid on the wall (pure, vectorised maths; no I/O).
 
 May import ``camera``. Must not import any stage, ``io``, ``pipeline`` or ``cli``.
 """
@@ -16,11 +16,13 @@ from pipestitch.geometry.intersect import (
 )
 from pipestitch.geometry.probe_pose import Pose
 from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
+from pipestitch.geometry.wall_grid import WallGrid
 
 __all__ = [
     "BodyEnvelope",
     "PipeSection",
     "Pose",
+    "WallGrid",
     "laser_ring",
     "plane_basis",
     "ray_wall_distance",

@@ -1,12 +1,15 @@
-"""The pixel grid of an unrolled pipe wall.
+"""The pixel grid of an image of the pipe wall in cylinder coordinates (theta, z).
 
-An *unrolled wall image* stores the wall albedo (reflectance, 0 = black, 1 = white)
-on a regular grid in cylinder coordinates (SPEC convention): the centre of pixel
-(row ``i``, column ``j``) lies at circumferential angle ``theta = i * deg_per_px``
-(degrees, ``[0, 360)``) and axial position ``z = z0_mm + j * mm_per_px_axial``. One
-row step is an arc of ``radius_mm * deg2rad(deg_per_px)`` mm on the wall. Rows wrap
-around (row ``n_rows`` is row 0 again), and every texture of
-:mod:`pipestitch.simulate.textures` is seamless across that wrap.
+The centre of pixel (row ``i``, column ``j``) lies at circumferential angle
+``theta = theta0_deg + i * deg_per_px`` (degrees) and axial position
+``z = z0_mm + j * mm_per_px_axial`` (mm). The rows always go once around the pipe
+(``360 / deg_per_px`` is an integer), so row ``n_rows`` is row 0 again. On a wall of
+``radius_mm`` one row step is an arc of ``radius_mm * radians(deg_per_px)`` mm.
+
+The simulator's unrolled wall images (SPEC wall-image convention: ``theta0_deg = 0``,
+world z) and the mosaic's strips (z from the camera centre, theta turned by the
+frame's roll) and canvas are all images on such a grid. This module only describes
+the grid: no image data, no I/O.
 """
 
 from __future__ import annotations
@@ -14,82 +17,149 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 __all__ = ["WallGrid"]
 
 
-@dataclass(frozen=True)
+def _rows_around(radius_mm: float, mm_per_px: float, min_rows: int) -> int:
+    """Rows whose arc on a wall of ``radius_mm`` is closest to ``mm_per_px``
+    (at least ``min_rows``)."""
+    return max(min_rows, round(2.0 * math.pi * radius_mm / mm_per_px))
+
+
+@dataclass(frozen=True, kw_only=True)
 class WallGrid:
-    """Pixel grid of an unrolled pipe wall (see the module docstring).
+    """Pixel grid of an image of the pipe wall (see the module docstring).
+
+    Fields are keyword-only; :meth:`square` and :meth:`window` build grids of square
+    pixels on the wall.
 
     Parameters
     ----------
     radius_mm : float
-        Wall radius (mm).
+        Radius of the wall the grid lies on (mm); it turns the angular pitch into an
+        arc length.
+    deg_per_px : float
+        Circumferential pixel pitch (degrees per row); ``360 / deg_per_px`` must be an
+        integer (to 1e-6), so that the rows close up around the pipe.
     mm_per_px_axial : float
         Axial pixel pitch (mm per column).
-    deg_per_px : float
-        Circumferential pixel pitch (degrees per row); ``360 / deg_per_px`` must be
-        an integer (to 1e-6), so that the rows close up around the pipe.
     z0_mm : float
         Axial position of the centre of column 0 (mm).
     n_cols : int
         Number of columns.
+    theta0_deg : float, optional
+        Angle of the centre of row 0 (degrees, default 0).
 
     Raises
     ------
     ValueError
-        On a non-positive pitch, radius or column count, or when ``360 / deg_per_px``
-        is not an integer.
+        On a non-positive radius, pitch or column count, a non-finite ``z0_mm`` or
+        ``theta0_deg``, or when ``360 / deg_per_px`` is not an integer.
     """
 
     radius_mm: float
-    mm_per_px_axial: float
     deg_per_px: float
+    mm_per_px_axial: float
     z0_mm: float
     n_cols: int
+    theta0_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("radius_mm", "mm_per_px_axial", "deg_per_px"):
+        for name in ("radius_mm", "deg_per_px", "mm_per_px_axial"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"WallGrid.{name}: expected a positive number, got {value!r}")
-        if not math.isfinite(self.z0_mm):
-            raise ValueError(f"WallGrid.z0_mm: expected a finite number, got {self.z0_mm!r}")
+        for name in ("z0_mm", "theta0_deg"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f"WallGrid.{name}: expected a finite number, got {value!r}")
         if int(self.n_cols) != self.n_cols or self.n_cols < 1:
             raise ValueError(f"WallGrid.n_cols: expected a positive integer, got {self.n_cols!r}")
-        for name in ("radius_mm", "mm_per_px_axial", "deg_per_px", "z0_mm"):
-            object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "n_cols", int(self.n_cols))
-        self.check_deg_per_px(self.deg_per_px)
+        ratio = 360.0 / self.deg_per_px
+        if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6:
+            raise ValueError(
+                f"WallGrid.deg_per_px: 360 / {self.deg_per_px!r} = {ratio!r} is not an integer; "
+                "the rows must close up around the pipe")
 
     @classmethod
-    def check_deg_per_px(cls, deg_per_px: float) -> int:
-        """Validate a circumferential pitch and return the row count it implies.
+    def square(cls, radius_mm: float, mm_per_px: float, z0_mm: float,
+               z1_mm: float) -> WallGrid:
+        """Grid with (nearly) square pixels whose columns run from ``z0_mm`` to ``z1_mm``.
+
+        The grid of the simulator's unrolled wall images: the first and (about) the
+        last column are centred on the two ends.
 
         Parameters
         ----------
-        deg_per_px : float
-            Degrees per row.
+        radius_mm : float
+            Wall radius (mm).
+        mm_per_px : float
+            Wanted pixel pitch on the wall, axially and around (mm).
+        z0_mm, z1_mm : float
+            Axial positions of the first and (about) the last column centre (mm),
+            ``z1_mm > z0_mm``.
 
         Returns
         -------
-        int
-            ``round(360 / deg_per_px)``.
+        WallGrid
+            ``mm_per_px_axial = mm_per_px``; ``deg_per_px = 360 / n_rows`` with
+            ``n_rows = max(3, round(2 pi radius / mm_per_px))``, so the arc pitch is
+            within half a row per turn of ``mm_per_px``; ``n_cols = round((z1 - z0) /
+            mm_per_px) + 1``; ``theta0_deg = 0``.
 
         Raises
         ------
         ValueError
-            When ``360 / deg_per_px`` is not within 1e-6 of a positive integer.
+            On a non-positive radius or pitch, or when ``z1_mm <= z0_mm``.
         """
-        ratio = 360.0 / deg_per_px
-        n = round(ratio)
-        if n < 1 or abs(ratio - n) > 1e-6:
-            raise ValueError(
-                f"WallGrid.deg_per_px: 360 / {deg_per_px!r} = {ratio!r} is not an integer; "
-                "the rows must close up around the pipe")
-        return int(n)
+        if not (radius_mm > 0 and mm_per_px > 0):
+            raise ValueError("WallGrid.square: radius_mm and mm_per_px must be positive")
+        if not z1_mm > z0_mm:
+            raise ValueError(f"WallGrid.square: need z1_mm > z0_mm, got {z0_mm}, {z1_mm}")
+        n_rows = _rows_around(radius_mm, mm_per_px, 3)
+        n_cols = round((z1_mm - z0_mm) / mm_per_px) + 1
+        return cls(radius_mm=float(radius_mm), deg_per_px=360.0 / n_rows,
+                   mm_per_px_axial=float(mm_per_px), z0_mm=float(z0_mm), n_cols=n_cols)
+
+    @classmethod
+    def window(cls, radius_mm: float, mm_per_px: float, z0_mm: float, z1_mm: float, *,
+               fft_sizes: bool = False) -> WallGrid:
+        """Grid with square pixels on the wall (arc = axial step) over the window z0..z1.
+
+        The grid of the mosaic's strips and canvas: ``round((z1 - z0) / mm_per_px)``
+        columns from ``z0_mm`` on (at least 1), ``max(8, round(2 pi radius /
+        mm_per_px))`` rows, ``theta0_deg = 0``.
+
+        Parameters
+        ----------
+        radius_mm : float
+            Wall radius (mm).
+        mm_per_px : float
+            Pixel pitch on the wall, axially and around (mm).
+        z0_mm, z1_mm : float
+            Axial window (mm); column 0 is centred on ``z0_mm``.
+        fft_sizes : bool, optional
+            Round both sizes up to sizes the FFT is fast for
+            (``cv2.getOptimalDFTSize``: products of 2, 3, 5): rows then are slightly
+            narrower than the axial step and the window slightly longer. For
+            registration strips, whose circular (unpadded) correlation would otherwise
+            run on sizes like 1513 = 17 x 89.
+
+        Returns
+        -------
+        WallGrid
+            The grid, ``mm_per_px_axial = mm_per_px``.
+        """
+        n_rows = _rows_around(radius_mm, mm_per_px, 8)
+        n_cols = max(1, round((z1_mm - z0_mm) / mm_per_px))
+        if fft_sizes:
+            n_rows, n_cols = cv2.getOptimalDFTSize(n_rows), cv2.getOptimalDFTSize(n_cols)
+        return cls(radius_mm=radius_mm, deg_per_px=360.0 / n_rows, mm_per_px_axial=mm_per_px,
+                   z0_mm=z0_mm, n_cols=n_cols)
 
     @property
     def n_rows(self) -> int:
@@ -98,8 +168,8 @@ class WallGrid:
 
     @property
     def shape(self) -> tuple[int, int]:
-        """``(n_rows, n_cols)``, the shape of an albedo image on this grid."""
-        return self.n_rows, int(self.n_cols)
+        """``(n_rows, n_cols)``, the shape of an image on this grid."""
+        return self.n_rows, self.n_cols
 
     @property
     def circumference_mm(self) -> float:
@@ -116,48 +186,17 @@ class WallGrid:
         """Axial extent covered by the columns, ``n_cols * mm_per_px_axial`` (mm)."""
         return self.n_cols * self.mm_per_px_axial
 
-    @classmethod
-    def square(cls, radius_mm: float, mm_per_px: float, z0_mm: float,
-               z1_mm: float) -> WallGrid:
-        """Grid with (nearly) square pixels of ``mm_per_px`` on the wall.
-
-        Parameters
-        ----------
-        radius_mm : float
-            Wall radius (mm).
-        mm_per_px : float
-            Wanted pixel pitch on the wall, axially and around (mm).
-        z0_mm, z1_mm : float
-            Axial positions of the first and (about) the last column centre (mm),
-            ``z1_mm > z0_mm``.
-
-        Returns
-        -------
-        WallGrid
-            ``mm_per_px_axial = mm_per_px``; ``deg_per_px = 360 / n_rows`` with
-            ``n_rows = round(2 pi radius / mm_per_px)``, so the arc pitch is within
-            half a row per turn of ``mm_per_px``; ``n_cols = round((z1 - z0) /
-            mm_per_px) + 1``.
-        """
-        if not (radius_mm > 0 and mm_per_px > 0):
-            raise ValueError("WallGrid.square: radius_mm and mm_per_px must be positive")
-        if not z1_mm > z0_mm:
-            raise ValueError(f"WallGrid.square: need z1_mm > z0_mm, got {z0_mm}, {z1_mm}")
-        n_rows = max(3, round(2.0 * math.pi * radius_mm / mm_per_px))
-        n_cols = round((z1_mm - z0_mm) / mm_per_px) + 1
-        return cls(float(radius_mm), float(mm_per_px), 360.0 / n_rows, float(z0_mm), n_cols)
-
     def theta_z(self) -> tuple[np.ndarray, np.ndarray]:
         """Pixel-centre coordinates.
 
         Returns
         -------
         theta_deg : numpy.ndarray, shape (n_rows,), float64
-            Angle of each row (degrees, ``[0, 360)``).
+            Angle of each row (degrees, ``theta0_deg`` + ``[0, 360)``).
         z_mm : numpy.ndarray, shape (n_cols,), float64
             Axial position of each column (mm).
         """
-        theta = np.arange(self.n_rows, dtype=np.float64) * self.deg_per_px
+        theta = self.theta0_deg + np.arange(self.n_rows, dtype=np.float64) * self.deg_per_px
         z = self.z0_mm + np.arange(self.n_cols, dtype=np.float64) * self.mm_per_px_axial
         return theta, z
 
@@ -168,7 +207,15 @@ class WallGrid:
         -------
         dict
             ``{"mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm"}`` as floats.
+
+        Raises
+        ------
+        ValueError
+            When ``theta0_deg`` is not 0: SPEC wall images start at theta 0.
         """
+        if self.theta0_deg != 0.0:
+            raise ValueError(f"WallGrid.to_json: SPEC wall images start at theta 0, "
+                             f"got theta0_deg = {self.theta0_deg!r}")
         return {"mm_per_px_axial": float(self.mm_per_px_axial),
                 "deg_per_px": float(self.deg_per_px),
                 "z0_mm": float(self.z0_mm),

@@ -1,7 +1,7 @@
 """Stitching: strips on one (theta, z) canvas with exposure compensation and feathering.
 
 The canvas follows SPEC's wall-image convention: row i at theta = i·deg_per_px
-(relative to the roll reference), column j at z = z0_mm + j·mm_per_px. Every frame is
+(relative to the roll reference), column j at z = z0_mm + j·mm_per_px_axial. Every frame is
 unwrapped straight onto the canvas nodes it covers (its grid is the canvas' shifted by
 the frame's solved z and roll, sub-pixel), so the image is resampled once. Before
 blending each strip is divided by its LED shading and the lens' fall-off learned from the
@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight, shaded_albedo
-from pipestitch.mosaic.unwrap import Strip, StripGrid
+from pipestitch.mosaic.unwrap import Strip
 
 __all__ = ["Canvas", "Overview", "ShadedStrip", "canvas_grid", "frame_grid", "overview_factor",
            "shade"]
@@ -32,7 +33,7 @@ GAIN_MIN_NODES = 500  # overlap nodes a gain needs (else 1)
 GAIN_STRIDE = 2       # the gain's medians read every 2nd row and column of the overlap
 
 
-def canvas_grid(z_mm: np.ndarray, window_mm: tuple[float, float], strip: StripGrid) -> StripGrid:
+def canvas_grid(z_mm: np.ndarray, window_mm: tuple[float, float], strip: WallGrid) -> WallGrid:
     """Canvas covering every placed frame's window, on the strips' scale.
 
     z0 is a whole number of pixels so that columns fall on round positions.
@@ -40,23 +41,25 @@ def canvas_grid(z_mm: np.ndarray, window_mm: tuple[float, float], strip: StripGr
     z = z_mm[np.isfinite(z_mm)]
     if z.size == 0:
         raise ValueError("canvas_grid: no placed frame")
-    mm = strip.mm_per_px
+    mm = strip.mm_per_px_axial
     z0 = np.floor((z.min() + window_mm[0]) / mm) * mm
     z1 = z.max() + window_mm[1]
-    return StripGrid(strip.deg_per_px, mm, float(z0), int(np.ceil((z1 - z0) / mm)) + 1)
+    return WallGrid(radius_mm=strip.radius_mm, deg_per_px=strip.deg_per_px, mm_per_px_axial=mm,
+                    z0_mm=float(z0), n_cols=int(np.ceil((z1 - z0) / mm)) + 1)
 
 
-def frame_grid(canvas: StripGrid, z_mm: float, roll_deg: float,
-               window_mm: tuple[float, float]) -> tuple[StripGrid, int]:
+def frame_grid(canvas: WallGrid, z_mm: float, roll_deg: float,
+               window_mm: tuple[float, float]) -> tuple[WallGrid, int]:
     """The frame's own (theta, z) grid of the canvas nodes in its window, and its first column.
 
     A canvas node (theta_c, z_c) is the frame's (theta_c - roll, z_c - z) (SPEC pose).
     """
-    mm = canvas.mm_per_px
+    mm = canvas.mm_per_px_axial
     j0 = max(0, int(np.ceil((z_mm + window_mm[0] - canvas.z0_mm) / mm)))
     j1 = min(canvas.n_cols - 1, int(np.floor((z_mm + window_mm[1] - canvas.z0_mm) / mm)))
-    grid = StripGrid(canvas.deg_per_px, mm, canvas.z0_mm + j0 * mm - z_mm, max(1, j1 - j0 + 1),
-                     theta0_deg=-roll_deg)
+    grid = WallGrid(radius_mm=canvas.radius_mm, deg_per_px=canvas.deg_per_px, mm_per_px_axial=mm,
+                    z0_mm=canvas.z0_mm + j0 * mm - z_mm, n_cols=max(1, j1 - j0 + 1),
+                    theta0_deg=-roll_deg)
     return grid, j0
 
 
@@ -111,7 +114,7 @@ class Canvas:
     whole blended mosaic of a canvas nothing was released from.
     """
 
-    def __init__(self, grid: StripGrid) -> None:
+    def __init__(self, grid: WallGrid) -> None:
         self.grid = grid
         self.first = 0                      # canvas column of the window's column 0
         self.total = np.zeros((grid.n_rows, 0), np.float32)
@@ -258,13 +261,15 @@ class Overview:
     what it averages is. Only the copy and fewer than f columns are held.
     """
 
-    def __init__(self, grid: StripGrid, max_pixels: int = 16_000_000) -> None:
+    def __init__(self, grid: WallGrid, max_pixels: int = 16_000_000) -> None:
         self.factor = overview_factor(grid.n_rows, grid.n_cols, max_pixels)
-        f, mm = self.factor, grid.mm_per_px
+        f, mm = self.factor, grid.mm_per_px_axial
         n_rows = grid.n_rows if f == 1 else max(8, round(grid.n_rows / f))
         n_cols = math.ceil(grid.n_cols / f)
         # Column j' averages canvas columns f j' .. f j' + f - 1: its centre is (f - 1)/2 on.
-        self.grid = StripGrid(360.0 / n_rows, f * mm, grid.z0_mm + (f - 1) / 2 * mm, n_cols)
+        self.grid = WallGrid(radius_mm=grid.radius_mm, deg_per_px=360.0 / n_rows,
+                             mm_per_px_axial=f * mm, z0_mm=grid.z0_mm + (f - 1) / 2 * mm,
+                             n_cols=n_cols)
         self.image = np.zeros((n_rows, n_cols), np.uint8)
         self._rows = _row_weights(grid.n_rows, n_rows).astype(np.float32) if f > 1 else None
         self._carry = np.zeros((grid.n_rows, 0), np.uint8)

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection
-from pipestitch.mosaic.unwrap import StripGrid, unwrap
+from pipestitch.geometry import PipeSection, WallGrid
+from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
 
 __all__ = ["StripPair", "contrast_strips", "pair_costs"]
@@ -69,7 +69,7 @@ def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,
     for h in fit.hypotheses:
         r = h.radius_mm
         pitch = mm_per_px or 2 * np.pi * r / STRIP_ROWS
-        grid = StripGrid.window(r, pitch, 0.6 * r, 1.8 * r)
+        grid = WallGrid.window(r, pitch, 0.6 * r, 1.8 * r)
         strips.append(_contrast(unwrap(led, camera, h.pose, PipeSection(r), grid, step=4)))
     return StripPair(tuple(strips))
 

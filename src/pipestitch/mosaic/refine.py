@@ -33,9 +33,8 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection, Pose, rays_to_wall, theta_z_from_points
+from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
 from pipestitch.mosaic.register import phase_shift
-from pipestitch.mosaic.unwrap import StripGrid
 
 __all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows", "solve_in_windows",
            "solve_pose_errors"]
@@ -126,7 +125,7 @@ def _std(patch: np.ndarray) -> float:
     return float(cv2.meanStdDev(patch)[1][0, 0])
 
 
-def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
+def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,
                   nodes: np.ndarray) -> np.ndarray:
     """How strip nodes move on the wall per unit pose error: (N, 2, 4) in (rows, cols).
 
@@ -136,7 +135,7 @@ def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: S
     """
     nodes = np.asarray(nodes, float).reshape(-1, 2)
     theta = np.deg2rad(grid.theta0_deg + nodes[:, 0] * grid.deg_per_px)
-    z = grid.z0_mm + nodes[:, 1] * grid.mm_per_px
+    z = grid.z0_mm + nodes[:, 1] * grid.mm_per_px_axial
     wall = section.points(theta, z)
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
     out = np.zeros((len(nodes), 2, 4))
@@ -149,7 +148,7 @@ def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: S
         th2, z2 = theta_z_from_points(seen)
         d_theta = (np.rad2deg(th2 - theta) + 180.0) % 360.0 - 180.0
         out[:, 0, k] = d_theta / grid.deg_per_px / EPS[k]
-        out[:, 1, k] = (z2 - z) / grid.mm_per_px / EPS[k]
+        out[:, 1, k] = (z2 - z) / grid.mm_per_px_axial / EPS[k]
     return out
 
 

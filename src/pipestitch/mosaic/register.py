@@ -24,6 +24,7 @@ from scipy.sparse import coo_matrix, csr_matrix, identity, lil_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
+from pipestitch.geometry import WallGrid
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
@@ -31,7 +32,7 @@ from pipestitch.mosaic._register_kernels import (
     shifted_residual_moments,
     weighted_peak,
 )
-from pipestitch.mosaic.unwrap import Strip, StripGrid, local_contrast
+from pipestitch.mosaic.unwrap import Strip, local_contrast
 
 __all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "odometer_noise_mm", "phase_shift",
            "predict_motion", "registration_image", "solve_positions", "spectrum",
@@ -222,7 +223,7 @@ def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
     return (contrast * np.clip(weight, 0, 1) * taper[None, :]).astype(np.float32)
 
 
-def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int,
+def measure_shift(first: np.ndarray, second: np.ndarray, grid: WallGrid, i: int,
                   j: int, prior: MotionPrior | None = None,
                   spectra: tuple[np.ndarray, np.ndarray] | None = None) -> Link | None:
     """Link from frame i to frame j by phase correlation of their registration images.
@@ -238,8 +239,8 @@ def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int
         dx, dy, response = phase_shift(first, second, iterations=0)
     else:
         # Motion m and correlation shift d are opposite: strip_j(x) = strip_i(x + m).
-        expected = (-prior.dz_mm / grid.mm_per_px, -prior.droll_deg / grid.deg_per_px)
-        sigma = (prior.dz_sigma_mm / grid.mm_per_px, prior.droll_sigma_deg / grid.deg_per_px)
+        expected = (-prior.dz_mm / grid.mm_per_px_axial, -prior.droll_deg / grid.deg_per_px)
+        sigma = (prior.dz_sigma_mm / grid.mm_per_px_axial, prior.droll_sigma_deg / grid.deg_per_px)
         dx, dy, response = _prior_peak(first, second, expected, sigma, spectra)
     # One polishing step: ~0.03 px, and the refinement replaces most links anyway.
     dx, dy = _polish(first, second, None, dx, dy, 1)
@@ -247,8 +248,8 @@ def measure_shift(first: np.ndarray, second: np.ndarray, grid: StripGrid, i: int
         return None
     # phaseCorrelate: second(x) = first(x - d), and strip_j(x) = strip_i(x + motion).
     sigma = _sigma_px(response)
-    return Link(i, j, -dx * grid.mm_per_px, -dy * grid.deg_per_px, float(response),
-                sigma * grid.mm_per_px, sigma * grid.deg_per_px)
+    return Link(i, j, -dx * grid.mm_per_px_axial, -dy * grid.deg_per_px, float(response),
+                sigma * grid.mm_per_px_axial, sigma * grid.deg_per_px)
 
 
 @dataclass(frozen=True)

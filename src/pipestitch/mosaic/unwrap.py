@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
     contrast_of,
@@ -34,55 +34,12 @@ from pipestitch.mosaic._unwrap_kernels import (
     upsample_maps,
 )
 
-__all__ = ["Strip", "StripGrid", "UnwrapMaps", "default_mm_per_px",
+__all__ = ["Strip", "UnwrapMaps", "default_mm_per_px",
            "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
            "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
-@dataclass(frozen=True)
-class StripGrid:
-    """Output grid: row i at theta = theta0_deg + i·deg_per_px, column j at z0_mm + j·mm_per_px.
-
-    z is measured from the camera centre along the pipe axis; the rows always go once
-    around the pipe.
-    """
-
-    deg_per_px: float
-    mm_per_px: float
-    z0_mm: float
-    n_cols: int
-    theta0_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        n = 360.0 / self.deg_per_px
-        if abs(n - round(n)) > 1e-6 or self.mm_per_px <= 0 or self.n_cols < 1:
-            raise ValueError(f"StripGrid: 360/deg_per_px must be an integer and sizes positive, "
-                             f"got {self}")
-
-    @property
-    def n_rows(self) -> int:
-        """Rows around the full circumference."""
-        return round(360.0 / self.deg_per_px)
-
-    @classmethod
-    def window(cls, radius_mm: float, mm_per_px: float, z0_mm: float, z1_mm: float, *,
-               fft_sizes: bool = False) -> StripGrid:
-        """Square pixels in mm on the wall (arc length = axial step) from z0 to z1.
-
-        With ``fft_sizes`` both sizes are rounded up to sizes the FFT is fast for
-        (``cv2.getOptimalDFTSize``: products of 2, 3, 5): rows then are slightly
-        narrower than the axial step and the window slightly longer. For registration
-        strips, whose circular (unpadded) correlation would otherwise run on sizes
-        like 1513 = 17 x 89.
-        """
-        n_rows = max(8, round(2 * np.pi * radius_mm / mm_per_px))
-        n_cols = max(1, round((z1_mm - z0_mm) / mm_per_px))
-        if fft_sizes:
-            n_rows, n_cols = cv2.getOptimalDFTSize(n_rows), cv2.getOptimalDFTSize(n_cols)
-        return cls(360.0 / n_rows, mm_per_px, z0_mm, n_cols)
-
-
-def _grid_points(grid: StripGrid, section: PipeSection, pose: Pose,
+def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose,
                  step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nodes of every ``step``-th row and column (the last ones always included).
 
@@ -95,7 +52,7 @@ def _grid_points(grid: StripGrid, section: PipeSection, pose: Pose,
     n_r = -(-(grid.n_rows - 1) // step) + 1
     n_c = -(-(grid.n_cols - 1) // step) + 1
     theta = np.deg2rad(grid.theta0_deg + np.arange(n_r) * step * grid.deg_per_px)
-    z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px
+    z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
     ring = section.points(theta, np.zeros_like(theta))
     axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
     return ring, z, pose.to_probe(ring)[:, None, :] + z[None, :, None] * axis
@@ -124,7 +81,7 @@ class UnwrapMaps:
     shading: np.ndarray
 
 
-def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid, *,
+def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid, *,
                 step: int = 1, with_quality: bool = False
                 ) -> tuple[np.ndarray, np.ndarray] | UnwrapMaps:
     """``cv2.remap`` maps (float32, (n_rows, n_cols)) from the strip to the frame.
@@ -155,7 +112,7 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Str
     return UnwrapMaps(maps.map_x, maps.map_y, maps.quality, maps.shading)
 
 
-def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: StripGrid,
+def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,
                  step: int, with_quality: bool) -> tuple[MapFields, np.ndarray]:
     """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
     nodes' column z.
@@ -208,7 +165,7 @@ def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
 
 
 def unwrap(frame: np.ndarray, camera: CameraModel, pose: Pose, section: PipeSection,
-           grid: StripGrid, *, step: int = 1) -> np.ndarray:
+           grid: WallGrid, *, step: int = 1) -> np.ndarray:
     """Resample ``frame`` (grey float32) onto the wall grid; masked nodes are NaN."""
     map_x, map_y = unwrap_maps(camera, pose, section, grid, step=step)
     return _remap(frame, map_x, map_y)
@@ -312,7 +269,7 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
     window's length; nothing they would keep is cut. ``window_mm`` itself when no view
     resolves anything.
     """
-    grid = StripGrid.window(radius_mm, mm_per_px, *window_mm)
+    grid = WallGrid.window(radius_mm, mm_per_px, *window_mm)
     lo, hi = np.inf, -np.inf
     for pose, section in views:
         nodes, z = _node_fields(camera, pose, section, grid, step, True)
@@ -343,7 +300,7 @@ def default_mm_per_px(camera: CameraModel, radius_mm: float) -> float:
     return float(f"{mm:.3g}")
 
 
-def polar_unwrap_maps(camera: CameraModel, radius_mm: float, grid: StripGrid) -> UnwrapMaps:
+def polar_unwrap_maps(camera: CameraModel, radius_mm: float, grid: WallGrid) -> UnwrapMaps:
     """Prior-art baseline: polar unwrap about the image centre for a centred probe.
 
     Row i samples the ray at image azimuth theta_i about the geometric image centre
@@ -354,7 +311,7 @@ def polar_unwrap_maps(camera: CameraModel, radius_mm: float, grid: StripGrid) ->
     shading is that of a centred probe.
     """
     theta = np.deg2rad(grid.theta0_deg + np.arange(grid.n_rows) * grid.deg_per_px)
-    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px
+    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px_axial
     wall = np.stack([np.full_like(z, radius_mm), np.zeros_like(z), z], axis=1)
     px = camera.project(wall)
     principal = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]

@@ -22,13 +22,13 @@ from pipestitch import __version__
 from pipestitch._runtime.memory import release_free_memory
 from pipestitch._runtime.threads import opencv_threads
 from pipestitch.errors import PipestitchError
+from pipestitch.geometry import WallGrid
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
 from pipestitch.io.mask import read_mask
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
-from pipestitch.mosaic.unwrap import StripGrid
 from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
@@ -213,8 +213,8 @@ def _frame_rows(frames: list[FramePose], choices: list[Choice],
     return rows
 
 
-def _grid_json(g: StripGrid, radius_mm: float) -> dict[str, float | int]:
-    return {"mm_per_px_axial": g.mm_per_px, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
+def _grid_json(g: WallGrid, radius_mm: float) -> dict[str, float | int]:
+    return {"mm_per_px_axial": g.mm_per_px_axial, "deg_per_px": g.deg_per_px, "z0_mm": g.z0_mm,
             "n_rows": g.n_rows, "n_cols": g.n_cols,
             "mm_per_px_circumferential": 2 * math.pi * radius_mm / g.n_rows}
 
@@ -424,7 +424,7 @@ def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic
     write_mosaic_png(out / "mosaic.png", written.overview)
     g = written.grid
     write_viewer(out, out / TILES, title=f"pipestitch mosaic: {dataset.root.name}",
-                 z0_mm=g.z0_mm, mm_per_px=g.mm_per_px, deg_per_px=g.deg_per_px)
+                 z0_mm=g.z0_mm, mm_per_px=g.mm_per_px_axial, deg_per_px=g.deg_per_px)
     write_json(out / "mosaic.json", _mosaic_json(result, written, dataset, settings))
 
 
@@ -438,8 +438,8 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
         "failed (no pose)": str(summary.n_failed),
         "ambiguous": str(summary.n_ambiguous),
         "mirror choices settled by registration": str(len(result.switched) if result else 0),
-        "mosaic scale": (f"{result.grid.mm_per_px:g} mm/px, {result.grid.deg_per_px:.4f} deg/px"
-                         if result else "no mosaic"),
+        "mosaic scale": (f"{result.grid.mm_per_px_axial:g} mm/px, "
+                         f"{result.grid.deg_per_px:.4f} deg/px" if result else "no mosaic"),
         "wall time": f"{summary.seconds:.1f} s ({summary.pairs_per_second:.2f} pairs/s)",
         **{f"time in {k}": f"{100 * v / total:.0f} %"
            for k, v in sorted(summary.stage_seconds.items())},
@@ -447,7 +447,7 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
     grid = written.overview_grid if written else None
     image = written.overview if written else None
     return ReportData(f"pipestitch report: {dataset.root.name}", image,
-                      grid.z0_mm if grid else 0.0, grid.mm_per_px if grid else 1.0,
+                      grid.z0_mm if grid else 0.0, grid.mm_per_px_axial if grid else 1.0,
                       grid.deg_per_px if grid else 1.0,
                       dataset.config.pipe.inner_diameter_mm, _frame_rows(frames, choices, z),
                       summary.problems, figures, viewer_href=VIEWER if result else None)

@@ -23,8 +23,9 @@ import numpy as np
 from pipestitch.errors import DatasetError
 from pipestitch.geometry.cylinder import PipeSection
 from pipestitch.geometry.probe_pose import Pose
+from pipestitch.geometry.wall_grid import WallGrid
 from pipestitch.io.dataset import Dataset, open_dataset
-from pipestitch.mosaic.unwrap import StripGrid, unwrap_maps
+from pipestitch.mosaic.unwrap import unwrap_maps
 
 __all__ = ["FramePoses", "SourceFrames"]
 
@@ -127,9 +128,10 @@ class SourceFrames:
 
     def point_in_frame(self, frame: int, z_mm: float, theta_deg: float) -> tuple[float, float]:
         """Pixel (col, row) of mosaic point (z, theta) in ``frame`` (NaN: not seen)."""
-        alpha, beta, dx, dy, z_frame, roll, _ = self.poses.values[frame]
-        grid = StripGrid(self.deg_per_px, self.mm_per_px, z_mm - z_frame, 1,
-                         theta0_deg=theta_deg - roll)
+        alpha, beta, dx, dy, z_frame, roll, radius = self.poses.values[frame]
+        grid = WallGrid(radius_mm=radius, deg_per_px=self.deg_per_px,
+                        mm_per_px_axial=self.mm_per_px, z0_mm=z_mm - z_frame, n_cols=1,
+                        theta0_deg=theta_deg - roll)
         map_x, map_y = unwrap_maps(self._opened().config.camera_model(),
                                    Pose.from_degrees(alpha, beta, dx, dy),
                                    self.poses.section(frame), grid)

@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.outputs import intensity_scale, mosaic_from_uint8, mosaic_to_uint8
 from pipestitch.io.tiles import PyramidWriter, read_dzi
 from pipestitch.measure.blocks import BlockDefects
 from pipestitch.measure.defects import Defect, MosaicGeometry
 from pipestitch.mosaic.blend import Overview
-from pipestitch.mosaic.unwrap import StripGrid
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.report.viewer import VIEWER_NAME, render_viewer
 
@@ -57,9 +57,9 @@ AHEAD = 8     # blocks (8-bit, ~1.5 MB at full size) waiting for the writing and
 class WrittenMosaic:
     """What :meth:`StreamedMosaic.finish` returns."""
 
-    grid: StripGrid            # full resolution (mosaic.ome.tif)
+    grid: WallGrid             # full resolution (mosaic.ome.tif)
     overview: np.ndarray       # mosaic.png (8-bit, 0 = no data)
-    overview_grid: StripGrid
+    overview_grid: WallGrid
     factor: int                # overview pixel = factor x factor mosaic pixels
     intensity_scale: float
     defects: list[Defect]
@@ -85,13 +85,13 @@ class StreamedMosaic:
         self._pending: deque[Future[None]] = deque()
         self._aborted = False
 
-    def start(self, grid: StripGrid, radius_mm: float) -> None:
+    def start(self, grid: WallGrid, radius_mm: float) -> None:
         """Open the outputs for a canvas ``grid`` (see MosaicSink)."""
         self.grid, self.radius_mm = grid, radius_mm
         self._pyramid = PyramidWriter(self.out / PYRAMID, (grid.n_rows, grid.n_cols),
-                                      tiles_dir=self.out / TILES, mm_per_px=grid.mm_per_px)
+                                      tiles_dir=self.out / TILES, mm_per_px=grid.mm_per_px_axial)
         self._overview = Overview(grid, self.overview_pixels)
-        self._defects = BlockDefects(MosaicGeometry(grid.deg_per_px, grid.mm_per_px,
+        self._defects = BlockDefects(MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial,
                                                     grid.z0_mm, radius_mm))
 
     def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:

@@ -29,7 +29,7 @@ from pipestitch._runtime.threads import ordered_map
 from pipestitch.camera import CameraModel
 from pipestitch.camera.frames import to_grey
 from pipestitch.errors import DatasetError, StageError
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import Dataset
 from pipestitch.io.mask import read_mask
 from pipestitch.mosaic.blend import (
@@ -65,7 +65,6 @@ from pipestitch.mosaic.register import (
 )
 from pipestitch.mosaic.unwrap import (
     Strip,
-    StripGrid,
     UnwrapMaps,
     default_mm_per_px,
     polar_unwrap_maps,
@@ -187,7 +186,7 @@ class MosaicResult:
     chose its mirror hypothesis instead.
     """
 
-    grid: StripGrid
+    grid: WallGrid
     image: np.ndarray | None          # None when streamed to a sink
     weights: np.ndarray | None
     positions: Positions
@@ -210,13 +209,13 @@ class _Unwrapper:
     centre: tuple[float, float]     # optical centre (px): the flat field's rings
     edges: np.ndarray               # ring edges (px), mosaic/flat_field.py
 
-    def maps(self, view: FrameView, grid: StripGrid) -> UnwrapMaps:
+    def maps(self, view: FrameView, grid: WallGrid) -> UnwrapMaps:
         if self.settings.mode == "polar":
             return polar_unwrap_maps(self.camera, self.radius_mm, grid)
         return unwrap_maps(self.camera, view.pose, view.section, grid, step=self.settings.step,
                            with_quality=True)
 
-    def strip(self, grey: np.ndarray, view: FrameView, grid: StripGrid
+    def strip(self, grey: np.ndarray, view: FrameView, grid: WallGrid
               ) -> tuple[Strip, UnwrapMaps]:
         maps = self.maps(view, grid)
         return unwrap_with_quality(grey, maps, min_resolution=self.settings.min_resolution,
@@ -296,7 +295,7 @@ class _Pass1:
 
 
 def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
-                      grid: StripGrid, timer: StageTimer) -> _Candidate:
+                      grid: WallGrid, timer: StageTimer) -> _Candidate:
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
@@ -306,7 +305,7 @@ def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
                           unwrapper.flat(grey, strip, maps))
 
 
-def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: StripGrid,
+def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: WallGrid,
               i: int, links: Sequence[Link],
               odometry_mm: Mapping[int, float] | None) -> list[tuple[Link, _Candidate]]:
     found = ((measure_shift(prev.image, cand.image, grid, j, i,
@@ -337,7 +336,7 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
 
 
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
-              own: StripGrid, timer: StageTimer, show_progress: bool,
+              own: WallGrid, timer: StageTimer, show_progress: bool,
               skipped: dict[int, str], *, patches: bool) -> _Pass1:
     """Pass 1: own-window strips, links to the next frames, and the flat field's data
     (ring levels and overlap ratios) of the frames
@@ -361,7 +360,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
         with timer("refine"):
             return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
-                                (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px),
+                                (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px_axial),
                                 link.i, link.j)
 
     def flat_job(cand: _Candidate, found: list[tuple[Link, _Candidate]]
@@ -371,7 +370,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             levels = radial_levels(cand.flat, len(unwrapper.edges) - 1)
             return levels, [pair_ratios(prev.flat, cand.flat,
                                         (ln.droll_deg / own.deg_per_px,
-                                         ln.dz_mm / own.mm_per_px), (ln.i, ln.j))
+                                         ln.dz_mm / own.mm_per_px_axial), (ln.i, ln.j))
                             for ln, prev in found]
 
     out = _Pass1()
@@ -422,7 +421,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
 
 
 def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraModel,
-                  own: StripGrid) -> tuple[dict[int, FrameView], list[Link]]:
+                  own: WallGrid) -> tuple[dict[int, FrameView], list[Link]]:
     """Views with poses corrected by the photometric refinement, and corrected links.
 
     A link with patches is replaced by the pair's rigid motion from the refinement
@@ -437,7 +436,7 @@ def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraMode
 
     errors, motions = solve_in_windows(pass1.patches, jacobians,
                                        {i: v.information for i, v in views.items()})
-    links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px),
+    links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px_axial),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
              if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
              for ln in pass1.links]
@@ -495,7 +494,7 @@ class _Registration:
 
 
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
-                         grids: tuple[StripGrid, StripGrid], rounds: int, timer: StageTimer,
+                         grids: tuple[WallGrid, WallGrid], rounds: int, timer: StageTimer,
                          show_progress: bool, skipped: dict[int, str]) -> _Registration:
     """Registration passes with photometric refinement between them.
 
@@ -561,14 +560,14 @@ RELEASE_COLS = 512     # the canvas releases finished columns in blocks of at le
 class MosaicSink(Protocol):
     """Where a streamed mosaic goes (see :func:`build_mosaic`)."""
 
-    def start(self, grid: StripGrid, radius_mm: float) -> None:
+    def start(self, grid: WallGrid, radius_mm: float) -> None:
         """Called once, before any column, with the canvas grid and the pipe radius."""
 
     def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:
         """Finished columns ``col0 ..``, left to right (float, NaN where no data)."""
 
 
-def _release_points(canvas: StripGrid, positions: Positions, placed: list[int],
+def _release_points(canvas: WallGrid, positions: Positions, placed: list[int],
                     window: tuple[float, float]) -> list[int]:
     """For each placed frame, the canvas columns no later frame reaches (all before it)."""
     firsts = [frame_grid(canvas, positions.z_mm[i], positions.roll_deg[i], window)[1]
@@ -690,9 +689,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         windows = _windows(camera, views, radius, mm, settings, occluded)
     window = windows[1]
     # Registration strips get FFT-friendly sizes; the canvas keeps square pixels.
-    fine = StripGrid.window(radius, mm * settings.final_coarsening,
+    fine = WallGrid.window(radius, mm * settings.final_coarsening,
                             *windows[settings.final_coarsening], fft_sizes=True)
-    coarse = StripGrid.window(radius, mm * settings.register_coarsening,
+    coarse = WallGrid.window(radius, mm * settings.register_coarsening,
                               *windows[settings.register_coarsening], fft_sizes=True)
     unwrapper = _Unwrapper(camera, settings, radius, occluded, optical_centre_px(camera),
                            radial_edges(camera))
@@ -708,7 +707,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
             skipped[i] = "not registered to the run (no common texture, no odometer)"
     if not placed:
         raise StageError("no frame could be placed in the mosaic")
-    canvas = Canvas(canvas_grid(positions.z_mm, window, StripGrid.window(radius, mm, *window)))
+    canvas = Canvas(canvas_grid(positions.z_mm, window, WallGrid.window(radius, mm, *window)))
     release_free_memory()   # the stitch starts from what is live, not the passes' peak
     if sink is not None:
         sink.start(canvas.grid, radius)

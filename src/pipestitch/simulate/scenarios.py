@@ -17,9 +17,9 @@ from pipestitch.simulate.optics import Optics
 
 if TYPE_CHECKING:   # the renderer and textures load when a run is built, not to list these
     from pipestitch.camera import CameraModel
-    from pipestitch.geometry import BodyEnvelope, PipeSection, Pose
+    from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, WallGrid
     from pipestitch.simulate.render import Renderer
-    from pipestitch.simulate.textures import Defect, WallGrid
+    from pipestitch.simulate.textures import Defect
 
 __all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run"]
 
@@ -144,9 +144,9 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
         Override the scenario's number of pairs.
     """
     from pipestitch.camera import default_camera
-    from pipestitch.geometry import BodyEnvelope, PipeSection
+    from pipestitch.geometry import BodyEnvelope, PipeSection, WallGrid
     from pipestitch.simulate.render import Renderer, WallTexture
-    from pipestitch.simulate.textures import WallGrid, make_wall, reference_test_piece
+    from pipestitch.simulate.textures import make_wall, reference_test_piece
     from pipestitch.simulate.trajectory import odometer_readings, table1_poses, wandering_poses
 
     rng = np.random.default_rng(seed)

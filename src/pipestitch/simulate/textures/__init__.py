@@ -1,13 +1,12 @@
 """Synthetic unrolled pipe-wall textures (albedo images) for the probe simulator.
 
-An unrolled wall image holds the wall's albedo on a :class:`WallGrid` (rows around
-the pipe, columns along it; conventions in ``wall_grid.py``). Every texture here is
-seamless across the wrap from the last row to row 0.
+An unrolled wall image holds the wall's albedo on a
+:class:`pipestitch.geometry.WallGrid` (rows around the pipe from theta 0, columns
+along it; conventions in ``geometry/wall_grid.py``). Every texture here is seamless
+across the wrap from the last row to row 0.
 
 What it offers (this package re-exports them; one module per kind)
 
-* :class:`WallGrid` (``wall_grid.py``) - the pixel grid of an unrolled wall and its
-  geometry.
 * Four wall textures, all ``float32`` in ``[0, 1]``:
   :func:`chart_texture` (``chart.py``: high-contrast test chart, defined in
   millimetres so it looks the same at any resolution), :func:`corrosion_texture`
@@ -49,7 +48,6 @@ from pipestitch.simulate.textures.wall_defects import (
     draw_defects,
     reference_test_piece,
 )
-from pipestitch.simulate.textures.wall_grid import WallGrid
 from pipestitch.simulate.textures.walls import TEXTURE_KINDS, make_wall
 
 __all__ = [
@@ -59,7 +57,6 @@ __all__ = [
     "SPOT_SOFT_FRACTION",
     "TEXTURE_KINDS",
     "Defect",
-    "WallGrid",
     "aluminium_texture",
     "chart_texture",
     "corrosion_texture",

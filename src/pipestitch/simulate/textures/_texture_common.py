@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import scipy.fft as sfft
 
-from pipestitch.simulate.textures.wall_grid import WallGrid
+from pipestitch.geometry import WallGrid
 
 __all__ = ["WARP_CHUNK", "as_rng", "filtered_noise", "lattice_shape", "lattice_to_grid",
            "ramp_width", "scale_wrapped"]

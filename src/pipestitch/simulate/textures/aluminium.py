@@ -9,13 +9,13 @@ import math
 import cv2
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures._texture_common import (
     as_rng,
     filtered_noise,
     lattice_shape,
     lattice_to_grid,
 )
-from pipestitch.simulate.textures.wall_grid import WallGrid
 
 __all__ = ["aluminium_texture"]
 

@@ -12,8 +12,8 @@ import math
 import cv2
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures._texture_common import as_rng, ramp_width
-from pipestitch.simulate.textures.wall_grid import WallGrid
 
 __all__ = ["chart_texture"]
 

@@ -9,6 +9,7 @@ import math
 import cv2
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures._texture_common import (
     as_rng,
     filtered_noise,
@@ -16,7 +17,6 @@ from pipestitch.simulate.textures._texture_common import (
     lattice_to_grid,
     scale_wrapped,
 )
-from pipestitch.simulate.textures.wall_grid import WallGrid
 
 __all__ = ["corrosion_texture"]
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from pipestitch.camera.frames import to_grey
-from pipestitch.simulate.textures.wall_grid import WallGrid
+from pipestitch.geometry import WallGrid
 
 __all__ = ["photo_texture"]
 

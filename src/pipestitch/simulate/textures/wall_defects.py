@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures._texture_common import ramp_width
-from pipestitch.simulate.textures.wall_grid import WallGrid
 
 __all__ = ["DEFECT_KINDS", "HOLE_ALBEDO", "SPOT_FACTOR", "SPOT_SOFT_FRACTION", "Defect",
            "draw_defects", "reference_test_piece"]

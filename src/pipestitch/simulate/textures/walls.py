@@ -6,12 +6,12 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from pipestitch.geometry import WallGrid
 from pipestitch.simulate.textures.aluminium import aluminium_texture
 from pipestitch.simulate.textures.chart import chart_texture
 from pipestitch.simulate.textures.corrosion import corrosion_texture
 from pipestitch.simulate.textures.photo import photo_texture
 from pipestitch.simulate.textures.wall_defects import Defect, _draw_defects_inplace
-from pipestitch.simulate.textures.wall_grid import WallGrid
 
 __all__ = ["TEXTURE_KINDS", "make_wall"]
 

@@ -119,3 +119,14 @@ def test_a_long_run_samples_at_most_profile_frames_frames_evenly() -> None:
         step = mosaic.profile_step(n)
         assert len(range(0, n, step)) <= mosaic.PROFILE_FRAMES
         assert step == 1 or len(range(0, n, step - 1)) > mosaic.PROFILE_FRAMES   # no sparser
+
+
+def test_a_strip_over_black_canvas_is_blended_at_gain_one(texture) -> None:
+    """Over a canvas that holds 0 (a frame that saw no light, placed by the odometer),
+    there is no exposure ratio to match: gain 1, no error."""
+    grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=120)
+    canvas = Canvas(grid)
+    ones = np.ones((360, 80), np.float32)
+    canvas.add(Strip(np.zeros((360, 80), np.float32), ones, ones), 0, np.ones(80))
+    wall = texture((360, 120), seed=8)
+    assert canvas.add(Strip(wall[:, 40:120].copy(), ones, ones), 40, np.ones(80)) == 1.0

@@ -144,3 +144,28 @@ def test_a_fine_odometers_slip_is_found() -> None:
 
 def test_without_common_texture_the_odometers_noise_follows_its_step() -> None:
     assert odometer_noise_mm([], {i: 25.0 * i for i in range(10)}) == pytest.approx(2.5)
+
+
+def test_an_encoder_coarser_than_the_frame_step_has_its_rounding_noise() -> None:
+    """1 mm counts, frames 0.5 mm apart: increments of 0 and 1 count. Without the zero
+    increments and the rounding noise (1 mm / sqrt(6) = 0.41 mm per increment) the
+    counts looked noiseless (0.01 mm), half of them were reported as slips, and a
+    stretch placed by the odometer alone came out at half its length."""
+    rng = np.random.default_rng(3)
+    z = np.arange(60) * 0.5
+    links = [Link(i, j, z[j] - z[i] + rng.normal(0, 0.005), 0.0, 0.5, 0.01, 0.01)
+             for i in range(60) for j in (i + 1, i + 2) if j < 60 and not 20 <= i < 40]
+    odometer = {i: float(np.floor(v + 0.25)) for i, v in enumerate(z)}
+    sigma = odometer_noise_mm(links, odometer)
+    assert sigma == pytest.approx(1 / np.sqrt(6), rel=0.01)
+    pos = solve_positions(60, links, odometry_mm=odometer)
+    assert not [o for o in pos.outliers if o[2] == "odometer"]
+    gap = pos.z_mm[40] - pos.z_mm[20]   # 10 mm bridged by the odometer alone
+    assert gap == pytest.approx(10.0, abs=1.0)   # its counts know it to ~0.4 mm each end
+
+
+def test_an_odometer_read_at_equal_steps_is_not_taken_for_a_coarse_counter() -> None:
+    """A probe triggered every 5 mm of cable: equal increments, no rounding to infer."""
+    z, links, _ = _run_with_odometer(0.0, 5.0)
+    equal = {i: 5.0 * i for i in range(60)}
+    assert odometer_noise_mm(links, equal) < 1.0

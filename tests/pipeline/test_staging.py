@@ -361,9 +361,30 @@ def test_a_second_command_into_the_same_out_is_refused_while_the_first_works(
     measure_run(previous)   # the killed holder's lock went with it
 
 
-def test_the_lock_is_re_entrant_within_one_process(tmp_path: Path) -> None:
-    """``export`` re-codes and ``measure`` measures then codes under one lock."""
+def test_the_lock_is_re_entrant_within_a_thread_and_refused_to_another(
+        tmp_path: Path) -> None:
+    """``export`` re-codes and ``measure`` measures then codes under one lock; another
+    thread of the same process (a library user's) is refused as another process is, so
+    that two runs never share one staging folder."""
+    import threading
+
     out = tmp_path / "out"
-    with StagedOutput(out), staging.out_lock(out, "measure"):
-        assert staging._held[str(out.resolve())] == 2
+    refused: list[BaseException] = []
+
+    def second() -> None:
+        try:
+            with StagedOutput(out):
+                pass
+        except DatasetError as exc:
+            refused.append(exc)
+
+    with StagedOutput(out) as first, staging.out_lock(out, "measure"):
+        (first.path / "poses.csv").write_text("first")
+        thread = threading.Thread(target=second)
+        thread.start()
+        thread.join()
+        assert (first.path / "poses.csv").read_text() == "first"
+    assert len(refused) == 1 and "is writing into this folder" in str(refused[0])
     assert not staging._held
+    with StagedOutput(out):   # free again
+        pass

@@ -192,8 +192,9 @@ class Canvas:
         if np.count_nonzero(both) * s * s < GAIN_MIN_NODES:
             return 1.0
         ratio = np.median(self.total[::s, cols][:, ::s][both] / (have[both] * mine[both]))
-        if abs(math.log(ratio)) <= math.log1p(GAIN_DEADBAND):
-            return 1.0
+        if not (math.isfinite(ratio) and ratio > 0) or abs(math.log(ratio)) <= math.log1p(
+                GAIN_DEADBAND):
+            return 1.0   # (no ratio: the canvas holds black there, as a frame of no light)
         return float(np.clip(ratio, *GAIN_LIMITS))
 
     def release(self, end: int | None = None) -> tuple[int, np.ndarray, np.ndarray] | None:

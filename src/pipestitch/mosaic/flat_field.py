@@ -13,8 +13,10 @@ The fall-off is measured where two frames see the same wall (:func:`pair_ratios`
 a node of their overlap the wall's albedo cancels in the ratio of the two values (each
 divided by its shading), which leaves F(ρ in the second frame) / F(ρ in the first) times
 the ratio of their exposures. Every overlap of the run gives such ratios at many pairs of
-radii, and a least-squares solve for F over the rings, with one exposure ratio per
-overlap, gives the fall-off whatever the wall shows (:meth:`RadialFlatField.from_pairs`).
+radii, and a least-squares solve for F over the rings gives the fall-off whatever the
+wall shows (:meth:`RadialFlatField.from_pairs`); the exposure is taken as the same in
+both frames of an overlap, and the overlaps across an exposure step are rejected as
+outliers (:func:`_solve_pairs` says why it is not solved for).
 A wall of two tones (a chart), on which any statistic of the values themselves follows
 whichever tone fills a ring, is no harder than any other. Where too few overlaps were
 measured, the median over frames of each ring's median value is the fall-off instead

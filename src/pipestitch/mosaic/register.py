@@ -357,21 +357,65 @@ def odometer_noise_mm(links: Sequence[Link], odometry_mm: Mapping[int, float]) -
     less the increment times their median ratio (the odometer's scale). That spread
     holds the link's error too, which is far smaller (a tenth of a pixel); it is at
     least the links' median sigma. An odometer slip is an outlier there and does not
-    widen it. With fewer than ``MIN_ODOMETER_CHECKS`` such increments (no common
-    texture: the odometer alone places the frames, whatever its sigma),
-    ``ODOMETER_STEP_FRACTION`` of its median increment.
+    widen it. An odometer that counts in steps (an encoder coarser than the frame
+    step: every increment a whole number of counts, zeros included) has at least its
+    rounding noise, a count / sqrt(6) per increment. With fewer than ``MIN_ODOMETER_CHECKS`` such
+    increments (no common texture: the odometer alone places the frames, whatever its
+    sigma), ``ODOMETER_STEP_FRACTION`` of its median increment.
     """
     readings = sorted(f for f, v in odometry_mm.items() if np.isfinite(v))
     steps = {(a, b): odometry_mm[b] - odometry_mm[a] for a, b in itertools.pairwise(readings)}
     checks = [(ln.dz_mm, steps[ln.i, ln.j], ln.dz_sigma_mm) for ln in links
-              if (ln.i, ln.j) in steps and steps[ln.i, ln.j] != 0]
-    if len(checks) < MIN_ODOMETER_CHECKS:
+              if (ln.i, ln.j) in steps]
+    moved = [c for c in checks if c[1] != 0]
+    if len(moved) < MIN_ODOMETER_CHECKS:
         typical = float(np.median(np.abs(list(steps.values())))) if steps else 0.0
         return max(ODOMETER_STEP_FRACTION * typical, 1e-6)
     dz, inc, link_sigma = np.array(checks).T
-    resid = dz - float(np.median(dz / inc)) * inc
+    scale = float(np.median([d / i for d, i, _ in moved]))
+    resid = dz - scale * inc
     spread = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
-    return max(spread, float(np.median(link_sigma)))
+    return max(spread, float(np.median(link_sigma)), _count_noise_mm(list(steps.values())))
+
+
+def _count_mm(increments: list[float]) -> float:
+    """The odometer's count when the increments take several values, each a whole
+    number of one count (the smallest non-zero one), else 0. Equal increments (a probe
+    triggered every so many counts) say nothing of the count."""
+    nonzero = np.abs([v for v in increments if v != 0])
+    if len(nonzero) == 0 or len(np.unique(np.round(increments, 9))) < 2:
+        return 0.0
+    count = float(nonzero.min())
+    counts = np.asarray(increments) / count
+    return count if np.allclose(counts, np.round(counts), rtol=0, atol=1e-6) else 0.0
+
+
+def _count_noise_mm(increments: list[float]) -> float:
+    """The rounding noise of an increment of a counting odometer (two readings each
+    rounded to a count: a count / sqrt(6)), else 0."""
+    return _count_mm(increments) / np.sqrt(6.0)
+
+
+MIN_SPAN_COUNTS = 10   # a counting odometer's increments span at least this many counts
+
+
+def _odometer_spans(odo: Mapping[int, float]) -> list[tuple[int, int]]:
+    """The pairs of readings whose increments the solve takes: consecutive ones, or for
+    an odometer counting in steps as coarse as the frames' spacing, spans of at least
+    ``MIN_SPAN_COUNTS`` counts (each increment's rounding is then a small part of it; a
+    count per increment of 0 or 1 would otherwise pull the fitted scale towards the
+    ratio of one frame step to one count)."""
+    frames = sorted(odo)
+    pairs = list(itertools.pairwise(frames))
+    count = _count_mm([odo[b] - odo[a] for a, b in pairs])
+    if not count or np.median([abs(odo[b] - odo[a]) for a, b in pairs]) >= MIN_SPAN_COUNTS * count:
+        return pairs
+    spans, start = [], frames[0]
+    for f in frames[1:]:
+        if abs(odo[f] - odo[start]) >= MIN_SPAN_COUNTS * count or f == frames[-1]:
+            spans.append((start, f))
+            start = f
+    return spans
 
 
 def solve_positions(n_frames: int, links: Sequence[Link], *,
@@ -408,7 +452,7 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
     reg = [ln for ln in links if ln.i in col and ln.j in col]
     z_rows = [(col[ln.i], col[ln.j], ln.dz_mm, ln.dz_sigma_mm) for ln in reg]
     odo = {f: v for f, v in (odometry_mm or {}).items() if f in col and np.isfinite(v)}
-    odo_pairs = list(itertools.pairwise(sorted(odo)))
+    odo_pairs = _odometer_spans(odo)
     odo_extra = [(len(z_rows) + k, odo[b] - odo[a], 0.0) for k, (a, b) in enumerate(odo_pairs)]
     if odo_pairs and odometer_sigma_mm is None:
         odometer_sigma_mm = odometer_noise_mm(reg, odo)

@@ -27,7 +27,12 @@ from pipestitch.errors import DatasetError, PipestitchError
 from pipestitch.io.outputs import write_csv
 from pipestitch.pipeline.check import check_out_folder_path
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.staging import STAGING_PREFIX, check_out_folder, finish_interrupted_commit
+from pipestitch.pipeline.staging import (
+    STAGING_PREFIX,
+    check_out_folder,
+    finish_interrupted_commit,
+    out_lock,
+)
 from pipestitch.pipeline.stitching import MosaicSettings
 
 __all__ = ["BatchResult", "output_names", "run_batch", "run_one", "write_batch_summary"]
@@ -253,7 +258,8 @@ def run_batch(roots: Sequence[str | Path], out_dir: str | Path, *,
         _submit_all(roots, outs, results, token, scheduler=scheduler, workers=workers,
                     retries=retries, threads=threads, on_done=on_done)
     except KeyboardInterrupt:
-        _clear_interrupted([o for k, o in enumerate(outs) if k not in results], started)
+        if scheduler is None:   # a remote cluster's workers go on: their folders are theirs
+            _clear_interrupted([o for k, o in enumerate(outs) if k not in results], started)
         raise
     ordered = [results[k] for k in range(len(roots))]
     write_batch_summary(Path(out_dir) / "batch_summary.csv", ordered)
@@ -282,17 +288,19 @@ def _submit_all(roots: list[Path], outs: list[Path], results: dict[int, BatchRes
 
 
 def _clear_interrupted(outs: Sequence[Path], started: float) -> None:
-    """After Ctrl-C, the runs that were in flight on the workers (stopped with their
-    cluster) leave each output folder as it was: a commit they began is finished from
-    its journal, and the staging folders they made since ``started`` are removed (a
-    failed run's staging folder kept by an earlier command is left alone)."""
+    """After Ctrl-C, the runs that were in flight on the local workers (stopped with
+    their cluster) leave each output folder as it was: a commit they began is finished
+    from its journal, and the staging folders they made since ``started`` are removed (a
+    failed run's staging folder kept by an earlier command is left alone). A folder
+    whose lock someone still holds (a run that did not stop, another command) is left
+    to it."""
     for out in outs:
-        with contextlib.suppress(PipestitchError):
+        with contextlib.suppress(PipestitchError), out_lock(out, "batch"):
             finish_interrupted_commit(out)
-        for staging in out.glob(f"{STAGING_PREFIX}*"):
-            with contextlib.suppress(OSError):
-                if staging.stat().st_mtime >= started - 1.0:
-                    shutil.rmtree(staging, ignore_errors=True)
+            for staging in out.glob(f"{STAGING_PREFIX}*"):
+                with contextlib.suppress(OSError):
+                    if staging.stat().st_mtime >= started - 1.0:
+                        shutil.rmtree(staging, ignore_errors=True)
 
 
 def write_batch_summary(path: Path, results: Sequence[BatchResult]) -> Path:

@@ -28,6 +28,7 @@ never leaves OUT locked.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -126,10 +127,10 @@ class StagedOutput:
     def commit(self) -> None:
         """Put the staged outputs in place of the previous run's, as one set."""
         with _interrupts_held():
-            made = sorted(p.name for p in self.path.iterdir())
-            remove = [name for name in RUN_OUTPUTS if name not in made]
             journal = self.out / JOURNAL
             try:
+                made = sorted(p.name for p in self.path.iterdir())
+                remove = [name for name in RUN_OUTPUTS if name not in made]
                 _write_journal(journal, self.path.name, made, remove)
                 _apply(self.out, self.path, made, remove)
             except OSError as exc:
@@ -153,28 +154,31 @@ class OutputBusy(DatasetError):
     """Another process holds the output folder's lock (:func:`out_lock`)."""
 
 
-_held: Counter[str] = Counter()   # this process's locks, by folder (nested commands)
-_handles: dict[str, IO[str]] = {}
+_held: Counter[tuple[str, int]] = Counter()   # locks held, by folder and thread (nesting)
+_handles: dict[tuple[str, int], IO[str]] = {}
 _held_guard = threading.Lock()
+_BUSY = {errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES, errno.EDEADLK}
 
 
 @contextmanager
 def out_lock(out: str | Path, command: str) -> Iterator[None]:
     """Hold ``OUT``'s lock for the block: one writing command at a time per folder.
 
-    Re-entrant within a process (``export`` re-codes, ``measure`` measures then codes).
-    The lock is the operating system's advisory lock on ``OUT/.pipestitch-lock``
-    (``flock``; ``msvcrt.locking`` on Windows), released when the holder ends however
-    it ends. ``out`` must exist.
+    Re-entrant within a thread (``export`` re-codes, ``measure`` measures then codes);
+    another thread of the same process is refused like another process. The lock is
+    the operating system's advisory lock on ``OUT/.pipestitch-lock`` (``flock``;
+    ``msvcrt.locking`` of its first byte on Windows), released when the holder ends
+    however it ends. On a file system that cannot lock at all the commands go
+    unlocked. ``out`` must exist.
 
     Raises
     ------
     OutputBusy
-        When another process holds the lock (naming its command and PID).
+        When another process or thread holds the lock (naming its command and PID).
     DatasetError
         When ``out`` is not a folder or the lock file cannot be made.
     """
-    key = str(Path(out).resolve())
+    key = (str(Path(out).resolve()), threading.get_ident())
     with _held_guard:
         if not _held[key]:
             _handles[key] = _acquire(Path(out), command)
@@ -198,42 +202,60 @@ def _acquire(out: Path, command: str) -> IO[str]:
     except OSError as exc:
         raise DatasetError(out, f"cannot write the output folder ({exc})") from None
     if not _try_lock(handle):
-        handle.seek(0)
-        holder = handle.read().strip() or "another process"
+        holder = _holder(handle)
         handle.close()
         raise OutputBusy(out, f"another pipestitch command ({holder}) is writing into this "
                               "folder; wait for it to finish or choose another --out")
     handle.seek(0)
     handle.truncate()
-    handle.write(f"pipestitch {command}, PID {os.getpid()}\n")
+    # byte 0 is the one locked on Windows (where a locked byte cannot be read): the
+    # holder's name follows it
+    handle.write(f"\npipestitch {command}, PID {os.getpid()}\n")
     handle.flush()
     return handle
 
 
+def _holder(handle: IO[str]) -> str:
+    try:
+        handle.seek(1)
+        return handle.read().strip() or "another process"
+    except (OSError, ValueError):
+        return "another process"
+
+
 def _try_lock(handle: IO[str]) -> bool:
+    """Lock ``handle`` without waiting: False when another holds it; True when locked,
+    or when the file system has no locks at all."""
+    try:
+        _lock_now(handle)
+    except OSError as exc:
+        return exc.errno not in _BUSY
+    return True
+
+
+def _lock_now(handle: IO[str]) -> None:
     try:
         import fcntl
     except ImportError:   # Windows
         import msvcrt
-        try:
-            handle.seek(0)
-            msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
-        except OSError:
-            return False
-        return True
-    try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return False
-    return True
+        handle.seek(0)
+        msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
+        return
+    fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
 def _release(handle: IO[str]) -> None:
     try:
-        import fcntl
-        fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
-    except ImportError:   # Windows: closing the file releases its lock
-        pass
+        try:
+            import fcntl
+        except ImportError:   # Windows
+            import msvcrt
+            handle.seek(0)
+            msvcrt.locking(handle.fileno(), msvcrt.LK_UNLCK, 1)
+        else:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+    except OSError:
+        pass   # not locked (no locks on this file system): closing is all there is
     finally:
         handle.close()
 

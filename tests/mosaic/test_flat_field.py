@@ -124,27 +124,33 @@ def test_clipped_nodes_sort_last_in_a_ring_median() -> None:
 
 
 def test_clipped_nodes_are_left_out_of_the_ratios() -> None:
-    values = np.full((ROWS, COLS), 0.5, np.float32)
+    values = np.random.default_rng(6).uniform(0.4, 0.6, (ROWS, COLS)).astype(np.float32)
     bright = values.copy()
     bright[:, 100:] = 1.0
     ratios = pair_ratios(_input(values), _input(bright), (0.0, 0.0), (0, 1))
     assert len(ratios.count) and np.all(ratios.log_ratio == 0)
 
 
-@pytest.mark.parametrize("clipped_at", [(10, 10), (40, 3)])
+@pytest.mark.parametrize(("clipped_at", "full_scale"), [((10, 10), 1.0), ((40, 3), 1.0),
+                                                       ((20, 30), 4095 / 65535)])
 def test_a_node_reading_a_clipped_pixel_is_blended_only_where_nothing_else_is(
-        clipped_at: tuple[int, int]) -> None:
-    grey = np.full((50, 60), 0.5, np.float32)
+        clipped_at: tuple[int, int], full_scale: float) -> None:
+    """The clipped pixels are the plateau at the frame's maximum, whatever it is (12-bit
+    data in a 16-bit file clips at 4095 / 65535); a maximum held by one pixel is not."""
+    rng = np.random.default_rng(5)
+    grey = (full_scale * rng.uniform(0.3, 0.6, (50, 60))).astype(np.float32)
     row, col = clipped_at
-    grey[row, col] = 1.0
+    grey[row:row + 2, col:col + 2] = full_scale   # 4 pixels of 3000: a plateau
     map_y, map_x = np.mgrid[0:50, 0:60].astype(np.float32) + np.float32(0.25)
     weight = np.ones((50, 60), np.float32)
     out = unclipped_weight(grey, map_x, map_y, weight)
     touched = np.zeros((50, 60), bool)
-    touched[row - 1:row + 1, col - 1:col + 1] = True   # bilinear: the pixel's 4 nodes
+    touched[row - 1:row + 2, col - 1:col + 2] = True   # bilinear: nodes reading the block
     np.testing.assert_array_equal(out[touched], np.float32(CLIPPED_WEIGHT))
     np.testing.assert_array_equal(out[~touched], 1.0)
-    assert unclipped_weight(np.full_like(grey, 0.5), map_x, map_y, weight) is weight
+    grey[row:row + 2, col:col + 2] = 0.5 * full_scale
+    grey[row, col] = full_scale                      # the brightest pixel, alone
+    assert unclipped_weight(grey, map_x, map_y, weight) is weight
 
 
 def test_the_compiled_fall_off_is_numpys_interpolation() -> None:

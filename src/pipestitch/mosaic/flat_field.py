@@ -55,7 +55,8 @@ SMOOTHNESS = 1.0        # weight of the fall-off's second difference (per ring),
                         # cells weighted by their standard error
 REJECT_SIGMAS = 4.0     # cells further than this from the solve are left out (robust)
 REJECT_ROUNDS = 3
-SATURATED = 0.999       # of full scale (frames are grey in [0, 1], camera/frames.py)
+CLIPPED_PLATEAU = 5e-4  # a frame is clipped where this fraction of its pixels or more
+                        # sit at its maximum (a sensor's full scale, whatever the file's)
 CLIPPED_WEIGHT = 1e-3   # a clipped node's blend weight, relative: used only where no
                         # frame saw that piece of wall unclipped
 
@@ -182,9 +183,16 @@ def unclipped_weight(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
 
 def _touches_clipped(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray
                      ) -> np.ndarray | None:
-    """Nodes whose bilinear interpolation reads a clipped pixel; None when none is."""
-    clipped = grey >= SATURATED
-    if not clipped.any():
+    """Nodes whose bilinear interpolation reads a clipped pixel; None when none is.
+
+    A pixel is clipped at the frame's maximum when that value is a plateau (at least
+    ``CLIPPED_PLATEAU`` of the pixels): the full scale of the sensor, which for 12-bit
+    data in 16-bit files is not the file's, and which a colour frame's grey reaches only
+    where every channel clipped. A maximum held by a few pixels is light, not a limit.
+    """
+    top = float(grey.max()) if grey.size else 0.0
+    clipped = grey >= top
+    if top <= 0 or np.count_nonzero(clipped) < CLIPPED_PLATEAU * grey.size:
         return None
     # 8-bit at 255: OpenCV's bilinear weights are multiples of 1/32, so any pixel the
     # interpolation reads (weight >= 1/64) gives a node at least 8.
@@ -205,7 +213,8 @@ def _ring_of(radius: np.ndarray, edges: np.ndarray) -> np.ndarray:
 class FlatInput:
     """What one strip gives the flat field: ``log(value / shading)`` per node (NaN where
     the node has no data, +inf where it reads a clipped pixel: its true value is only
-    known to be higher) and its ring (-1 outside the rings or without data)."""
+    known to be higher, -inf where it is black: only known to be lower) and its ring (-1
+    outside the rings or without data)."""
 
     log_albedo: np.ndarray
     ring: np.ndarray
@@ -215,8 +224,8 @@ def flat_input(grey: np.ndarray, values: np.ndarray, shading: np.ndarray, weight
                map_x: np.ndarray, map_y: np.ndarray, centre: tuple[float, float],
                edges: np.ndarray) -> FlatInput:
     """The strip's :class:`FlatInput` (``grey``: the frame it was unwrapped from)."""
-    ok = (weight > 0) & (shading > 0) & (values > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    ok = (weight > 0) & (shading > 0) & (values >= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):   # black: -inf, sorts first
         log_albedo = np.log(values / shading, dtype=np.float32)
     log_albedo[~ok] = np.nan
     touched = _touches_clipped(grey, map_x, map_y)

@@ -422,9 +422,9 @@ def _edit(out: Path, edit: Edit) -> tuple[list[dict[str, object]], str]:
         user_rows(edited)                          # the result must read back and keep
     except ValueError as exc:
         raise EditError(f"{OBSERVATIONS}: {exc}") from None
-    if edit.action == "delete" and file is not None:
-        _remember_deleted(out, file.rows[edit.index].observation)
     atomic_write_text(out / OBSERVATIONS, text)
+    if edit.action == "delete" and file is not None:   # after: a failed save deletes nothing
+        _remember_deleted(out, file.rows[edit.index].observation)
     if (out / STANDARDS).is_file():
         for fmt in AUTOMATIC:
             export_run(out, fmt)

@@ -43,6 +43,7 @@ from pipestitch.pipeline.review import (
     write_review_page,
 )
 from pipestitch.pipeline.source_frames import FramePoses, SourceFrames
+from pipestitch.pipeline.staging import OutputBusy, out_lock
 
 __all__ = ["ReviewServer"]
 
@@ -87,8 +88,12 @@ class ReviewServer:
     def edit(self, edit: Edit) -> dict[str, object]:
         """Apply one edit (serialised), then refresh OUT/review.html."""
         with self.lock:
-            rows, version = edit_observations(self.out, edit)
-            write_review_page(self.out)
+            try:
+                with out_lock(self.out, "review"):   # the page too, with the edit
+                    rows, version = edit_observations(self.out, edit)
+                    write_review_page(self.out)
+            except OutputBusy as exc:
+                raise EditError(f"{exc.problem}; try again when it has finished", 409) from None
         return {"observations": rows, "version": version}
 
     def serve_forever(self) -> None:

@@ -190,13 +190,14 @@ def _touches_clipped(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray
     data in 16-bit files is not the file's, and which a colour frame's grey reaches only
     where every channel clipped. A maximum held by a few pixels is light, not a limit.
     """
-    top = float(grey.max()) if grey.size else 0.0
-    clipped = grey >= top
-    if top <= 0 or np.count_nonzero(clipped) < CLIPPED_PLATEAU * grey.size:
+    if not grey.size:
         return None
+    top = cv2.minMaxLoc(grey)[1]
     # 8-bit at 255: OpenCV's bilinear weights are multiples of 1/32, so any pixel the
     # interpolation reads (weight >= 1/64) gives a node at least 8.
-    mask = clipped.view(np.uint8) * np.uint8(255)
+    mask = cv2.compare(grey, top, cv2.CMP_GE)
+    if top <= 0 or cv2.countNonZero(mask) < CLIPPED_PLATEAU * grey.size:
+        return None
     return cv2.remap(mask, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                      borderValue=0) > 0
 
@@ -268,7 +269,8 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
     cell = ring1[keep].astype(np.int64) * n_bins + ring2[keep]
     y = y[keep]
-    order = np.lexsort((y, cell))
+    # one sort by cell, then by ratio within it (|log ratio| < 16: a factor of 9e6)
+    order = np.argsort(cell * 64.0 + np.clip(y, -16.0, 16.0), kind="stable")
     cell, y = cell[order], y[order]
     cells, starts, counts = np.unique(cell, return_index=True, return_counts=True)
     enough = counts >= MIN_PAIR_NODES

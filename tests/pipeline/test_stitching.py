@@ -4,6 +4,7 @@ whose exposure steps."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipestitch.geometry import PipeSection, Pose
 
@@ -48,3 +49,10 @@ def test_a_camera_whose_exposure_steps_is_stitched_at_one_brightness(tmp_path,
         # nodes: the step is found to a fraction of a percent (0.1-1 % seen)
         want = 1 / optics.exposure(i)
         assert abs(gain / want - 1) < 0.02, (i, gain, want)
+    # poses.csv says so, frame by frame
+    from pipestitch.io.dataset import read_csv_columns
+
+    written = read_csv_columns(tmp_path / "out" / "poses.csv", ("frame", "exposure_gain"))
+    for frame, gain in zip(written["frame"].astype(int), written["exposure_gain"],
+                           strict=True):
+        assert gain == pytest.approx(gains[frame], abs=5e-5)

@@ -50,7 +50,7 @@ POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "rol
                 "alt_dx_mm", "alt_dy_mm")
 EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model",
                  "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm",
-                 "warning", "ovality_std")
+                 "warning", "ovality_std", "exposure_gain")
 
 
 @dataclass(frozen=True, slots=True)
@@ -290,13 +290,15 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None,
 
 def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
                     z_mm: Mapping[int, float] | None,
-                    roll_deg: Mapping[int, float] | None = None) -> Path:
+                    roll_deg: Mapping[int, float] | None = None,
+                    gains: Mapping[int, float] | None = None) -> Path:
     """Write poses.csv (SPEC columns first, then the extra ones), atomically.
 
     ``z_mm`` comes from registration (``pipestitch run``) or the odometer
     (``pipestitch pose``); ``roll_deg`` from registration; ``ovality`` where an oval
-    section was fitted (model ``oval/...``; the circle model cannot see it). Missing
-    values are nan.
+    section was fitted (model ``oval/...``; the circle model cannot see it);
+    ``exposure_gain`` the factor the mosaic applied to the frame's LED frame to match
+    the run's exposure (``pipestitch run``). Missing values are nan.
     """
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")  # quotes messages that hold commas
@@ -304,7 +306,8 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
     for frame, choice in zip(frames, choices, strict=True):
         z = z_mm.get(frame.index) if z_mm else None
         roll = roll_deg.get(frame.index) if roll_deg else None
-        writer.writerow(_row(frame, choice, z, roll))
+        gain = gains.get(frame.index, math.nan) if gains else math.nan
+        writer.writerow([*_row(frame, choice, z, roll), _fmt(gain, 4)])
     return atomic_write_text(path, buffer.getvalue())
 
 

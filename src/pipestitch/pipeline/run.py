@@ -354,7 +354,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     with timer("write"):
         if result is not None:
             write_defects_csv(out / "defects.csv", defects)
-        write_poses_csv(out / "poses.csv", frames, choices, z, roll)
+        write_poses_csv(out / "poses.csv", frames, choices, z, roll,
+                        result.gains if result is not None else None)
         write_csv(out / "profile.csv", PROFILE_COLUMNS,
                   _profile_rows(frames, choices, z, roll, dataset.config.laser.plane_distance_mm,
                                 dataset.config.pipe.inner_diameter_mm, tolerance_pct))

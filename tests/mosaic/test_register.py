@@ -166,6 +166,6 @@ def test_an_encoder_coarser_than_the_frame_step_has_its_rounding_noise() -> None
 
 def test_an_odometer_read_at_equal_steps_is_not_taken_for_a_coarse_counter() -> None:
     """A probe triggered every 5 mm of cable: equal increments, no rounding to infer."""
-    z, links, _ = _run_with_odometer(0.0, 5.0)
+    _, links, _ = _run_with_odometer(0.0, 5.0)
     equal = {i: 5.0 * i for i in range(60)}
     assert odometer_noise_mm(links, equal) < 1.0

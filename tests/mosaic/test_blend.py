@@ -26,17 +26,16 @@ def test_frame_grid_places_frames_by_z_and_roll() -> None:
 def test_canvas_blends_seamlessly_across_theta_zero_and_compensates_gain(texture) -> None:
     grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=120)
     canvas = Canvas(grid)
-    level = np.ones(80)
     wall = texture((360, 120), seed=5)
     ones = np.ones((360, 80), np.float32)
-    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0, level)
-    gain = canvas.add(Strip(2.0 * wall[:, 40:120], ones, ones), 40, level)
+    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0)
+    gain = canvas.add(Strip(2.0 * wall[:, 40:120], ones, ones), 40)
     image, weights = canvas.image()
     assert np.all(weights > 0)
     assert gain == pytest.approx(0.5, rel=0.02)
     assert np.allclose(image, wall, atol=0.02)
     # A strip of quality 1 everywhere is weighed by its feather alone.
-    feather = shade(Strip(wall[:, :80].copy(), ones, ones), level).weight
+    feather = shade(Strip(wall[:, :80].copy(), ones, ones)).weight
     assert feather[0, 40] == 1.0 and feather[-1, 40] == 1.0   # rows wrap: no seam at 0/360
     assert feather[100, 0] < 0.1
 
@@ -53,8 +52,8 @@ def test_an_exposure_step_is_matched_and_a_small_offset_is_not(texture,
     canvas = Canvas(grid)
     wall = texture((360, 120), seed=6)
     ones = np.ones((360, 80), np.float32)
-    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0, np.ones(80))
-    gain = canvas.add(Strip(exposure * wall[:, 40:120], ones, ones), 40, np.ones(80))
+    canvas.add(Strip(wall[:, :80].copy(), ones, ones), 0)
+    gain = canvas.add(Strip(exposure * wall[:, 40:120], ones, ones), 40)
     if abs(exposure - 1) <= GAIN_DEADBAND:
         assert gain == 1.0
     else:
@@ -72,8 +71,8 @@ def test_canvas_released_in_blocks_equals_the_whole_canvas(texture) -> None:
     blocks, widest = [], 0
     for k, c in enumerate(starts):
         strip = Strip((1 + 0.1 * (k % 3)) * wall[:, c:c + 300], ones, ones)
-        whole.add(strip, c, np.ones(300))
-        streamed.add(strip, c, np.ones(300))
+        whole.add(strip, c)
+        streamed.add(strip, c)
         widest = max(widest, streamed.total.shape[1])
         nxt = starts[k + 1] if k + 1 < len(starts) else None
         got = streamed.release(nxt)
@@ -86,7 +85,7 @@ def test_canvas_released_in_blocks_equals_the_whole_canvas(texture) -> None:
     assert np.array_equal(np.concatenate(block_weights, axis=1), weights)
     assert widest <= 300 + 512
     with pytest.raises(ValueError, match="released"):
-        streamed.add(Strip(wall[:, :300], ones, ones), 0, np.ones(300))
+        streamed.add(Strip(wall[:, :300], ones, ones), 0)
 
 
 def test_overview_keeps_the_wall_image_convention() -> None:
@@ -127,6 +126,6 @@ def test_a_strip_over_black_canvas_is_blended_at_gain_one(texture) -> None:
     grid = WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=120)
     canvas = Canvas(grid)
     ones = np.ones((360, 80), np.float32)
-    canvas.add(Strip(np.zeros((360, 80), np.float32), ones, ones), 0, np.ones(80))
+    canvas.add(Strip(np.zeros((360, 80), np.float32), ones, ones), 0)
     wall = texture((360, 120), seed=8)
-    assert canvas.add(Strip(wall[:, 40:120].copy(), ones, ones), 40, np.ones(80)) == 1.0
+    assert canvas.add(Strip(wall[:, 40:120].copy(), ones, ones), 40) == 1.0

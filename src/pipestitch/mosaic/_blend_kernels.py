@@ -16,10 +16,9 @@ F32 = np.float32
 
 
 @numba.njit(cache=True, nogil=True)
-def shaded_albedo(values: np.ndarray, shading: np.ndarray, level: np.ndarray,
+def shaded_albedo(values: np.ndarray, shading: np.ndarray,
                   weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``values / max(shading · level[col], 1e-6)`` (float64 arithmetic, as numpy's
-    promotion of the float32 strip by the float64 level) stored as float32, 0 where
+    """``values / max(shading, 1e-6)`` (float64 arithmetic) stored as float32, 0 where
     there is no data, and the validity (uint8: the albedo is finite and ``weight`` > 0).
     """
     n_rows, n_cols = values.shape
@@ -27,7 +26,7 @@ def shaded_albedo(values: np.ndarray, shading: np.ndarray, level: np.ndarray,
     valid = np.empty((n_rows, n_cols), np.uint8)
     for i in range(n_rows):
         for j in range(n_cols):
-            v = values[i, j] / max(np.float64(shading[i, j]) * level[j], 1e-6)
+            v = values[i, j] / max(np.float64(shading[i, j]), 1e-6)
             if np.isfinite(v) and weight[i, j] > 0:
                 albedo[i, j] = F32(v)
                 valid[i, j] = 1

@@ -94,14 +94,14 @@ class ShadedStrip:
     weight: np.ndarray
 
 
-def shade(strip: Strip, level: np.ndarray) -> ShadedStrip:
-    """Divide out the LED shading and the vignetting ``level`` (per strip column) and
-    weigh every node by its quality times the feather (see :class:`Canvas`)."""
-    level = np.ascontiguousarray(np.broadcast_to(level, strip.values.shape[1:]), np.float64)
+def shade(strip: Strip) -> ShadedStrip:
+    """Divide out the strip's shading (the LED's, times the lens' fall-off,
+    :mod:`pipestitch.mosaic.flat_field`) and weigh every node by its quality times the
+    feather (see :class:`Canvas`)."""
     if strip.shading.shape != strip.values.shape or strip.weight.shape != strip.values.shape:
         raise ValueError(f"shade: shading {strip.shading.shape} and weight "
                          f"{strip.weight.shape} must be the values' {strip.values.shape}")
-    albedo, valid = shaded_albedo(strip.values, strip.shading, level, strip.weight)
+    albedo, valid = shaded_albedo(strip.values, strip.shading, strip.weight)
     return ShadedStrip(albedo, feathered_weight(strip.weight, _feather(valid), valid))
 
 
@@ -120,19 +120,17 @@ class Canvas:
         self.total = np.zeros((grid.n_rows, 0), np.float32)
         self.weights = np.zeros((grid.n_rows, 0), np.float32)
 
-    def add(self, strip: Strip, column: int, level: np.ndarray) -> float:
-        """Blend ``strip`` (its grid's columns start at canvas ``column``).
-
-        ``level`` (per strip column) times the strip's shading is the brightness of a
-        unit albedo; returns the exposure gain applied. Same as
-        ``blend(shade(strip, level), column)``.
+    def add(self, strip: Strip, column: int) -> float:
+        """Blend ``strip`` (its grid's columns start at canvas ``column``; its shading is
+        the brightness of a unit albedo); returns the exposure gain applied. Same as
+        ``blend(shade(strip), column)``.
 
         Raises
         ------
         ValueError
             If the strip reaches columns already released.
         """
-        return self.blend(shade(strip, level), column)
+        return self.blend(shade(strip), column)
 
     def blend(self, shaded: ShadedStrip, column: int) -> float:
         """Blend a strip made ready by :func:`shade` (its columns start at canvas

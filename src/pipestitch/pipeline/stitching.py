@@ -598,7 +598,7 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
         with timer("blend"):
             lit = replace(strip, shading=strip.shading * flat.at(maps.map_x, maps.map_y),
                           weight=unclipped_weight(grey, maps.map_x, maps.map_y, strip.weight))
-            return i, shade(lit, np.ones(grid.n_cols)), col, ""
+            return i, shade(lit), col, ""
 
     gains = {}
     release = _release_points(canvas.grid, positions, placed, window)

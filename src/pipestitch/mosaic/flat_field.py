@@ -95,15 +95,24 @@ def radial_levels(flat: FlatInput, n_rings: int) -> np.ndarray:
     sub = (slice(None, None, 4), slice(None, None, 2))
     ring, log_albedo = flat.ring[sub].ravel(), flat.log_albedo[sub].ravel()
     keep = (ring >= 0) & ~np.isnan(log_albedo)
-    ring, log_albedo = ring[keep], log_albedo[keep]
-    order = np.lexsort((log_albedo, ring))
-    counts = np.bincount(ring, minlength=n_rings)[:n_rings]
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rings, counts, medians = _group_medians(ring[keep], log_albedo[keep])
     levels = np.full(n_rings, np.nan, np.float32)
-    enough = counts >= MIN_RING_NODES
-    levels[enough] = np.exp(log_albedo[order][starts[enough] + counts[enough] // 2])
+    enough = (counts >= MIN_RING_NODES) & (rings < n_rings)
+    levels[rings[enough]] = np.exp(medians[enough])
     levels[~np.isfinite(levels)] = np.nan   # half the ring or more clipped: unknown
     return levels
+
+
+def _group_medians(group: np.ndarray, value: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each group present (ascending), its size and the median of its values (the upper
+    middle one), from one sort. ``value`` are logs of brightness ratios: finite ones
+    within ±16 (a factor of 9e6), or ±inf (censored), which sort to the ends."""
+    group = group.astype(np.int64)
+    order = np.argsort(group * 64.0 + np.clip(value, -16.0, 16.0), kind="stable")
+    group, value = group[order], value[order]
+    groups, starts, counts = np.unique(group, return_index=True, return_counts=True)
+    return groups, counts, value[starts + counts // 2]
 
 
 @dataclass(frozen=True)
@@ -268,16 +277,12 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     keep = (ring1 >= 0) & (ring2 >= 0) & np.isfinite(y)
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
     cell = ring1[keep].astype(np.int64) * n_bins + ring2[keep]
-    y = y[keep]
-    # one sort by cell, then by ratio within it (|log ratio| < 16: a factor of 9e6)
-    order = np.argsort(cell * 64.0 + np.clip(y, -16.0, 16.0), kind="stable")
-    cell, y = cell[order], y[order]
-    cells, starts, counts = np.unique(cell, return_index=True, return_counts=True)
+    cells, counts, medians = _group_medians(cell, y[keep])
     enough = counts >= MIN_PAIR_NODES
-    cells, starts, counts = cells[enough], starts[enough], counts[enough]
+    cells, counts = cells[enough], counts[enough]
     return PairRatios(frames, (cells // n_bins).astype(np.int16),
                       (cells % n_bins).astype(np.int16),
-                      y[starts + counts // 2].astype(np.float32), counts.astype(np.int32))
+                      medians[enough].astype(np.float32), counts.astype(np.int32))
 
 
 def _solve_pairs(pairs: Sequence[PairRatios], n_bins: int) -> tuple[np.ndarray, np.ndarray]:

@@ -390,10 +390,11 @@ def _edited_rows(file: ObservationsFile | None, edit: Edit) -> list[tuple[float,
 def edit_observations(out: str | Path, edit: Edit) -> tuple[list[dict[str, object]], str]:
     """Apply ``edit`` to ``OUT/observations.csv``; the rows and the new version.
 
-    The file is replaced atomically; then the automatic exports and the coded
-    observations of report.html are written again from it. An edited ``auto:`` row is
-    stored as ``reviewed:`` and a deleted one is listed in standards.json: re-coding
-    the run replaces the ``auto:`` rows, less those, and keeps the others.
+    The file is replaced atomically; then the automatic exports, the coded
+    observations of report.html and review.html are written again from it. An edited
+    ``auto:`` row is stored as ``reviewed:`` and a deleted one is listed in
+    standards.json: re-coding the run replaces the ``auto:`` rows, less those, and
+    keeps the others.
 
     Raises
     ------
@@ -429,6 +430,7 @@ def _edit(out: Path, edit: Edit) -> tuple[list[dict[str, object]], str]:
         for fmt in AUTOMATIC:
             export_run(out, fmt)
     refresh_report(out, [r.observation for r in edited.rows])
+    write_review_page(out)
     file, version = read_observations(out)
     return observation_rows(file), version
 

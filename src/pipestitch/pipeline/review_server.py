@@ -40,10 +40,8 @@ from pipestitch.pipeline.review import (
     read_observations,
     read_run_csv,
     render_review_page,
-    write_review_page,
 )
 from pipestitch.pipeline.source_frames import FramePoses, SourceFrames
-from pipestitch.pipeline.staging import OutputBusy, out_lock
 
 __all__ = ["ReviewServer"]
 
@@ -86,14 +84,9 @@ class ReviewServer:
         return {"observations": observation_rows(file), "version": version}
 
     def edit(self, edit: Edit) -> dict[str, object]:
-        """Apply one edit (serialised), then refresh OUT/review.html."""
+        """Apply one edit (serialised; edit_observations also refreshes OUT/review.html)."""
         with self.lock:
-            try:
-                with out_lock(self.out, "review"):   # the page too, with the edit
-                    rows, version = edit_observations(self.out, edit)
-                    write_review_page(self.out)
-            except OutputBusy as exc:
-                raise EditError(f"{exc.problem}; try again when it has finished", 409) from None
+            rows, version = edit_observations(self.out, edit)
         return {"observations": rows, "version": version}
 
     def serve_forever(self) -> None:

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipestitch.mosaic.occluders import noise_variance, occluder_mask, static_pixels
+from pipestitch.mosaic.occluders import full_scale, noise_variance, occluder_mask, static_pixels
 
 
 def test_occluder_mask_keeps_static_dark_and_drops_moving_dark() -> None:
@@ -98,3 +98,24 @@ def test_a_steady_arm_below_full_scale_is_static_however_bright() -> None:
         frames.append(f.astype(np.float32))
     stack = np.stack(frames)
     assert static_pixels(stack, np.median(stack, axis=0))[:, 84:96].mean() > 0.99
+
+
+def test_a_12_bit_sensors_clipped_wall_is_not_an_occluder() -> None:
+    """12-bit data in 16-bit files (read as a fraction of 65535): wall clipped at 4095 in
+    every frame does not vary, and is still not taken for an occluder, while a steady
+    arm below full scale is; the full scale is the data's bit depth, not the file's."""
+    rng = np.random.default_rng(6)
+    frames = []
+    for k in range(9):
+        wall = 0.3 + 0.4 * cv2.GaussianBlur(rng.random((150, 200)), (0, 0), 2) * (1 + 0.05 * k)
+        counts = np.round(wall * 4095 + rng.normal(0, 3.0, wall.shape))
+        counts[:, 80:100] = 3000                # a lit arm, 12-bit, noise-free
+        counts[:30] = 4095                      # the near wall: clipped in every frame
+        frames.append((np.clip(counts, 0, 4095).astype(np.uint16) / 65535).astype(np.float32))
+    stack = np.stack(frames)
+    static = static_pixels(stack, np.median(stack, axis=0))
+    assert static[40:, 84:96].mean() > 0.99
+    assert not static[:30].any()
+    assert static[40:, :70].mean() < 0.01
+    assert full_scale(float(stack.max())) == pytest.approx(4095 / 65535)
+    assert full_scale(16 / 255) == 16383 / 65535 and full_scale(1.0) == 1.0

@@ -96,3 +96,34 @@ def test_hypotheses_coincide_within_the_frames_own_uncertainty() -> None:
     assert not coincide(exact_fit(pose, 150.0, 170.0, fine))
     choice = resolve_run([exact_fit(pose, 150.0, 170.0, coarse)], np.zeros((1, 2)))[0]
     assert choice.reason == "coincide" and not choice.ambiguous
+
+
+def _wandering_track(seed: int, radius_mm: float, n: int = 40) -> list[Pose]:
+    """A probe wandering in a large pipe: a random walk of 2.5 mm per frame in each
+    offset (within 40 mm of the axis), tilts of 1-3°."""
+    rng = np.random.default_rng(seed)
+    offset = np.clip(np.cumsum(rng.normal(0.0, 2.5, (n, 2)), axis=0), -0.27 * radius_mm,
+                     0.27 * radius_mm)
+    return [Pose.from_degrees(2.5 + 0.5 * np.sin(k / 5), -1.5 + 0.5 * np.cos(k / 7), *offset[k])
+            for k in range(n)]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_continuity_never_decides_in_a_large_pipe(seed: int) -> None:
+    """A 300 mm pipe with the laser plane 170 mm ahead: the mirror poses' offsets are
+    ~15 mm apart (2 d tan(tilt)) and the probe wanders by millimetres per frame. The
+    transition scale follows the pipe (a fixed 1 mm made the rougher of the two tracks
+    look impossible, so continuity alone chose, wrongly for all 40 frames of seed 4);
+    without evidence every frame stays undecided, and one frame of evidence carries."""
+    radius, plane = 150.0, 170.0
+    poses = _wandering_track(seed, radius)
+    fits = [exact_fit(p, radius, plane) for p in poses]
+    choices = resolve_run(fits, np.zeros((len(fits), 2)))
+    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+    unary = np.zeros((len(fits), 2))
+    k = 20
+    unary[k, 1 - (0 if is_true(fits[k], 0, poses[k]) else 1)] = 40.0
+    choices = resolve_run(fits, unary)
+    decided = [is_true(f, c.chosen, p) for f, p, c in zip(fits, poses, choices, strict=True)
+               if not c.ambiguous]
+    assert all(decided) and len(decided) == len(fits)

@@ -31,7 +31,7 @@ import numpy as np
 
 from pipestitch.mosaic._occluder_kernels import quantile_over_frames
 
-__all__ = ["noise_variance", "occluder_mask", "static_pixels"]
+__all__ = ["FULL_SCALES", "full_scale", "noise_variance", "occluder_mask", "static_pixels"]
 
 NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
 # Static: temporal variance below this many times the sensor noise's, on a 5 x 5 mean
@@ -136,6 +136,23 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
     return np.interp(level, centres, noise).astype(np.float32)
 
 
+# Full scales of integer frames scaled to [0, 1] by their file's range: 1 for 8-bit and
+# 16-bit data, (2**bits - 1) / 65535 for 10-, 12- and 14-bit data in 16-bit files.
+FULL_SCALES = tuple(sorted((2**bits - 1) / 65535 for bits in (10, 12, 14))) + (1.0,)
+
+
+def full_scale(top: float) -> float:
+    """The sensor's full scale of frames whose brightest value is ``top``.
+
+    The smallest of ``FULL_SCALES`` at or above ``top``: a 12-bit sensor's data in a
+    16-bit file never exceed 4095 / 65535 of the file's range and clip there, and an
+    8-bit value is never that close to a 10-, 12- or 14-bit full scale (the nearest,
+    16 / 255, is 0.4 % above 4095 / 65535). Float frames brighter than 1 clip at their
+    maximum.
+    """
+    return next((f for f in FULL_SCALES if f >= top * (1 - 1e-6)), top)
+
+
 def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
     """Pixels whose value changes over the frames no more than the sensor noise.
 
@@ -143,17 +160,16 @@ def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
     median. A pixel is static when its temporal variance, averaged over 5 x 5, is
     below ``STATIC_RATIO`` times the noise variance at its level
     (:func:`noise_variance`; nothing is static where the noise could not be measured),
-    it is not at full scale (saturated) in most frames, and it belongs to a
-    static region at least 1/100 of the image height across (an opening removes the
-    odd wall pixel that happened to vary little).
+    its median is below the sensor's full scale (:func:`full_scale`: a clipped pixel does
+    not vary either), and it belongs to a static region at least 1/100 of the image height
+    across (an opening removes the odd wall pixel that happened to vary little).
     """
     noise = noise_variance(stack, level)
     if not np.any(np.isfinite(noise)):
         return np.zeros(level.shape, bool)
     temporal = np.var(stack, axis=0, ddof=1)
     ratio = cv2.blur(temporal / np.maximum(noise, 1e-12), (5, 5))
-    # full scale: 1 for frames scaled to [0, 1] (camera.frames.to_grey), else their maximum
-    saturated = level >= 0.999 * max(1.0, float(stack.max()))
+    saturated = level >= 0.999 * full_scale(float(stack.max()))
     static = (ratio < STATIC_RATIO) & np.isfinite(noise) & ~saturated & (level > 0)
     size = max(3, round(stack.shape[1] / 100)) | 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))

@@ -92,8 +92,8 @@ OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; 
 # neighbour, so the comparison would be evidence about noise, not about the mirror.
 PHOTOMETRIC_MIN_TILT_DEG = 1.5
 # A circle fit whose every hypothesis puts the probe body this many sigmas of its
-# clearance (pose.ambiguity.clearance_sigma_mm: 1 mm at least) into the wall is not
-# the declared probe in a circular pipe.
+# clearance (pose.ambiguity.clearance_sigma_mm: 1.5 % of the radius at least) into the
+# wall is not the declared probe in a circular pipe.
 INFEASIBLE_SIGMAS = 2.0
 
 

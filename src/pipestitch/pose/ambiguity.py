@@ -32,8 +32,9 @@ import numpy as np
 from pipestitch.geometry import BodyEnvelope, PipeSection
 from pipestitch.pose.fit import Hypothesis, PoseFit
 
-__all__ = ["BODY_TOLERANCE_MM", "Choice", "clearance_sigma_mm", "coincide", "envelope_costs",
-           "hypothesis_distance", "resolve_run"]
+__all__ = ["BODY_TOLERANCE_RADII", "STEP_ANGLE_DEG", "STEP_OFFSET_RADII", "Choice",
+           "clearance_sigma_mm", "coincide", "envelope_costs", "hypothesis_distance",
+           "resolve_run"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,9 +70,15 @@ def hypothesis_distance(h1: Hypothesis, h2: Hypothesis, *, angle_scale_rad: floa
 
 
 # How far the declared body may differ from the real one where it meets the wall
-# (machining, wheels or skids, the wall's roughness): the floor of the uncertainty of
-# a body's clearance when the ring pins its pose exactly.
-BODY_TOLERANCE_MM = 0.5
+# (machining, wheels or skids, the wall's roughness), as a fraction of the pipe's
+# radius (0.5 mm in a 65 mm pipe, 2.3 mm in a 300 mm one): the floor of the uncertainty
+# of a body's clearance when the ring pins its pose exactly.
+BODY_TOLERANCE_RADII = 0.015
+# The pose change between consecutive frames that continuity expects: a degree of tilt,
+# and an offset change of this fraction of the pipe's radius (~1 mm in a 65 mm pipe):
+# a probe's lateral play, and so its wander, grows with the pipe.
+STEP_ANGLE_DEG = 1.0
+STEP_OFFSET_RADII = 0.03
 
 
 def clearance_sigma_mm(h: Hypothesis, body: BodyEnvelope) -> float:
@@ -80,11 +87,12 @@ def clearance_sigma_mm(h: Hypothesis, body: BodyEnvelope) -> float:
     The ring fit's own uncertainty (``h.std``, from the frame's pixel noise) moves the
     body's rear rim by the tilt's sigma times the body's length plus the offset's sigma
     (on simulated runs the tilt errors match the stated sigma: 0.03-0.33° against
-    0.08-0.34°), combined with ``BODY_TOLERANCE_MM``. So a frame seen through a coarse
-    lens, a far laser plane or a noisy line is judged with the leeway its own pose has.
+    0.08-0.34°), combined with ``BODY_TOLERANCE_RADII`` of the ring's radius. So a frame
+    seen through a coarse lens, a far laser plane or a noisy line is judged with the
+    leeway its own pose has.
     """
     tilt, offset = pose_sigma(h)
-    return float(np.hypot(BODY_TOLERANCE_MM, body.length_mm * tilt + offset))
+    return float(np.hypot(BODY_TOLERANCE_RADII * h.radius_mm, body.length_mm * tilt + offset))
 
 
 # Exact (noise-free) fits report no uncertainty: their poses are the same below this
@@ -171,7 +179,7 @@ def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
 
 def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
                 pairwise: dict[int, np.ndarray] | None = None,
-                step_angle_deg: float = 1.0, step_offset_mm: float = 1.0,
+                step_angle_deg: float = STEP_ANGLE_DEG, step_offset_mm: float | None = None,
                 min_margin: float = 5.0, infeasible_cost: float = 50.0) -> list[Choice]:
     """Choose a hypothesis per frame from per-frame costs and temporal continuity.
 
@@ -186,7 +194,8 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
         Photometric costs between frame k and the next frame with a fit, keyed by k
         (:func:`pipestitch.mosaic.photometric.pair_costs`).
     step_angle_deg, step_offset_mm : float
-        Typical pose change between consecutive frames (transition scale).
+        Typical pose change between consecutive frames (transition scale); the offset's
+        default is ``STEP_OFFSET_RADII`` of the median fitted radius.
     min_margin : float
         Margin below which a frame is flagged ambiguous (5 ≈ 150:1 odds).
     infeasible_cost : float
@@ -204,6 +213,9 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
     choices = [Choice(None, False, "no fit", 0.0) for _ in range(n)]
     if not idx:
         return choices
+    if step_offset_mm is None:
+        radius = np.median([h.radius_mm for i in idx for h in fits[i].hypotheses])
+        step_offset_mm = STEP_OFFSET_RADII * float(radius)
     ang, off = np.deg2rad(step_angle_deg), step_offset_mm
     u = unary[idx].copy()
     # Both hypotheses impossible (an oval pipe read as tilt, a wrong calibration):

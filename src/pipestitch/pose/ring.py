@@ -299,9 +299,12 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     wide = _blur_along_rays(polar, 4 * sigma / step)
     ridge = narrow - wide
     # Noise of the ridge response (robust, from a subsample), floored at a quarter of
-    # an 8-bit step so that a noise-free frame does not turn every ripple into a candidate.
+    # the frame's quantisation step (1/255 of full scale for 8-bit and float frames,
+    # 1/65535 for 16-bit ones) so that a noise-free frame does not turn every ripple
+    # into a candidate, while a 12-bit sensor's noise in a 16-bit file is still its own.
     sample = ridge[::3, ::3]
-    noise = max(1.4826 * float(np.median(np.abs(sample - np.median(sample)))), 0.25 / 255)
+    quantum = 1.0 / np.iinfo(part.dtype).max if part.dtype.kind in "ui" else 1.0 / 255
+    noise = max(1.4826 * float(np.median(np.abs(sample - np.median(sample)))), 0.25 * quantum)
     # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
     # the noise and above a fraction of the typical ring response of this frame.
     strongest = np.max(ridge, axis=1)

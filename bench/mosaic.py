@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
+from pipestitch.geometry import WallGrid
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
 from pipestitch.io.outputs import mosaic_from_uint8
@@ -55,13 +56,14 @@ def score(dataset: Path, summary: RunSummary):
     roll_off = float(np.median(truth["roll_deg"][placed] - result.positions.roll_deg[placed]))
     meta = json.loads((dataset / "truth" / "wall.json").read_text())
     wall = read_image(dataset / "truth" / "wall.png").astype(np.float32) / 255
-    truth_wall = WallImage(wall, meta["deg_per_px"], meta["mm_per_px_axial"], meta["z0_mm"])
+    truth_wall = WallImage(image=wall, grid=WallGrid.from_json(meta, wall.shape[1]))
     # The full-resolution mosaic as written (8-bit, mosaic.ome.tif: run streams it).
-    full = json.loads((summary.out / "mosaic.json").read_text())["full_resolution"]
+    mosaic_meta = json.loads((summary.out / "mosaic.json").read_text())
+    full = mosaic_meta["full_resolution"]
     with tifffile.TiffFile(summary.out / full["file"]) as tif:
         image = mosaic_from_uint8(tif.series[0].levels[0].asarray())
-    mosaic = WallImage(image, full["deg_per_px"], full["mm_per_px_axial"], full["z0_mm"])
-    return score_mosaic(mosaic, truth_wall, meta["radius_mm"], z_off, roll_off)
+    grid = WallGrid.from_json(full, image.shape[1], radius_mm=mosaic_meta["radius_mm"])
+    return score_mosaic(WallImage(image=image, grid=grid), truth_wall, z_off, roll_off)
 
 
 def tilt_error_deg(dataset: Path, out: Path) -> float:

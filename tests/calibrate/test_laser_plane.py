@@ -42,7 +42,7 @@ POSES = [Pose.from_degrees(a, b, dx, dy) for a, b, dx, dy in [
 def frames():
     """(camera, laser frames) rendered with the plane tilted 1° (half-size sensor)."""
     run = build_run(SCENARIOS["table1_65"], seed=3, size="half", n_pairs=1)
-    wall = WallTexture(run.albedo, run.grid.deg_per_px, run.grid.mm_per_px_axial, run.grid.z0_mm)
+    wall = WallTexture(albedo=run.albedo, grid=run.grid)
     renderer = Renderer(run.camera, run.section, wall, D_MM, run.scenario.optics,
                         plane_normal=N_TRUE)
     return run.camera, [renderer.render_laser(p, np.random.default_rng(k))

@@ -7,7 +7,7 @@ import pytest
 
 from pipestitch.geometry import WallGrid
 from pipestitch.measure.blocks import BlockDefects
-from pipestitch.measure.defects import MosaicGeometry, clock_position, find_defects
+from pipestitch.measure.defects import clock_position, find_defects
 from pipestitch.simulate.textures import Defect, draw_defects, make_wall
 
 R = 32.5
@@ -15,13 +15,12 @@ R = 32.5
 
 def _mosaic(defects: list[Defect], texture: str = "aluminium", seed: int = 0,
             noise: float = 0.01, *, radius_mm: float = R, mm_per_px: float = 0.135,
-            length_mm: float = 120.0) -> tuple[np.ndarray, MosaicGeometry]:
+            length_mm: float = 120.0) -> tuple[np.ndarray, WallGrid]:
     grid = WallGrid.square(radius_mm, mm_per_px, 0.0, length_mm)
     rng = np.random.default_rng(seed)
     wall = make_wall(texture, grid, rng=rng)
     image = draw_defects(wall, grid, defects) + rng.normal(0, noise, wall.shape)
-    return (image.astype(np.float32),
-            MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm, radius_mm))
+    return image.astype(np.float32), grid
 
 
 @pytest.mark.parametrize("texture,spots", [("aluminium", True), ("corrosion", False)])
@@ -31,8 +30,8 @@ def test_holes_and_spots_are_found_and_sized(texture: str, spots: bool) -> None:
     (lower confidence) than on plain aluminium."""
     truth = [Defect("hole", 30.0, 150.0, 6.0), Defect("hole", 60.0, 40.0, 3.0)]
     truth += [Defect("spot", 90.0, 250.0, 8.0)] if spots else []
-    image, geometry = _mosaic(truth, texture)
-    found = find_defects(image, geometry)
+    image, grid = _mosaic(truth, texture)
+    found = find_defects(image, grid)
     assert [d.kind for d in found] == [t.kind for t in truth]
     for d, t in zip(found, truth, strict=True):
         assert d.z_mm == pytest.approx(t.z_mm, abs=0.1)
@@ -50,9 +49,8 @@ def test_defects_of_a_large_pipe_are_found_and_sized(texture: str, spots: bool) 
     with two false spots beside the stain, four spots on corrosion."""
     truth = [Defect("hole", 120.0, 150.0, 28.0), Defect("hole", 280.0, 40.0, 12.0)]
     truth += [Defect("spot", 420.0, 250.0, 36.0)] if spots else []
-    image, geometry = _mosaic(truth, texture, radius_mm=150.0, mm_per_px=0.62,
-                              length_mm=550.0)
-    found = find_defects(image, geometry)
+    image, grid = _mosaic(truth, texture, radius_mm=150.0, mm_per_px=0.62, length_mm=550.0)
+    found = find_defects(image, grid)
     assert [d.kind for d in found] == [t.kind for t in truth]
     for d, t in zip(found, truth, strict=True):
         assert d.z_mm == pytest.approx(t.z_mm, abs=0.3)        # half a pixel
@@ -61,8 +59,8 @@ def test_defects_of_a_large_pipe_are_found_and_sized(texture: str, spots: bool) 
 
 
 def test_a_hole_across_theta_zero_stays_whole() -> None:
-    image, geometry = _mosaic([Defect("hole", 50.0, 359.0, 6.0)])
-    found = find_defects(image, geometry)
+    image, grid = _mosaic([Defect("hole", 50.0, 359.0, 6.0)])
+    found = find_defects(image, grid)
     assert len(found) == 1
     d = found[0]
     assert (d.theta_deg - 359.0 + 180) % 360 - 180 == pytest.approx(0, abs=0.2)
@@ -70,18 +68,24 @@ def test_a_hole_across_theta_zero_stays_whole() -> None:
 
 
 def test_a_hole_cut_by_unseen_wall_is_partial() -> None:
-    image, geometry = _mosaic([Defect("hole", 40.0, 100.0, 6.0)])
-    cut = round(40.0 / geometry.mm_per_px)
+    image, grid = _mosaic([Defect("hole", 40.0, 100.0, 6.0)])
+    cut = round(40.0 / grid.mm_per_px_axial)
     image[:, cut:] = np.nan
-    found = find_defects(image, geometry)
+    found = find_defects(image, grid)
     assert len(found) == 1 and found[0].partial
     assert found[0].diameter_mm < 6.0
 
 
 def test_plain_wall_and_empty_mosaic_give_nothing() -> None:
-    image, geometry = _mosaic([], "corrosion", seed=4)
-    assert find_defects(image, geometry) == []
-    assert find_defects(np.full((50, 50), np.nan, np.float32), geometry) == []
+    image, grid = _mosaic([], "corrosion", seed=4)
+    assert find_defects(image, grid) == []
+    assert find_defects(np.full(grid.shape, np.nan, np.float32), grid) == []
+
+
+def test_a_mosaic_off_its_grid_is_refused() -> None:
+    image, grid = _mosaic([])
+    with pytest.raises(ValueError, match="shape"):
+        find_defects(image[:, :-1], grid)
 
 
 @pytest.mark.parametrize("theta,clock", [(270.0, "12:00"), (0.0, "3:00"), (90.0, "6:00"),
@@ -102,9 +106,8 @@ def test_block_measurement_finds_each_defect_once_as_the_whole_image_does() -> N
               (500.0, 300.0, 4.0), (2 * boundary_mm - 1.0, 120.0, 8.0), (860.0, 10.0, 5.0)]]
     image = (draw_defects(make_wall("aluminium", grid, rng=rng), grid, truth)
              + rng.normal(0, 0.01, grid.shape)).astype(np.float32)
-    geometry = MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm, R)
-    whole = find_defects(image, geometry)
-    finder = BlockDefects(geometry, core_cols=core)
+    whole = find_defects(image, grid)
+    finder = BlockDefects(grid, core_cols=core)
     for c in range(0, image.shape[1], 700):
         finder.push(c, image[:, c:c + 700])
     blocks = finder.finish()
@@ -117,7 +120,8 @@ def test_block_measurement_finds_each_defect_once_as_the_whole_image_does() -> N
 
 
 def test_block_measurement_refuses_a_gap() -> None:
-    finder = BlockDefects(MosaicGeometry(1.0, 0.1, 0.0, R))
+    finder = BlockDefects(WallGrid(radius_mm=R, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0,
+                                   n_cols=110))
     finder.push(0, np.ones((360, 50), np.float32))
     with pytest.raises(ValueError, match="column 50"):
         finder.push(60, np.ones((360, 50), np.float32))
@@ -165,7 +169,6 @@ def test_a_coarse_mosaic_finds_its_holes_and_no_pixel_sized_blobs() -> None:
     for row, col in zip(rng.integers(50, grid.shape[0] - 50, 20),
                         rng.integers(50, grid.shape[1] - 50, 20), strict=True):
         image[row:row + 2, col:col + 2] *= 0.1
-    found = find_defects(image, MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial,
-                                               grid.z0_mm, r))
+    found = find_defects(image, grid)
     assert [d.kind for d in found] == ["hole"]
     assert found[0].diameter_mm == pytest.approx(12.0, abs=0.25)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipestitch.geometry import WallGrid
-from pipestitch.measure.defects import MosaicGeometry, find_defects
+from pipestitch.measure.defects import find_defects
 from pipestitch.measure.outline import rim_outline
 from pipestitch.simulate.textures import Defect, draw_defects, make_wall
 
@@ -62,8 +62,7 @@ def test_hole_in_a_stain_is_sized_from_its_rim() -> None:
     stain = 1.0 - 0.45 * np.exp(-(dist / 30.0) ** 2)
     image = draw_defects(wall * stain, grid, [Defect("hole", 40.0, 150.0, 6.0)])
     image = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 1.2)
-    found = find_defects(image, MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial,
-                                               grid.z0_mm, r))
+    found = find_defects(image, grid)
     holes = [d for d in found if d.kind == "hole"]
     assert len(holes) == 1
     assert holes[0].diameter_mm == pytest.approx(6.0, abs=0.05)
@@ -88,8 +87,7 @@ def test_a_dark_pit_is_a_spot_and_a_hole_is_a_hole(texture: str) -> None:
     pit_gain = 1.0 - 0.8 * (1.0 - pit_cover) / (1.0 - pit_cover.min())
     image = draw_defects(wall * pit_gain, grid, [Defect("hole", 55.0, 200.0, 2.5)])
     image = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 1.0)
-    found = find_defects(image, MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial,
-                                               grid.z0_mm, r))
+    found = find_defects(image, grid)
     by_z = {round(d.z_mm): d for d in found}
     assert by_z[55].kind == "hole" and by_z[55].diameter_mm == pytest.approx(2.5, abs=0.05)
     if texture == "aluminium":

@@ -46,6 +46,6 @@ def holed_renderer() -> Renderer:
     grid = WallGrid.square(R, 0.07, -40.0, 200.0)
     albedo = make_wall("corrosion", grid, rng=np.random.default_rng(0),
                        defects=[Defect("hole", 60.0, 200.0, 6.0)])
-    wall = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    wall = WallTexture(albedo=albedo, grid=grid)
     return Renderer(default_camera("half"), PipeSection.circle(2 * R), wall, 16.0,
                     Optics(full_well_e=1e9))

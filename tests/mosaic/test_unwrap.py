@@ -38,13 +38,13 @@ def wall() -> tuple[WallGrid, np.ndarray]:
 @pytest.fixture(scope="module")
 def renderer(wall: tuple[WallGrid, np.ndarray]) -> Renderer:
     grid, albedo = wall
-    texture = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    texture = WallTexture(albedo=albedo, grid=grid)
     return Renderer(CAMERA, PipeSection.circle(2 * R), texture, 16.0, Optics())
 
 
 def _truth(wall: tuple[WallGrid, np.ndarray]) -> WallImage:
     grid, albedo = wall
-    return WallImage(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    return WallImage(image=albedo, grid=grid)
 
 
 def _strip_score(renderer: Renderer, wall: tuple[WallGrid, np.ndarray], true_pose: Pose,
@@ -56,8 +56,8 @@ def _strip_score(renderer: Renderer, wall: tuple[WallGrid, np.ndarray], true_pos
     maps = unwrap_maps(CAMERA, used_pose, PipeSection(R), grid, step=4, with_quality=True)
     strip = unwrap_with_quality(to_grey(led), maps)
     image = np.where(strip.weight > 0, strip.values / strip.shading, np.nan)
-    s = score_mosaic(WallImage(image, grid.deg_per_px, mm, grid.z0_mm), _truth(wall), R,
-                     true_pose.z_mm, np.rad2deg(true_pose.roll))
+    s = score_mosaic(WallImage(image=image, grid=grid), _truth(wall), true_pose.z_mm,
+                     np.rad2deg(true_pose.roll))
     return s.ssim, s.geometric_rms_mm
 
 

@@ -91,7 +91,7 @@ def test_pose_uses_the_calibrated_plane_of_probe_toml(tmp_path: Path) -> None:
     """A dataset whose laser plane is tilted 1°: with [laser] normal in probe.toml the
     pose stage recovers the simulator's poses; without it, it is biased."""
     from pipestitch.camera import default_camera
-    from pipestitch.geometry import PipeSection, Pose
+    from pipestitch.geometry import PipeSection, Pose, WallGrid
     from pipestitch.io.images import write_image
     from pipestitch.io.probe_toml import probe_config_for, write_probe_toml
     from pipestitch.simulate.render import Renderer, WallTexture
@@ -100,7 +100,9 @@ def test_pose_uses_the_calibrated_plane_of_probe_toml(tmp_path: Path) -> None:
     camera = default_camera("half")
     rng = np.random.default_rng(0)
     albedo = np.kron(rng.uniform(0.6, 0.75, (36, 40)), np.ones((100, 60))).astype(np.float32)
-    renderer = Renderer(camera, PipeSection.circle(65.0), WallTexture(albedo, 0.1, 0.1, -50.0),
+    grid = WallGrid(radius_mm=32.5, deg_per_px=0.1, mm_per_px_axial=0.1, z0_mm=-50.0,
+                    n_cols=albedo.shape[1])
+    renderer = Renderer(camera, PipeSection.circle(65.0), WallTexture(albedo=albedo, grid=grid),
                         16.0, plane_normal=normal)
     # Poses the 145 x 45 mm body can take in a 65 mm pipe.
     poses = [Pose.from_degrees(2.0, -1.0, 1.0, -0.5), Pose.from_degrees(-1.0, 2.0, -1.5, 1.0)]

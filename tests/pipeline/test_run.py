@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipestitch.cli.app import app
+from pipestitch.geometry import WallGrid
 from pipestitch.io.dataset import read_csv_columns
 from pipestitch.io.images import read_image
 from pipestitch.pipeline.run import run_dataset
@@ -77,10 +78,9 @@ def _wall_score(dataset: Path, output: Path):
     wall_meta = json.loads((dataset / "truth" / "wall.json").read_text())
     wall = read_image(dataset / "truth" / "wall.png").astype(np.float32) / 255
     return score_mosaic(
-        WallImage(image, meta["deg_per_px"], meta["mm_per_px_axial"], meta["z0_mm"]),
-        WallImage(wall, wall_meta["deg_per_px"], wall_meta["mm_per_px_axial"],
-                  wall_meta["z0_mm"]),
-        wall_meta["radius_mm"], float(np.median(truth["z_mm"] - est["z_mm"])),
+        WallImage(image=image, grid=WallGrid.from_json(meta, image.shape[1])),
+        WallImage(image=wall, grid=WallGrid.from_json(wall_meta, wall.shape[1])),
+        float(np.median(truth["z_mm"] - est["z_mm"])),
         float(np.median(truth["roll_deg"] - est["roll_deg"])))
 
 

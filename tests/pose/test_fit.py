@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
-from pipestitch.geometry import PipeSection, Pose, laser_ring
+from pipestitch.geometry import PipeSection, Pose, WallGrid, laser_ring
 from pipestitch.pose._fit_kernels import (
     Plane,
     conic_through,
@@ -100,13 +100,21 @@ def test_calibrated_plane_normal_removes_the_pose_bias() -> None:
     assert tilt_error(calibrated) < 0.15   # the round-trip accuracy of an aligned plane
 
 
+def _texture(albedo: np.ndarray, diameter: float) -> WallTexture:
+    """``albedo`` on a wall of ``diameter`` (mm): 0.1 deg and 0.1 mm per pixel, from
+    z = -50 mm."""
+    return WallTexture(albedo=albedo, grid=WallGrid(radius_mm=diameter / 2, deg_per_px=0.1,
+                                                    mm_per_px_axial=0.1, z0_mm=-50.0,
+                                                    n_cols=albedo.shape[1]))
+
+
 def _render(pose: Pose, size: str = "half", optics: Optics | None = None,
             diameter: float = 65.0, plane_normal: np.ndarray | None = None):
     rng = np.random.default_rng(0)
     base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
     albedo = np.kron(base, np.ones((100, 60), np.float32))
     r = Renderer(default_camera(size), PipeSection.circle(diameter),
-                 WallTexture(albedo, 0.1, 0.1, -50.0), D, optics, plane_normal=plane_normal)
+                 _texture(albedo, diameter), D, optics, plane_normal=plane_normal)
     laser, led = r.render_pair(pose, np.random.default_rng(3))
     return r.camera, laser, led
 
@@ -173,7 +181,7 @@ def test_opencv_fisheye_camera_end_to_end() -> None:
     rng = np.random.default_rng(0)
     base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
     albedo = np.kron(base, np.ones((100, 60), np.float32))
-    r = Renderer(cam, PipeSection.circle(80.0), WallTexture(albedo, 0.1, 0.1, -50.0), D)
+    r = Renderer(cam, PipeSection.circle(80.0), _texture(albedo, 80.0), D)
     pose = Pose.from_degrees(-5.0, 4.0, 6.0, 3.0)
     laser, led = r.render_pair(pose, np.random.default_rng(4))
     fit = fit_pose(detect_ring(laser, cam, reflectance=led), cam, D)
@@ -204,7 +212,7 @@ def test_fused_kernel_fits_as_the_unproject_path(camera: str) -> None:
     rng = np.random.default_rng(3)
     base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
     r = Renderer(cam, PipeSection.circle(65.0),
-                 WallTexture(np.kron(base, np.ones((100, 60), np.float32)), 0.1, 0.1, -50.0), D)
+                 _texture(np.kron(base, np.ones((100, 60), np.float32)), 65.0), D)
     laser, led = r.render_pair(Pose.from_degrees(3.0, -2.0, 4.0, -3.0), np.random.default_rng(5))
     det = detect_ring(laser, cam, reflectance=led)
     fused, plain = fit_pose(det, cam, D), fit_pose(det, UnprojectOnly(cam), D)

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pipestitch.camera import default_camera
-from pipestitch.geometry import PipeSection, Pose, laser_ring
+from pipestitch.geometry import PipeSection, Pose, WallGrid, laser_ring
 from pipestitch.pose.ring import (
     detect_ring,
     polar_crop,
@@ -26,7 +26,9 @@ def renderer(size: str, optics: Optics | None = None) -> Renderer:
     # A mildly textured metal wall (albedo 0.6-0.75, smooth variations).
     base = rng.uniform(0.6, 0.75, (36, 40)).astype(np.float32)
     albedo = np.kron(base, np.ones((100, 50), np.float32))
-    return Renderer(default_camera(size), SECTION, WallTexture(albedo, 0.1, 0.1, -50.0), 16.0,
+    grid = WallGrid(radius_mm=SECTION.mean_radius_mm, deg_per_px=0.1, mm_per_px_axial=0.1,
+                    z0_mm=-50.0, n_cols=albedo.shape[1])
+    return Renderer(default_camera(size), SECTION, WallTexture(albedo=albedo, grid=grid), 16.0,
                     optics)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
-from pipestitch.geometry import PipeSection, Pose
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.pose.fit import LaserPlane, fit_pose, frame_noise_mm, ring_scale_mm_per_px
 from pipestitch.pose.ring import detect_ring
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
@@ -64,7 +64,9 @@ def test_plane_scale_is_the_geometry_s() -> None:
 
 def _render(camera, diameter_mm: float, plane_mm: float, line_mm: float,
             pose: Pose) -> np.ndarray:
-    wall = WallTexture(np.full((360, 2000), 0.5, np.float32), 1.0, 1.0, -1000.0)
+    grid = WallGrid(radius_mm=diameter_mm / 2, deg_per_px=1.0, mm_per_px_axial=1.0,
+                    z0_mm=-1000.0, n_cols=2000)
+    wall = WallTexture(albedo=np.full(grid.shape, 0.5, np.float32), grid=grid)
     optics = Optics(laser_sigma_mm=line_mm, mirror_radius_mm=0.3 * plane_mm)
     renderer = Renderer(camera, PipeSection.circle(diameter_mm), wall, plane_mm, optics)
     return renderer.render_laser(pose, np.random.default_rng(1))

@@ -16,27 +16,27 @@ R = 32.5
 def truth() -> WallImage:
     grid = WallGrid.square(R, 0.07, 0.0, 200.0)
     wall = make_wall("corrosion", grid, rng=np.random.default_rng(2))
-    return WallImage(wall, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    return WallImage(image=wall, grid=grid)
 
 
 def _mosaic(truth: WallImage, scale: float, shading: float = 0.0) -> WallImage:
     """The true wall as a mosaic whose z axis reads ``scale`` times the true z (0.14 mm
     per pixel), times a slow brightness ripple of relative amplitude ``shading``."""
-    grid = WallImage(np.zeros((int(360 / 0.25), 1200), np.float32), 0.25, 0.14, 20.0)
+    grid = WallGrid(radius_mm=R, deg_per_px=0.25, mm_per_px_axial=0.14, z0_mm=20.0,
+                    n_cols=1200)
     # Mosaic node at mosaic z = (1 + e) * true z: sample the truth at z / (1 + e).
-    image = truth_on_grid(truth, grid, 0.0, 0.0)
-    z_mosaic = grid.z0_mm + np.arange(image.shape[1]) * grid.mm_per_px
-    stretched = WallImage(image, grid.deg_per_px, grid.mm_per_px, grid.z0_mm)
-    cols = (z_mosaic / scale - grid.z0_mm) / grid.mm_per_px
+    image = truth_on_grid(truth, WallImage(image=np.zeros(grid.shape, np.float32), grid=grid),
+                          0.0, 0.0)
+    _, z_mosaic = grid.theta_z()
+    cols = (z_mosaic / scale - grid.z0_mm) / grid.mm_per_px_axial
     image = np.stack([np.interp(cols, np.arange(image.shape[1]), row) for row in image])
     ripple = 1 + shading * np.sin(2 * np.pi * z_mosaic / 40.0)
-    return WallImage((image * ripple).astype(np.float32), stretched.deg_per_px,
-                     stretched.mm_per_px, stretched.z0_mm)
+    return WallImage(image=(image * ripple).astype(np.float32), grid=grid)
 
 
 @pytest.mark.parametrize("error", [0.0, 0.002, -0.0015])
 def test_axial_scale_error_is_measured_apart_from_the_local_geometry(truth, error) -> None:
-    s = score_mosaic(_mosaic(truth, 1 + error), truth, R, 0.0, 0.0)
+    s = score_mosaic(_mosaic(truth, 1 + error), truth, 0.0, 0.0)
     assert s.axial_scale_error == pytest.approx(error, abs=1e-4)
     assert s.local_rms_mm < 0.02
     if error:
@@ -44,8 +44,13 @@ def test_axial_scale_error_is_measured_apart_from_the_local_geometry(truth, erro
 
 
 def test_shading_left_in_the_mosaic_is_measured(truth) -> None:
-    flat = score_mosaic(_mosaic(truth, 1.0), truth, R, 0.0, 0.0)
-    shaded = score_mosaic(_mosaic(truth, 1.0, shading=0.1), truth, R, 0.0, 0.0)
+    flat = score_mosaic(_mosaic(truth, 1.0), truth, 0.0, 0.0)
+    shaded = score_mosaic(_mosaic(truth, 1.0, shading=0.1), truth, 0.0, 0.0)
     assert flat.shading_dn < 0.3
     # A +-10 % ripple of a wall whose mean is ~0.33 (85 levels): ~0.64 x 8.5 levels.
     assert 3.0 < shaded.shading_dn < 7.0
+
+
+def test_an_image_off_its_grid_is_refused(truth) -> None:
+    with pytest.raises(ValueError, match="shape"):
+        WallImage(image=truth.image[:, :-1], grid=truth.grid)

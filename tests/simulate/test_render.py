@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipestitch.camera import default_camera
-from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
+from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, WallGrid, laser_ring
 from pipestitch.io.dataset import check_dataset, open_dataset, read_csv_columns
 from pipestitch.pipeline.simulating import simulate_dataset
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
@@ -55,7 +55,9 @@ def test_odometer_has_scale_error_and_noise() -> None:
 def _flat_renderer(size: str = "half", optics: Optics | None = None) -> Renderer:
     cam = default_camera(size)
     albedo = np.full((3600, 2000), 0.6, np.float32)
-    wall = WallTexture(albedo, 0.1, 0.1, -50.0)
+    wall = WallTexture(albedo=albedo, grid=WallGrid(radius_mm=32.5, deg_per_px=0.1,
+                                                    mm_per_px_axial=0.1, z0_mm=-50.0,
+                                                    n_cols=2000))
     return Renderer(cam, PipeSection.circle(65.0), wall, 16.0, optics)
 
 
@@ -162,3 +164,10 @@ def test_rendering_in_worker_processes_gives_the_same_frames(tmp_path, simulate_
     assert names == sorted(p.name for p in (two / "frames").iterdir()) and len(names) == 6
     for name in names:
         assert (one / "frames" / name).read_bytes() == (two / "frames" / name).read_bytes()
+
+
+def test_a_texture_off_its_grid_is_refused() -> None:
+    grid = WallGrid(radius_mm=32.5, deg_per_px=1.0, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=20)
+    WallTexture(albedo=np.zeros((360, 20), np.float32), grid=grid)
+    with pytest.raises(ValueError, match="shape"):
+        WallTexture(albedo=np.zeros((360, 21), np.float32), grid=grid)

@@ -24,21 +24,32 @@ import numba
 import numpy as np
 
 from pipestitch.camera import ocam, opencv_fisheye
-from pipestitch.camera.base import OCAM, OPENCV_FISHEYE
+from pipestitch.camera.base import OCAM, OPENCV_FISHEYE, RayKernel
 
 __all__ = ["rays_of"]
 
 
 @numba.njit(cache=True, nogil=True)
-def rays_of(kind: int, pixels: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
-            d: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """Unit rays (N, 3) of pixels (N, 2) (col, row) through the model a RayKernel names.
+def rays_of(camera: RayKernel, pixels: np.ndarray) -> np.ndarray:
+    """Unit rays of pixels through the model a RayKernel names.
 
-    Exactly the model's ``unproject`` (the same compiled loop): NaN outside its valid
-    range.
+    Exactly the model's ``unproject`` (the same compiled loop).
+
+    Parameters
+    ----------
+    camera : RayKernel
+        The model's ``ray_kernel``.
+    pixels : numpy.ndarray, shape (N, 2), float64, C-contiguous
+        Pixels (col, row).
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, 3)
+        Unit rays; NaN outside the model's valid range.
     """
-    if kind == OCAM:
-        return ocam.ray_loop(pixels, a, b, c[0])
-    if kind == OPENCV_FISHEYE:
-        return opencv_fisheye.ray_loop(pixels, a, b, c, d, index)
+    if camera.kind == OCAM:
+        return ocam.ray_loop(pixels, camera.a, camera.b, camera.c[0])
+    if camera.kind == OPENCV_FISHEYE:
+        return opencv_fisheye.ray_loop(pixels, camera.a, camera.b, camera.c, camera.d,
+                                       camera.index)
     raise ValueError("rays_of: unknown RayKernel kind")

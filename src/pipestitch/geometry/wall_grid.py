@@ -15,7 +15,9 @@ the grid: no image data, no I/O.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -160,6 +162,40 @@ class WallGrid:
             n_rows, n_cols = cv2.getOptimalDFTSize(n_rows), cv2.getOptimalDFTSize(n_cols)
         return cls(radius_mm=radius_mm, deg_per_px=360.0 / n_rows, mm_per_px_axial=mm_per_px,
                    z0_mm=z0_mm, n_cols=n_cols)
+
+    @classmethod
+    def from_json(cls, meta: Mapping[str, Any], n_cols: int, *,
+                  radius_mm: float | None = None) -> WallGrid:
+        """The grid of a wall image from its SPEC metadata (the inverse of :meth:`to_json`).
+
+        Parameters
+        ----------
+        meta : mapping
+            Holds ``mm_per_px_axial``, ``deg_per_px``, ``z0_mm`` and, unless
+            ``radius_mm`` is given, ``radius_mm`` (wall.json, mosaic.json and its
+            ``full_resolution`` record; other keys are ignored).
+        n_cols : int
+            The image's width.
+        radius_mm : float, optional
+            Wall radius, for metadata that does not hold it (mosaic.json's
+            ``full_resolution``, whose radius is the document's).
+
+        Returns
+        -------
+        WallGrid
+            ``theta0_deg = 0``, as SPEC wall images start at theta 0.
+
+        Raises
+        ------
+        KeyError
+            When ``meta`` lacks a key.
+        ValueError
+            On values the grid refuses (see :class:`WallGrid`).
+        """
+        return cls(radius_mm=float(meta["radius_mm"] if radius_mm is None else radius_mm),
+                   deg_per_px=float(meta["deg_per_px"]),
+                   mm_per_px_axial=float(meta["mm_per_px_axial"]),
+                   z0_mm=float(meta["z0_mm"]), n_cols=n_cols)
 
     @property
     def n_rows(self) -> int:

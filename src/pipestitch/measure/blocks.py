@@ -16,7 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipestitch.measure.defects import Defect, MosaicGeometry, find_defects
+from pipestitch.geometry.wall_grid import WallGrid
+from pipestitch.measure.defects import Defect, background_mm, find_defects
 
 __all__ = ["BlockDefects"]
 
@@ -29,19 +30,20 @@ class BlockDefects:
 
     Parameters
     ----------
-    geometry : MosaicGeometry
-        The whole mosaic's grid (column 0 at ``z0_mm``).
+    grid : WallGrid
+        The whole mosaic's grid (column 0 at ``z0_mm``; its ``n_cols`` is not used:
+        each window is measured on this grid cut to its own columns).
     up_theta_deg : float
         Theta of 12 o'clock (as in ``find_defects``).
     core_cols : int, optional
         Columns each window owns (default ``CORE_COLS``).
     """
 
-    def __init__(self, geometry: MosaicGeometry, *, up_theta_deg: float = 270.0,
+    def __init__(self, grid: WallGrid, *, up_theta_deg: float = 270.0,
                  core_cols: int | None = None) -> None:
-        self.geometry, self.up = geometry, up_theta_deg
+        self.grid, self.up = grid, up_theta_deg
         self.core = core_cols or CORE_COLS
-        self.margin = math.ceil(MARGIN_WINDOWS * geometry.background_mm / geometry.mm_per_px)
+        self.margin = math.ceil(MARGIN_WINDOWS * background_mm(grid) / grid.mm_per_px_axial)
         self.defects: list[Defect] = []
         self._buffer = np.zeros((0, 0), np.float32)
         self._first = 0          # mosaic column of the buffer's column 0
@@ -70,11 +72,12 @@ class BlockDefects:
         [owned, owned_end); then drop the columns no later window needs."""
         start = max(self._first, self._owned - self.margin)
         stop = min(self._first + self._buffer.shape[1], owned_end + self.margin)
-        g = self.geometry
+        g = self.grid
         window = self._buffer[:, start - self._first:stop - self._first]
-        z0 = g.z0_mm + start * g.mm_per_px
-        found = find_defects(window, replace(g, z0_mm=z0), up_theta_deg=self.up)
-        lo, hi = (g.z0_mm + (c - 0.5) * g.mm_per_px for c in (self._owned, owned_end))
+        z0 = g.z0_mm + start * g.mm_per_px_axial
+        found = find_defects(window, replace(g, z0_mm=z0, n_cols=window.shape[1]),
+                             up_theta_deg=self.up)
+        lo, hi = (g.z0_mm + (c - 0.5) * g.mm_per_px_axial for c in (self._owned, owned_end))
         self.defects += [d for d in found if lo <= d.z_mm < hi]
         self._owned = owned_end
         keep_from = max(self._first, owned_end - self.margin)

@@ -47,9 +47,10 @@ import numpy as np
 from skimage import measure
 
 from pipestitch.geometry.clock import clock_hhmm
+from pipestitch.geometry.wall_grid import WallGrid
 from pipestitch.measure.outline import RimOutline, rim_outline
 
-__all__ = ["Defect", "MosaicGeometry", "clock_position", "find_defects"]
+__all__ = ["Defect", "background_mm", "clock_position", "find_defects"]
 
 # No constant below is in millimetres: intensities are fractions of the local wall or
 # multiples of the mosaic's measured noise, lengths multiples of the pipe's measured
@@ -64,24 +65,9 @@ MIN_DIAMETER_PX = 5        # and never fewer mosaic pixels across (coarse mosaic
 EDGE_MARGIN_PX = 3         # nodes this close to unseen wall are not trusted
 
 
-@dataclass(frozen=True)
-class MosaicGeometry:
-    """The mosaic's grid: row i at theta = i·deg_per_px, column j at z0 + j·mm_per_px."""
-
-    deg_per_px: float
-    mm_per_px: float
-    z0_mm: float
-    radius_mm: float
-
-    @property
-    def background_mm(self) -> float:
-        """Width of the running-median background window on the wall."""
-        return BACKGROUND_RADII * self.radius_mm
-
-    @property
-    def arc_mm_per_px(self) -> float:
-        """Arc length of one row on the wall."""
-        return float(np.deg2rad(self.deg_per_px) * self.radius_mm)
+def background_mm(grid: WallGrid) -> float:
+    """Width of the running-median background window on the wall of ``grid`` (mm)."""
+    return BACKGROUND_RADII * grid.radius_mm
 
 
 @dataclass(frozen=True)
@@ -189,16 +175,16 @@ def _region_size(contrast: np.ndarray, box: tuple[slice, slice], depth: float,
     return np.isin(labels, keep[keep > 0])
 
 
-def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
+def find_defects(image: np.ndarray, grid: WallGrid, *,
                  up_theta_deg: float = 270.0) -> list[Defect]:
     """Holes and spots on a mosaic (float, NaN where the wall was not seen).
 
     Parameters
     ----------
-    image : numpy.ndarray
+    image : numpy.ndarray, shape grid.shape
         Mosaic (rows: theta, columns: z), any positive intensity scale.
-    geometry : MosaicGeometry
-        Its grid and the pipe radius.
+    grid : WallGrid
+        Its grid, on the pipe's wall (``radius_mm``: the pipe radius).
     up_theta_deg : float
         Theta of 12 o'clock (default: the image's up direction of the reference frame).
 
@@ -206,13 +192,21 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
     -------
     list of Defect
         Sorted by z.
+
+    Raises
+    ------
+    ValueError
+        When ``image`` is not an image of ``grid``'s shape.
     """
+    if np.shape(image) != grid.shape:
+        raise ValueError(f"find_defects: mosaic of shape {np.shape(image)} on a grid of shape "
+                         f"{grid.shape} (rows, columns)")
     valid = np.isfinite(image)
     if valid.sum() < 100:
         return []
     trusted = cv2.erode(valid.astype(np.uint8), np.ones((2 * EDGE_MARGIN_PX + 1,) * 2,
                                                        np.uint8)).astype(bool)
-    window = round(geometry.background_mm / geometry.mm_per_px)
+    window = round(background_mm(grid) / grid.mm_per_px_axial)
     background = _background(image, valid, window)
     contrast = np.where(valid, np.nan_to_num(image) / np.maximum(background, 1e-6) - 1, 0)
     # The noise from every other row and column (a quarter of the nodes: the same
@@ -222,9 +216,9 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
     dark = float(np.clip(NOISE_SIGMAS * sigma, MIN_CONTRAST, MAX_THRESHOLD))
     bright = max(NOISE_SIGMAS * sigma, MIN_CONTRAST)
     mask = trusted & ((contrast < -dark) | (contrast > bright))
-    pitch = max(geometry.mm_per_px, geometry.arc_mm_per_px)
-    min_diameter_mm = max(MIN_DIAMETER_RADII * geometry.radius_mm, MIN_DIAMETER_PX * pitch)
-    min_area = np.pi / 4 * min_diameter_mm**2 / (geometry.mm_per_px * geometry.arc_mm_per_px)
+    pitch = max(grid.mm_per_px_axial, grid.mm_per_px_circ)
+    min_diameter_mm = max(MIN_DIAMETER_RADII * grid.radius_mm, MIN_DIAMETER_PX * pitch)
+    min_area = np.pi / 4 * min_diameter_mm**2 / (grid.mm_per_px_axial * grid.mm_per_px_circ)
     shift = _roll_for_labelling(mask)
     rolled = [np.roll(a, shift, axis=0) for a in (mask, contrast, valid)]
     labels = measure.label(_fill_holes(rolled[0]) & rolled[2])
@@ -232,14 +226,14 @@ def find_defects(image: np.ndarray, geometry: MosaicGeometry, *,
     for region in measure.regionprops(labels):
         if region.area < min_area:
             continue
-        out.append(_measure_region(region, rolled[1], rolled[2], labels, shift, geometry,
+        out.append(_measure_region(region, rolled[1], rolled[2], labels, shift, grid,
                                    (dark, bright), up_theta_deg))
     return sorted(out, key=lambda d: d.z_mm)
 
 
 def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.ndarray,
                     valid: np.ndarray, labels: np.ndarray, shift: int,
-                    geometry: MosaicGeometry, thresholds: tuple[float, float],
+                    grid: WallGrid, thresholds: tuple[float, float],
                     up_theta_deg: float) -> Defect:
     r0, c0, r1, c1 = region.bbox
     pad = max(4, (r1 - r0) // 2)
@@ -254,11 +248,11 @@ def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.
     partial = bool(np.any(ring & ~valid[box]))
     rows, cols = np.nonzero(sized)
     rows, cols = rows + box[0].start, cols + box[1].start
-    area_mm2 = rows.size * geometry.mm_per_px * geometry.arc_mm_per_px
+    area_mm2 = rows.size * grid.mm_per_px_axial * grid.mm_per_px_circ
     centre = (rows.mean(), cols.mean())
     kind = "spot"
     if depth < 0:
-        rim = None if partial else _rim(contrast, centre, area_mm2, geometry)
+        rim = None if partial else _rim(contrast, centre, area_mm2, grid)
         margin = EDGE_MARGIN_PX
         if rim is not None:
             rows, cols, area_mm2 = rim.rows, rim.cols, rim.area_mm2
@@ -266,18 +260,20 @@ def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.
             margin += int(np.ceil(2 * rim.blur_px))
         if _light_fraction(contrast, valid, rows, cols, margin) <= HOLE_LIGHT_FRACTION:
             kind = "hole"
-    theta = float(((centre[0] - shift) * geometry.deg_per_px) % 360.0)
+    def theta_of(row: float) -> float:    # theta of a row of the rolled mosaic
+        return float((grid.theta0_deg + (row - shift) * grid.deg_per_px) % 360.0)
+
+    theta = theta_of(centre[0])
     # Confidence: how far past the detection threshold the region is (1 at 1.5 x).
     threshold = thresholds[0] if depth < 0 else thresholds[1]
     margin = abs(depth) / max(threshold, 1e-6) - 1
     return Defect(
-        kind=kind, z_mm=float(geometry.z0_mm + centre[1] * geometry.mm_per_px),
+        kind=kind, z_mm=float(grid.z0_mm + centre[1] * grid.mm_per_px_axial),
         theta_deg=theta, clock=clock_position(theta, up_theta_deg),
         diameter_mm=float(np.sqrt(4 * area_mm2 / np.pi)), area_mm2=float(area_mm2),
-        z_min_mm=float(geometry.z0_mm + cols.min() * geometry.mm_per_px),
-        z_max_mm=float(geometry.z0_mm + cols.max() * geometry.mm_per_px),
-        theta_min_deg=float((rows.min() - shift) * geometry.deg_per_px % 360.0),
-        theta_max_deg=float((rows.max() - shift) * geometry.deg_per_px % 360.0),
+        z_min_mm=float(grid.z0_mm + cols.min() * grid.mm_per_px_axial),
+        z_max_mm=float(grid.z0_mm + cols.max() * grid.mm_per_px_axial),
+        theta_min_deg=theta_of(rows.min()), theta_max_deg=theta_of(rows.max()),
         contrast=depth,
         confidence=float(np.clip(margin / 0.5, 0.0, 1.0) * (0.5 if partial else 1)),
         partial=partial)
@@ -314,11 +310,11 @@ def _light_fraction(contrast: np.ndarray, valid: np.ndarray, rows: np.ndarray,
 
 
 def _rim(contrast: np.ndarray, centre: tuple[float, float], area_mm2: float,
-         geometry: MosaicGeometry) -> RimOutline | None:
+         grid: WallGrid) -> RimOutline | None:
     """The hole's rim (:mod:`pipestitch.measure.outline`) in ``contrast``'s pixels,
     searched in a box of twice the first radius guess around ``centre``."""
     radius_mm = float(np.sqrt(area_mm2 / np.pi))
-    pitch = (geometry.arc_mm_per_px, geometry.mm_per_px)
+    pitch = (grid.mm_per_px_circ, grid.mm_per_px_axial)
     half = [int(np.ceil(2 * radius_mm / p)) + 4 for p in pitch]
     lo = [max(0, int(c) - h) for c, h in zip(centre, half, strict=True)]
     hi = [min(n, int(c) + h + 1) for c, h, n in zip(centre, half, contrast.shape, strict=True)]

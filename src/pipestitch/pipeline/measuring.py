@@ -7,25 +7,37 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch.errors import DatasetError
+from pipestitch.geometry import WallGrid
 from pipestitch.io.outputs import DEFECT_COLUMNS, mosaic_from_uint8, read_mosaic, write_csv
 from pipestitch.io.tiles import read_column_blocks
 from pipestitch.measure.blocks import BlockDefects
-from pipestitch.measure.defects import Defect, MosaicGeometry
+from pipestitch.measure.defects import Defect
 from pipestitch.pipeline.staging import finish_interrupted_commit, out_lock
 
 __all__ = ["measure_mosaic", "measure_run", "write_defects_csv"]
 
 
-def measure_mosaic(image: np.ndarray, deg_per_px: float, mm_per_px: float, z0_mm: float,
-                   radius_mm: float, *, crown_theta_deg: float = 270.0) -> list[Defect]:
-    """Defects of a float mosaic (NaN = no data) on SPEC's grid; clock 12 at
-    ``crown_theta_deg`` (default: the relative reference, the first frame's image up).
+def measure_mosaic(image: np.ndarray, grid: WallGrid, *,
+                   crown_theta_deg: float = 270.0) -> list[Defect]:
+    """Defects of a float mosaic, measured by blocks along z as ``run`` measures its
+    streamed mosaic (:class:`pipestitch.measure.blocks.BlockDefects`; one block for up
+    to ~2500 columns).
 
-    Measured by blocks along z as ``run`` measures its streamed mosaic
-    (:class:`pipestitch.measure.blocks.BlockDefects`; one block for up to ~2500 columns).
+    Parameters
+    ----------
+    image : numpy.ndarray, shape grid.shape
+        The mosaic (float, NaN = no data).
+    grid : WallGrid
+        Its grid (SPEC's), on the pipe's wall.
+    crown_theta_deg : float, optional
+        Theta of 12 o'clock (default: the relative reference, the first frame's image up).
+
+    Returns
+    -------
+    list of Defect
+        Sorted by z.
     """
-    finder = BlockDefects(MosaicGeometry(deg_per_px, mm_per_px, z0_mm, radius_mm),
-                          up_theta_deg=crown_theta_deg)
+    finder = BlockDefects(grid, up_theta_deg=crown_theta_deg)
     finder.push(0, image)
     return finder.finish()
 
@@ -62,19 +74,31 @@ def _measure(out: Path, crown_deg: float | None) -> tuple[Path, list[Defect]]:
     if isinstance(full, dict) and (out / str(full.get("file"))).is_file():
         defects = _measure_pyramid(out / str(full["file"]), full, meta["radius_mm"], crown)
     else:   # a mosaic.png without a pyramid (made elsewhere): it is the full resolution
-        defects = measure_mosaic(image, meta["deg_per_px"], meta["mm_per_px_axial"],
-                                 meta["z0_mm"], meta["radius_mm"], crown_theta_deg=crown)
+        defects = measure_mosaic(image, _png_grid(out, image, meta), crown_theta_deg=crown)
     reference = "relative" if crown_deg is None else "user (--crown-deg)"
     return write_defects_csv(out / "defects.csv", defects, reference=reference), defects
 
 
-def _measure_pyramid(path: Path, grid: dict, radius_mm: float, crown_deg: float) -> list[Defect]:
-    """Defects of the full-resolution mosaic in ``path``, read a tile column at a time and
-    measured by blocks as ``run`` does (pipeline/stitched_output.py)."""
+def _png_grid(out: Path, image: np.ndarray, meta: dict) -> WallGrid:
+    """The grid of mosaic.png (``image``) that mosaic.json (``meta``) describes; raises
+    DatasetError naming the file when the two do not fit together."""
     try:
-        geometry = MosaicGeometry(float(grid["deg_per_px"]), float(grid["mm_per_px_axial"]),
-                                  float(grid["z0_mm"]), float(radius_mm))
-        finder = BlockDefects(geometry, up_theta_deg=crown_deg)
+        grid = WallGrid.from_json(meta, image.shape[1])
+    except ValueError as exc:
+        raise DatasetError(out / "mosaic.json", str(exc)) from None
+    if image.shape != grid.shape:
+        raise DatasetError(out / "mosaic.png", f"{image.shape[0]} rows, but mosaic.json's "
+                                               f"deg_per_px gives {grid.n_rows}")
+    return grid
+
+
+def _measure_pyramid(path: Path, full: dict, radius_mm: float, crown_deg: float) -> list[Defect]:
+    """Defects of the full-resolution mosaic in ``path`` (its mosaic.json record ``full``),
+    read a tile column at a time and measured by blocks as ``run`` does
+    (pipeline/stitched_output.py)."""
+    try:
+        grid = WallGrid.from_json(full, int(full["n_cols"]), radius_mm=float(radius_mm))
+        finder = BlockDefects(grid, up_theta_deg=crown_deg)
         for col0, block in read_column_blocks(path):
             finder.push(col0, mosaic_from_uint8(block))
         return finder.finish()

@@ -38,7 +38,7 @@ from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.outputs import intensity_scale, mosaic_from_uint8, mosaic_to_uint8
 from pipestitch.io.tiles import PyramidWriter, read_dzi
 from pipestitch.measure.blocks import BlockDefects
-from pipestitch.measure.defects import Defect, MosaicGeometry
+from pipestitch.measure.defects import Defect
 from pipestitch.mosaic.blend import Overview
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.report.viewer import VIEWER_NAME, render_viewer
@@ -91,8 +91,7 @@ class StreamedMosaic:
         self._pyramid = PyramidWriter(self.out / PYRAMID, (grid.n_rows, grid.n_cols),
                                       tiles_dir=self.out / TILES, mm_per_px=grid.mm_per_px_axial)
         self._overview = Overview(grid, self.overview_pixels)
-        self._defects = BlockDefects(MosaicGeometry(grid.deg_per_px, grid.mm_per_px_axial,
-                                                    grid.z0_mm, radius_mm))
+        self._defects = BlockDefects(grid)
 
     def push(self, col0: int, image: np.ndarray, weights: np.ndarray) -> None:
         """Finished columns (float, NaN where no data); see MosaicSink."""

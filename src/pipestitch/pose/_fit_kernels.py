@@ -1035,7 +1035,7 @@ def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings
     query, stride, found = ring_query(candidates)
     if candidates.pixels.shape[0] < MIN_CANDIDATES or found < settings.min_coverage:
         return found, no_fit(NO_RING, 0, settings.n_free)
-    rays = rays_of(camera.kind, query, camera.a, camera.b, camera.c, camera.d, camera.index)
+    rays = rays_of(camera, query)
     return found, fit_frame(rays, stride, candidates, plane, settings, uniforms)
 
 

@@ -598,6 +598,6 @@ def _plane_coords(pixels: np.ndarray, camera: CameraModel,
     points cost its per-call overhead, not the model's array set-up).
     """
     kernel = getattr(camera, "ray_kernel", None)
-    rays = (_k.rays_of(kernel[0], _as_points(pixels), *kernel[1:]) if kernel is not None
+    rays = (_k.rays_of(kernel, _as_points(pixels)) if kernel is not None
             else _as_points(camera.unproject(pixels)))
     return _k.rays_to_plane(rays, _kernel_plane(plane))

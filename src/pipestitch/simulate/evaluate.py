@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from skimage.metrics import structural_similarity
 
+from pipestitch.geometry import WallGrid
 from pipestitch.mosaic.register import phase_shift
 
 __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
@@ -42,14 +43,30 @@ MIN_PATCH_STD = 0.005     # flatter true-wall patches carry no position
 SHADING_SIGMA_MM = 4.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WallImage:
-    """A wall image in SPEC's convention: row i at theta0 + i·deg_per_px, col j at z0 + j·mm."""
+    """A wall image on its grid (the true wall, or a mosaic: float, NaN = no data).
+
+    Parameters
+    ----------
+    image : numpy.ndarray, shape grid.shape
+        The image (rows: theta, columns: z).
+    grid : WallGrid
+        Its grid.
+
+    Raises
+    ------
+    ValueError
+        When ``image`` is not an image of ``grid``'s shape.
+    """
 
     image: np.ndarray
-    deg_per_px: float
-    mm_per_px: float
-    z0_mm: float
+    grid: WallGrid
+
+    def __post_init__(self) -> None:
+        if np.shape(self.image) != self.grid.shape:
+            raise ValueError(f"WallImage: image of shape {np.shape(self.image)} on a grid of "
+                             f"shape {self.grid.shape} (rows, columns)")
 
 
 @dataclass(frozen=True)
@@ -76,15 +93,17 @@ def truth_on_grid(truth: WallImage, mosaic: WallImage, z_offset_mm: float,
     mosaic pixel), so fine texture the mosaic cannot hold does not alias. NaN outside
     the truth's axial extent.
     """
-    n_rows, n_cols = mosaic.image.shape
-    sig_r = 0.5 * mosaic.deg_per_px / truth.deg_per_px
-    sig_c = 0.5 * mosaic.mm_per_px / truth.mm_per_px
+    m, t = mosaic.grid, truth.grid
+    n_rows, n_cols = m.shape
+    sig_r = 0.5 * m.deg_per_px / t.deg_per_px
+    sig_c = 0.5 * m.mm_per_px_axial / t.mm_per_px_axial
     src = cv2.GaussianBlur(truth.image.astype(np.float32), (0, 0), sigmaX=max(sig_c, 0.1),
                            sigmaY=max(sig_r, 0.1), borderType=cv2.BORDER_REFLECT)
-    theta = (np.arange(n_rows) * mosaic.deg_per_px + roll_offset_deg) % 360.0
-    z = mosaic.z0_mm + np.arange(n_cols) * mosaic.mm_per_px + z_offset_mm
-    col = (z - truth.z0_mm) / truth.mm_per_px
-    row = theta / truth.deg_per_px
+    theta, z = m.theta_z()
+    theta = (theta + roll_offset_deg - t.theta0_deg) % 360.0
+    z = z + z_offset_mm
+    col = (z - t.z0_mm) / t.mm_per_px_axial
+    row = theta / t.deg_per_px
     map_x = np.broadcast_to(col[None, :], (n_rows, n_cols)).astype(np.float32)
     map_y = np.broadcast_to(row[:, None], (n_rows, n_cols)).astype(np.float32)
     out = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
@@ -94,11 +113,12 @@ def truth_on_grid(truth: WallImage, mosaic: WallImage, z_offset_mm: float,
 
 def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
                          radius_mm: float) -> np.ndarray:
-    """(N, 3) displacement (dz, d_arc) in mm of textured, fully covered patches, and
-    the patch centre's mosaic z (mm)."""
+    """(N, 3) displacement (dz, d_arc) in mm (arcs on a wall of ``radius_mm``) of
+    textured, fully covered patches, and the patch centre's mosaic z (mm)."""
     out = []
     win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
-    arc_mm = np.deg2rad(mosaic.deg_per_px) * radius_mm
+    g = mosaic.grid
+    arc_mm = np.deg2rad(g.deg_per_px) * radius_mm
     n_rows, n_cols = mosaic.image.shape
     for r in range(0, n_rows - PATCH_PX + 1, PATCH_PX):
         for c in range(0, n_cols - PATCH_PX + 1, PATCH_PX):
@@ -108,18 +128,20 @@ def _patch_displacements(mosaic: WallImage, reference: np.ndarray,
                 continue
             dx, dy, resp = phase_shift(t.astype(np.float32), m.astype(np.float32), win)
             if resp >= MIN_PATCH_RESPONSE and max(abs(dx), abs(dy)) < PATCH_PX / 4:
-                z = mosaic.z0_mm + (c + PATCH_PX / 2) * mosaic.mm_per_px
-                out.append((dx * mosaic.mm_per_px, dy * arc_mm, z))
+                z = g.z0_mm + (c + PATCH_PX / 2) * g.mm_per_px_axial
+                out.append((dx * g.mm_per_px_axial, dy * arc_mm, z))
     return np.array(out, float).reshape(-1, 3)
 
 
-def score_mosaic(mosaic: WallImage, truth: WallImage, radius_mm: float, z_offset_mm: float,
+def score_mosaic(mosaic: WallImage, truth: WallImage, z_offset_mm: float,
                  roll_offset_deg: float) -> MosaicScore:
     """Score ``mosaic`` (float, NaN = no data) against the true wall.
 
     ``z_offset_mm`` and ``roll_offset_deg`` take mosaic coordinates to true ones (from
-    the true poses); the median patch displacement refines them.
+    the true poses); the median patch displacement refines them. Arcs are measured on
+    the true wall (``truth.grid.radius_mm``).
     """
+    radius_mm = truth.grid.radius_mm
     reference = truth_on_grid(truth, mosaic, z_offset_mm, roll_offset_deg)
     disp = _patch_displacements(mosaic, reference, radius_mm)
     if len(disp):
@@ -140,7 +162,7 @@ def score_mosaic(mosaic: WallImage, truth: WallImage, radius_mm: float, z_offset
     fitted = _fitted(mosaic.image, reference)
     return MosaicScore(_ssim(fitted), rms, int(len(disp) - n_rejected),
                        n_rejected, coverage, z_offset_mm, roll_offset_deg, scale, local,
-                       _shading_dn(fitted, mosaic.mm_per_px))
+                       _shading_dn(fitted, mosaic.grid.mm_per_px_axial))
 
 
 def _scale_and_local(disp: np.ndarray) -> tuple[float, float]:

@@ -27,21 +27,37 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel, pixel_grid
-from pipestitch.geometry import PipeSection, Pose, ray_wall_distance
+from pipestitch.geometry import PipeSection, Pose, WallGrid, ray_wall_distance
 from pipestitch.simulate._remap import remap_points, remap_wrap
 from pipestitch.simulate.optics import Optics
 
 __all__ = ["Optics", "Renderer", "WallTexture"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WallTexture:
-    """Unrolled wall albedo: row i at theta = i·deg_per_px, column j at z0 + j·mm_per_px."""
+    """Unrolled wall albedo on its grid (in the world frame: theta and z of the pipe).
+
+    Parameters
+    ----------
+    albedo : numpy.ndarray, shape grid.shape
+        Albedo of each grid node (rows: theta, columns: z).
+    grid : WallGrid
+        Its grid.
+
+    Raises
+    ------
+    ValueError
+        When ``albedo`` is not an image of ``grid``'s shape.
+    """
 
     albedo: np.ndarray
-    deg_per_px: float
-    mm_per_px_axial: float
-    z0_mm: float
+    grid: WallGrid
+
+    def __post_init__(self) -> None:
+        if np.shape(self.albedo) != self.grid.shape:
+            raise ValueError(f"WallTexture: albedo of shape {np.shape(self.albedo)} on a grid "
+                             f"of shape {self.grid.shape} (rows, columns)")
 
 
 class Renderer:
@@ -163,9 +179,9 @@ class Renderer:
 
     def _texture_coords(self, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, col) of world wall points in the wall texture."""
-        w = self.wall
-        theta_deg = np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) % 360
-        return theta_deg / w.deg_per_px, (hit[:, 2] - w.z0_mm) / w.mm_per_px_axial
+        g = self.wall.grid
+        theta_deg = (np.rad2deg(np.arctan2(hit[:, 1], hit[:, 0])) - g.theta0_deg) % 360
+        return theta_deg / g.deg_per_px, (hit[:, 2] - g.z0_mm) / g.mm_per_px_axial
 
     def _full(self, values: np.ndarray, index: np.ndarray, fill: float) -> np.ndarray:
         """An image of the sensor's shape with ``values`` at flat ``index``, ``fill`` elsewhere."""

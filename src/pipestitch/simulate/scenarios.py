@@ -179,7 +179,7 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     albedo = make_wall(scenario.texture, grid, rng=rng, defects=defects)
     odometry = (odometer_readings(z, rng, slip_probability=scenario.odometer_slip_probability)
                 if scenario.odometer else None)
-    wall = WallTexture(albedo, grid.deg_per_px, grid.mm_per_px_axial, grid.z0_mm)
+    wall = WallTexture(albedo=albedo, grid=grid)
     renderer = Renderer(camera, section, wall, PLANE_DISTANCE_MM, scenario.optics)
     return SyntheticRun(scenario, camera, section, body, poses, grid, albedo, defects, odometry,
                         renderer, seed)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch import __version__
-from pipestitch._runtime.memory import release_free_memory
+from pipestitch._runtime.memory import keep_buffers_in_heap, release_free_memory
 from pipestitch._runtime.threads import opencv_threads
 from pipestitch.errors import PipestitchError
 from pipestitch.geometry import WallGrid
@@ -276,6 +276,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     try:
         read_imu(dataset.root)   # a bad imu.csv or mask is bad input: say so before the work
         read_mask(dataset.root, dataset.config)
+        keep_buffers_in_heap()   # per-frame buffers reused, not mapped anew (_runtime/memory.py)
         # The frames are spread over the workers: OpenCV splitting each call again
         # costs more than it gains (_runtime/threads.py).
         # The ring points wait for the section refits in a temporary file, not in

@@ -127,3 +127,15 @@ def test_continuity_never_decides_in_a_large_pipe(seed: int) -> None:
     decided = [is_true(f, c.chosen, p) for f, p, c in zip(fits, poses, choices, strict=True)
                if not c.ambiguous]
     assert all(decided) and len(decided) == len(fits)
+
+
+def test_independent_poses_are_not_linked_by_continuity() -> None:
+    """The reference protocol's poses are drawn independently (tilts up to 26°, offsets
+    up to 31 mm): one frame says nothing about the next, so without evidence every
+    frame stays undecided; the rougher of two random tracks is not the wrong one."""
+    rng = np.random.default_rng(7)
+    poses = [Pose.from_degrees(*rng.uniform(-20, 20, 2), *rng.uniform(-8, 8, 2))
+             for _ in range(30)]
+    fits = [exact_fit(p) for p in poses]
+    choices = resolve_run(fits, np.zeros((len(fits), 2)))
+    assert all(c.ambiguous and c.reason == "undecided" for c in choices)

@@ -11,7 +11,8 @@ frame's ring never decides. Evidence that does:
 
 **Temporal continuity** then carries a decision along the run: a min-sum (Viterbi)
 pass over a two-state chain whose transition cost is the pose change between
-consecutive hypotheses. Continuity alone never decides: the mirror track is exactly
+consecutive hypotheses, up to a jump (``JUMP_SCALES``): poses that change by more
+than a probe moves between frames are linked by nothing. Continuity alone never decides: the mirror track is exactly
 as smooth as the true one, so a run without any deciding evidence stays ambiguous.
 Each frame's margin is the difference between the best total cost with its state
 forced to either hypothesis; below ``min_margin`` the frame is flagged ambiguous.
@@ -165,14 +166,21 @@ def _reason(u: np.ndarray, photo_evidence: float, min_margin: float) -> str:
     return "photometric" if photo_evidence >= min_margin else "continuity"
 
 
+# A pose change of more than this many transition scales between two frames is a jump
+# (a jolt, frames far apart, poses drawn independently): every jump is as likely as any
+# other, so two hypotheses that both jump there cost the same and continuity carries
+# nothing across (a Gaussian motion model mixed with a small chance of any pose).
+JUMP_SCALES = 5.0
+
+
 def _transition(fa: PoseFit, fb: PoseFit, gap: int, angle_rad: float,
                 offset_mm: float) -> np.ndarray:
     cost = np.zeros((2, 2))
     scale = np.sqrt(gap)
     for i, ha in enumerate(fa.hypotheses):
         for j, hb in enumerate(fb.hypotheses):
-            d = hypothesis_distance(ha, hb, angle_scale_rad=angle_rad * scale,
-                                    offset_scale_mm=offset_mm * scale)
+            d = min(hypothesis_distance(ha, hb, angle_scale_rad=angle_rad * scale,
+                                        offset_scale_mm=offset_mm * scale), JUMP_SCALES)
             cost[i, j] = 0.5 * d * d
     return cost
 

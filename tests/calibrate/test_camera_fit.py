@@ -78,7 +78,9 @@ def test_ocam_calibration_recovers_the_rendered_lens(rendered, truth) -> None:
     diff = compare_models(cal.camera, truth, max_incidence_deg=90.0)
     # Over the whole image circle up to 90° (boards reach 80°+): measured 0.014 px mean,
     # 0.03 px max after the roll gauge; 0.1 / 0.25 px leave room for corner noise.
-    assert diff.mean_aligned_px < 0.1
+    # A fit to detected corners is not the lens itself: no difference at all would be a
+    # model compared with itself.
+    assert 0 < diff.mean_aligned_px < 0.1
     assert diff.max_aligned_px < 0.25
     assert diff.n_pixels > 5000
     assert abs(cal.camera.pol[0] - truth.pol[0]) < 0.01 * abs(truth.pol[0])
@@ -136,7 +138,7 @@ def test_opencv_fisheye_fit_with_corner_noise() -> None:
     # Five usable boards, 0.05 px noise: the k's trade against each other, the mapping
     # within 60° stays within ~0.1 px (measured 0.095 mean, 0.13 max).
     diff = compare_models(cal.camera, truth, max_incidence_deg=60.0)
-    assert diff.mean_px < 0.15 and diff.max_px < 0.3
+    assert 0 < diff.mean_px < 0.15 and diff.max_px < 0.3
 
 
 def test_bad_view_is_rejected(truth) -> None:
@@ -147,7 +149,9 @@ def test_bad_view_is_rejected(truth) -> None:
     views[3] = BoardView(shuffled, bad.object_mm, "bad.png")
     cal = calibrate_camera(views, model="ocam", width=truth.width, height=truth.height)
     assert [name for name, _ in cal.rejected] == ["bad.png"]
-    assert cal.rms_px < 0.1
+    # 0.05 px per coordinate: ~0.07 px of 2-D residual less the fitted freedoms (0.067
+    # measured); far less, and the fit was not made to these noisy corners.
+    assert 0.05 < cal.rms_px < 0.1
 
 
 def test_too_few_views_and_bad_board_text() -> None:

@@ -85,7 +85,9 @@ def test_calibration_recovers_the_tilted_plane(plane) -> None:
     assert angle < 0.05
     assert abs(fit.tilt_deg - 1.0) < 0.05
     assert abs(fit.distance_mm - D_MM) < 0.01
-    assert 0.0 < fit.rms_mm < 0.05
+    # The ring points' ~0.02 mm of noise (0.024 measured): an RMS far below it would
+    # not be of these points.
+    assert 0.01 < fit.rms_mm < 0.05
     # The reported 1-sigma is of the order of the actual error (it ignores the small
     # systematic errors of ring extraction, so it is not an upper bound).
     assert 0.0 < max(fit.normal_std_deg) < 0.05 and 0.0 < fit.distance_std_mm < 0.01

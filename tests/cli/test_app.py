@@ -117,8 +117,10 @@ def test_pose_writes_spec_columns_and_keeps_bad_frames(small_dataset: Path,
     est = [float(rows[0][k]) for k in ("alpha_deg", "beta_deg")]
     alt = [float(rows[0]["alt_" + k]) for k in ("alpha_deg", "beta_deg")]
     true = [float(truth[k]) for k in ("alpha_deg", "beta_deg")]
-    # Up to the mirror, the pose is within the success tolerance (0.5 deg).
-    assert min(max(abs(a - b) for a, b in zip(v, true, strict=True)) for v in (est, alt)) < 0.5
+    # Up to the mirror, the pose is within the success tolerance (0.5 deg); measured from a
+    # noisy frame (0.008 deg off here), not equal to the truth the dataset holds beside it.
+    assert 0 < min(max(abs(a - b) for a, b in zip(v, true, strict=True))
+                   for v in (est, alt)) < 0.5
 
 
 def test_pose_on_missing_dataset_exit_2(tmp_path: Path) -> None:

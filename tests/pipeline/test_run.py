@@ -86,7 +86,10 @@ def _wall_score(dataset: Path, output: Path):
 
 def test_mosaic_matches_the_true_wall(dataset: Path, output: Path) -> None:
     score = _wall_score(dataset, output)
-    assert score.ssim > 0.9
+    # The LED frames' shot and read noise stays in the mosaic (a residual of 0.010 against
+    # the wall's 0.11 spread; 0.985 measured): white noise of half that residual alone
+    # takes the SSIM to 0.994, so 0.995 or more would not be this mosaic against this wall.
+    assert 0.9 < score.ssim < 0.995
     assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
 
 
@@ -104,7 +107,7 @@ def test_finer_registration_rounds_keep_the_scale_and_the_geometry(
     assert meta["mm_per_px_axial"] == default["mm_per_px_axial"]
     assert meta["n_rows"] == default["n_rows"]
     score = _wall_score(dataset, out)
-    assert score.ssim > 0.9
+    assert 0.9 < score.ssim < 0.995     # as the default mosaic's (0.986 measured)
     assert score.geometric_rms_mm < 0.1 and score.n_patches > 50
 
 
@@ -113,10 +116,12 @@ def test_poses_carry_registration_z_and_roll(dataset: Path, output: Path) -> Non
     truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
     assert np.allclose(np.diff(est["z_mm"]), np.diff(truth["z_mm"]), atol=0.1)
     assert np.allclose(np.diff(est["roll_deg"]), np.diff(truth["roll_deg"]), atol=0.1)
+    # Estimated from noisy frames (0.006-0.027 measured at worst): poses.csv equal to the
+    # truth would be the truth read back, not measured.
     for name in ("alpha_deg", "beta_deg"):
-        assert np.max(np.abs(est[name] - truth[name])) < 0.3
+        assert 0 < np.max(np.abs(est[name] - truth[name])) < 0.3
     for name in ("dx_mm", "dy_mm"):
-        assert np.max(np.abs(est[name] - truth[name])) < 0.1
+        assert 0 < np.max(np.abs(est[name] - truth[name])) < 0.1
 
 
 def test_run_reports_and_skips_corrupt_frames(dataset: Path, tmp_path: Path) -> None:

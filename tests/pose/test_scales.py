@@ -91,7 +91,9 @@ def test_ring_fits_at_geometries_unlike_the_simulators(camera, diameter_mm: floa
     # The ring is seen all round but where the holder arm hides it (7° of 360°): the
     # fit must use nearly all of it, and fit it to better than a pixel.
     assert fit.coverage >= 0.95 * det.coverage
-    assert 0.0 < fit.hypotheses[0].rms_px <= 1.0
+    # Default speckle (12 %) and sensor noise on lines of 0.9-3 px sigma: 0.044-0.30 px
+    # measured; as in test_ring, below 0.02 px the fit would not be of these noisy rings.
+    assert 0.02 < fit.hypotheses[0].rms_px <= 1.0
     # Pose up to the mirror: the tilt to 0.5° as in the reference protocol, the offset
     # to 0.5 % of the pipe's radius (0.5 mm at our 65 mm pipe's scale of 0.16 mm/px is
     # ~2 px; the same pixels are 0.75 mm in a 300 mm pipe at 170 mm).

@@ -48,6 +48,8 @@ def test_odometer_has_scale_error_and_noise() -> None:
     z = np.linspace(0, 1000, 2001)
     odo = odometer_readings(z, np.random.default_rng(2), scale_error=0.02, noise_mm=0.3)
     slope, intercept = np.polyfit(z, odo, 1)
+    # 2001 readings of 0.3 mm noise over 1 m: the slope's standard error is 2.3e-5 and
+    # the spread's 1.6 % (measured 2.5e-5 and -1.6 % off), far inside both bounds.
     assert slope == pytest.approx(1.02, abs=1e-3)
     assert np.std(odo - (slope * z + intercept)) == pytest.approx(0.3, rel=0.1)
 

@@ -12,8 +12,9 @@ frame's ring never decides. Evidence that does:
 **Temporal continuity** then carries a decision along the run: a min-sum (Viterbi)
 pass over a two-state chain whose transition cost is the pose change between
 consecutive hypotheses, up to a jump (``JUMP_SCALES``): poses that change by more
-than a probe moves between frames are linked by nothing. Continuity alone never decides: the mirror track is exactly
-as smooth as the true one, so a run without any deciding evidence stays ambiguous.
+than a probe moves between frames are linked by nothing. Continuity alone never
+decides: the mirror track is exactly as smooth as the true one, so a run without any
+deciding evidence stays ambiguous.
 Each frame's margin is the difference between the best total cost with its state
 forced to either hypothesis; below ``min_margin`` the frame is flagged ambiguous.
 Frames whose two hypotheses coincide (tilt near zero) are not ambiguous: both give

@@ -28,6 +28,20 @@ def is_true(fit: PoseFit, index: int, pose: Pose) -> bool:
     return abs(h.alpha - pose.alpha) < 1e-6 and abs(h.beta - pose.beta) < 1e-6
 
 
+def assert_undecided(fits: list[PoseFit]) -> None:
+    """Without any evidence, every frame is flagged undecided."""
+    choices = resolve_run(fits, np.zeros((len(fits), 2)))
+    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+
+
+def evidence_at(fits: list[PoseFit], poses: list[Pose], k: int) -> np.ndarray:
+    """Unary costs with evidence against the mirror of frame ``k`` only (as if the
+    envelope had ruled it out there)."""
+    unary = np.zeros((len(fits), 2))
+    unary[k, 1 - (0 if is_true(fits[k], 0, poses[k]) else 1)] = 40.0
+    return unary
+
+
 def track(n: int = 30, tilt_deg: float = 3.0) -> list[Pose]:
     t = np.linspace(0, 1, n)
     return [Pose.from_degrees(tilt_deg * np.cos(2 * s), tilt_deg * np.sin(2 * s), 2.0 * s, -1.0)
@@ -50,14 +64,11 @@ def test_continuity_carries_a_decision_but_never_makes_one() -> None:
     poses = track()
     fits = [exact_fit(p) for p in poses]
     # No evidence at all: every frame is ambiguous (the mirror track is as smooth).
-    choices = resolve_run(fits, np.zeros((len(fits), 2)))
-    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+    assert_undecided(fits)
     # Evidence in one frame (say the envelope ruled the mirror out there): the whole
     # track follows, and every choice is the true pose.
-    unary = np.zeros((len(fits), 2))
     k = 12
-    unary[k, 1 - (0 if is_true(fits[k], 0, poses[k]) else 1)] = 40.0
-    choices = resolve_run(fits, unary)
+    choices = resolve_run(fits, evidence_at(fits, poses, k))
     assert choices[k].reason == "envelope"
     for fit, pose, c in zip(fits, poses, choices, strict=True):
         assert not c.ambiguous and is_true(fit, c.chosen, pose)
@@ -118,12 +129,8 @@ def test_continuity_never_decides_in_a_large_pipe(seed: int) -> None:
     radius, plane = 150.0, 170.0
     poses = _wandering_track(seed, radius)
     fits = [exact_fit(p, radius, plane) for p in poses]
-    choices = resolve_run(fits, np.zeros((len(fits), 2)))
-    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
-    unary = np.zeros((len(fits), 2))
-    k = 20
-    unary[k, 1 - (0 if is_true(fits[k], 0, poses[k]) else 1)] = 40.0
-    choices = resolve_run(fits, unary)
+    assert_undecided(fits)
+    choices = resolve_run(fits, evidence_at(fits, poses, 20))
     decided = [is_true(f, c.chosen, p) for f, p, c in zip(fits, poses, choices, strict=True)
                if not c.ambiguous]
     assert all(decided) and len(decided) == len(fits)
@@ -136,6 +143,4 @@ def test_independent_poses_are_not_linked_by_continuity() -> None:
     rng = np.random.default_rng(7)
     poses = [Pose.from_degrees(*rng.uniform(-20, 20, 2), *rng.uniform(-8, 8, 2))
              for _ in range(30)]
-    fits = [exact_fit(p) for p in poses]
-    choices = resolve_run(fits, np.zeros((len(fits), 2)))
-    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+    assert_undecided([exact_fit(p) for p in poses])

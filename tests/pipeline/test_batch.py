@@ -191,7 +191,13 @@ def test_ctrl_c_stops_the_workers_and_leaves_each_output_as_it_was(
                "--out", str(out), "--quiet"]
     assert subprocess.run(command, capture_output=True, timeout=600).returncode == 0
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != LOCK}
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    # Started as from a terminal: Ctrl-C at its default disposition, whatever this test
+    # process inherited (a CI job started in the background runs with SIGINT ignored,
+    # which the batch, like any process, would then keep ignoring).
+    terminal = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                "os.execv(sys.executable, [sys.executable, *sys.argv[1:]])")
+    proc = subprocess.Popen([sys.executable, "-c", terminal, *command[1:]],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             start_new_session=True)
     deadline = time.monotonic() + 300
     while not list(out.glob(f"*/{STAGING_PREFIX}*")) and time.monotonic() < deadline:

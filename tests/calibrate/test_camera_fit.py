@@ -64,7 +64,8 @@ def test_detected_corners_match_the_rendered_truth(rendered, truth) -> None:
         errors.append(np.linalg.norm(view.pixels - expected, axis=1))
     err = np.concatenate(errors)
     # Anti-aliased edges + noise 1 grey level: corner detection is good to ~0.1 px RMS
-    # (0.07 measured); without the saddle refinement it was 0.2 px, biased inwards.
+    # (0.089 measured, largest 0.32); without the saddle refinement it was 0.2 px, biased
+    # inwards.
     assert 0.0 < np.sqrt(np.mean(err**2)) < 0.12
     assert np.max(err) < 0.5
 
@@ -73,11 +74,13 @@ def test_ocam_calibration_recovers_the_rendered_lens(rendered, truth) -> None:
     views = [detect_board(img, BOARD, name=f"v{k}") for k, (img, _, _) in enumerate(rendered)]
     cal = calibrate_camera(views, model="ocam", width=truth.width, height=truth.height)
     assert not cal.rejected and len(cal.views) == len(VIEWS)
-    # Residuals are the corner detection noise (~0.07 px): a model error would add to them.
+    # Residuals are the corner detection noise (~0.09 px): a model error would add to them.
     assert 0.01 < cal.rms_px < 0.12
     diff = compare_models(cal.camera, truth, max_incidence_deg=90.0)
-    # Over the whole image circle up to 90° (boards reach 80°+): measured 0.014 px mean,
-    # 0.03 px max after the roll gauge; 0.1 / 0.25 px leave room for corner noise.
+    # Over the whole image circle up to 90° (boards reach 80°+): measured 0.078 px mean,
+    # 0.148 px max after the roll gauge (the same at the calibration's first commit with
+    # today's OpenCV 5.1 and numpy 2.4), with corner residuals of 0.084 px rms: the fit
+    # to noisy corners, extrapolated past the boards; 0.1 / 0.25 px leave that room.
     # A fit to detected corners is not the lens itself: no difference at all would be a
     # model compared with itself.
     assert 0 < diff.mean_aligned_px < 0.1

@@ -373,3 +373,31 @@ def test_measure_refuses_unkeepable_rows_before_writing_anything(output: Path,
     result = runner.invoke(app, ["measure", str(out)])
     assert result.exit_code == 2 and "observations.csv" in result.output
     assert (out / "defects.csv").read_bytes() == before
+
+
+@pytest.mark.parametrize("pyramid", [True, False])
+def test_measure_reads_a_rounded_pitch_and_refuses_an_impossible_one(
+        output: Path, tmp_path: Path, pyramid: bool) -> None:
+    """mosaic.json written by another tool: a pitch rounded to 6 decimals still means its
+    whole number of rows (the same defects), a pyramid record without ``n_cols`` is read,
+    and a pitch that fits no whole number of rows (or not the PNG's) is refused naming
+    mosaic.json (exit 2), never a traceback."""
+    copy = tmp_path / "out"
+    shutil.copytree(output, copy)
+    meta = json.loads((copy / "mosaic.json").read_text())
+    if not pyramid:
+        (copy / meta["full_resolution"]["file"]).unlink()
+    record = meta["full_resolution"] if pyramid else meta
+    record["deg_per_px"] = round(record["deg_per_px"], 6)
+    meta["full_resolution"].pop("n_cols", None)
+    (copy / "mosaic.json").write_text(json.dumps(meta))
+    result = runner.invoke(app, ["measure", str(copy)])
+    assert result.exit_code == 0, result.output
+    if pyramid:   # the same 8-bit mosaic and grid: the same defects as the run's
+        assert (copy / "defects.csv").read_text() == (output / "defects.csv").read_text()
+    n_rows = round(360.0 / record["deg_per_px"])
+    record["deg_per_px"] = 360.0 / (n_rows + 0.5)   # half a row off any whole number
+    (copy / "mosaic.json").write_text(json.dumps(meta))
+    result = runner.invoke(app, ["measure", str(copy)])
+    assert result.exit_code == 2 and "mosaic.json" in result.output
+    assert "Traceback" not in result.output

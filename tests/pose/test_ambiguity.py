@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -137,10 +139,20 @@ def test_continuity_never_decides_in_a_large_pipe(seed: int) -> None:
 
 
 def test_independent_poses_are_not_linked_by_continuity() -> None:
-    """The reference protocol's poses are drawn independently (tilts up to 26°, offsets
-    up to 31 mm): one frame says nothing about the next, so without evidence every
-    frame stays undecided; the rougher of two random tracks is not the wrong one."""
+    """Poses drawn independently, as the reference protocol's are (here tilts up to 20°
+    and offsets up to 8 mm on each axis): one frame says nothing about the next, so
+    without evidence every frame stays undecided; the rougher of two random tracks is
+    not the wrong one."""
     rng = np.random.default_rng(7)
     poses = [Pose.from_degrees(*rng.uniform(-20, 20, 2), *rng.uniform(-8, 8, 2))
              for _ in range(30)]
     assert_undecided([exact_fit(p) for p in poses])
+
+
+def test_a_frame_without_a_finite_radius_does_not_silence_the_flags() -> None:
+    """A NaN in one frame's fit must not turn every margin into NaN (which would compare
+    as decided): the frames stay undecided without evidence."""
+    fits = [exact_fit(p) for p in track()]
+    bad = fits[5].hypotheses
+    fits[5] = replace(fits[5], hypotheses=(replace(bad[0], radius_mm=float("nan")), bad[1]))
+    assert_undecided(fits)

@@ -27,14 +27,14 @@ def _ring_counts(amplitude: float, noise: float, radius_px: float = 300.0) -> np
 def test_a_dim_12_bit_ring_in_a_16_bit_file_is_found(amplitude: float) -> None:
     counts = _ring_counts(amplitude, noise=2.0)
     det = detect_ring(counts.astype(np.uint16), default_camera("half"))
-    # 40 counts of 4095 is 10 % of an 8-bit step above nothing: 8 noise sigmas of a
-    # 2-count noise, but a quarter of an 8-bit step (16 counts) would have hidden it.
+    # 40 counts is 20 sigmas of the 2-count noise, but 0.16 of an 8-bit step of the
+    # file's range: the 8-bit floor (a quarter of a step, 64 counts) hid it.
     assert det.coverage >= 0.95
     cam = default_camera("half")
     axis = cam.project(np.array([[0.0, 0.0, 1.0]]))[0]
     radius = np.hypot(*(det.best() - axis).T)
     assert np.median(np.abs(radius - 300.0)) < 0.2
-    # The same frame as 8 bits (counts / 16): the ring is below one step of noise-free
-    # quantisation at 40 counts, and found at 400.
+    # The same frame as 8 bits (counts / 4095 * 255): 2.5 steps high at 40 counts, and
+    # lost against the 8-bit floor there; found at 400 counts (25 steps).
     eight = np.round(counts / 4095 * 255).astype(np.uint8)
     assert (detect_ring(eight, cam).coverage >= 0.95) == (amplitude > 100)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
@@ -97,14 +98,26 @@ def keep_buffers_in_heap() -> bool:
     held in the heap. Process-wide and idempotent; the heap's free pages are still handed back by
     :func:`release_free_memory` between passes and every ``TRIM_EVERY`` frames.
 
+    Settings the user gave glibc (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
+    ``malloc`` tunables in ``GLIBC_TUNABLES``) are left as they are.
+
     Returns
     -------
     bool
-        True when the C library took both settings (glibc), False otherwise.
+        True when the C library took both settings (glibc), False otherwise (then
+        nothing was changed, or on a C library that refused the first, nothing more).
     """
     mallopt = _libc_function("mallopt")
-    if mallopt is None:
+    if mallopt is None or _user_allocator_settings():
         return False
-    mapped = mallopt(_M_MMAP_THRESHOLD, HEAP_BUFFER_MB << 20)
-    trimmed = mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1)   # a C int: 2 GB
-    return bool(mapped and trimmed)
+    if not mallopt(_M_MMAP_THRESHOLD, HEAP_BUFFER_MB << 20):   # e.g. above 32-bit limits
+        return False
+    return bool(mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1))   # a C int: 2 GB
+
+
+def _user_allocator_settings() -> bool:
+    """Whether the environment sets glibc's mmap or trim threshold itself."""
+    tunables = os.environ.get("GLIBC_TUNABLES", "")
+    return (any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"))
+            or "glibc.malloc.mmap_threshold" in tunables
+            or "glibc.malloc.trim_threshold" in tunables)

@@ -82,7 +82,7 @@ class WallGrid:
             raise ValueError(f"WallGrid.n_cols: expected a positive integer, got {self.n_cols!r}")
         object.__setattr__(self, "n_cols", int(self.n_cols))
         ratio = 360.0 / self.deg_per_px
-        if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6:
+        if not math.isfinite(ratio) or round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
                 f"WallGrid.deg_per_px: 360 / {self.deg_per_px!r} = {ratio!r} is not an integer; "
                 "the rows must close up around the pipe")

@@ -139,18 +139,19 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
 
 
 # Full scales of integer frames scaled to [0, 1] by their file's range: 1 for 8-bit and
-# 16-bit data, (2**bits - 1) / 65535 for 10-, 12- and 14-bit data in 16-bit files.
-FULL_SCALES = tuple(sorted((2**bits - 1) / 65535 for bits in (10, 12, 14))) + (1.0,)
+# 16-bit data, (2**bits - 1) / 65535 for 8-, 10-, 12- and 14-bit data in 16-bit files.
+FULL_SCALES = tuple(sorted((2**bits - 1) / 65535 for bits in (8, 10, 12, 14))) + (1.0,)
 
 
 def full_scale(top: float) -> float:
     """The sensor's full scale of frames whose brightest value is ``top``.
 
     The smallest of ``FULL_SCALES`` at or above ``top``: a 12-bit sensor's data in a
-    16-bit file never exceed 4095 / 65535 of the file's range and clip there, and an
-    8-bit value is never that close to a 10-, 12- or 14-bit full scale (the nearest,
-    16 / 255, is 0.4 % above 4095 / 65535). Float frames brighter than 1 clip at their
-    maximum.
+    16-bit file never exceed 4095 / 65535 of the file's range and clip there. An 8-bit
+    frame's brightest value is at least 0.4 % above any of those full scales (64 / 255
+    above 16383 / 65535 is the closest) or 1.2 % below it, so an 8-bit frame's full
+    scale stays 1 unless it never reaches 1/4 of it. Float frames brighter than 1 clip
+    at their maximum.
     """
     return next((f for f in FULL_SCALES if f >= top * (1 - 1e-6)), top)
 

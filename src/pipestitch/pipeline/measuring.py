@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -72,32 +73,57 @@ def _measure(out: Path, crown_deg: float | None) -> tuple[Path, list[Defect]]:
     crown = 270.0 if crown_deg is None else crown_deg
     full = meta.get("full_resolution")
     if isinstance(full, dict) and (out / str(full.get("file"))).is_file():
-        defects = _measure_pyramid(out / str(full["file"]), full, meta["radius_mm"], crown)
+        pyramid = out / str(full["file"])
+        n_rows, n_cols = _pyramid_shape(pyramid)
+        grid = _grid(out, full, meta["radius_mm"], n_cols, n_rows=n_rows)
+        defects = _measure_pyramid(pyramid, grid, crown)
     else:   # a mosaic.png without a pyramid (made elsewhere): it is the full resolution
-        defects = measure_mosaic(image, _png_grid(out, image, meta), crown_theta_deg=crown)
+        grid = _grid(out, meta, meta["radius_mm"], image.shape[1], n_rows=image.shape[0])
+        defects = measure_mosaic(image, grid, crown_theta_deg=crown)
     reference = "relative" if crown_deg is None else "user (--crown-deg)"
     return write_defects_csv(out / "defects.csv", defects, reference=reference), defects
 
 
-def _png_grid(out: Path, image: np.ndarray, meta: dict) -> WallGrid:
-    """The grid of mosaic.png (``image``) that mosaic.json (``meta``) describes; raises
-    DatasetError naming the file when the two do not fit together."""
+def _grid(out: Path, record: dict, radius_mm: float, n_cols: int, *,
+          n_rows: int | None = None) -> WallGrid:
+    """The grid a mosaic.json record (the overview's or ``full_resolution``) describes,
+    for an image of ``n_rows`` rows (else 360 / deg_per_px of them).
+
+    A pitch written rounded (``0.237938`` for 1513 rows) is taken as the whole number
+    of rows it stands for; raises DatasetError naming mosaic.json when no whole number
+    of rows fits it, or when a value is not a number.
+    """
     try:
-        grid = WallGrid.from_json(meta, image.shape[1])
-    except ValueError as exc:
-        raise DatasetError(out / "mosaic.json", str(exc)) from None
-    if image.shape != grid.shape:
-        raise DatasetError(out / "mosaic.png", f"{image.shape[0]} rows, but mosaic.json's "
-                                               f"deg_per_px gives {grid.n_rows}")
-    return grid
+        deg = float(record["deg_per_px"])
+        rows = round(360.0 / deg) if n_rows is None else int(n_rows)
+        if not (math.isfinite(deg) and deg > 0 and rows >= 1
+                and abs(rows * deg - 360.0) < deg / 4):
+            raise ValueError(f"deg_per_px {deg!r} does not give {rows} rows around the pipe"
+                             if n_rows is not None else
+                             f"deg_per_px {deg!r} does not divide 360° into whole rows")
+        return WallGrid(radius_mm=float(radius_mm), deg_per_px=360.0 / rows,
+                        mm_per_px_axial=float(record["mm_per_px_axial"]),
+                        z0_mm=float(record["z0_mm"]), n_cols=max(1, int(n_cols)))
+    except (KeyError, TypeError, ValueError, OverflowError, ZeroDivisionError) as exc:
+        raise DatasetError(out / "mosaic.json", f"mosaic grid: {exc}") from None
 
 
-def _measure_pyramid(path: Path, full: dict, radius_mm: float, crown_deg: float) -> list[Defect]:
-    """Defects of the full-resolution mosaic in ``path`` (its mosaic.json record ``full``),
-    read a tile column at a time and measured by blocks as ``run`` does
-    (pipeline/stitched_output.py)."""
+def _pyramid_shape(path: Path) -> tuple[int, int]:
+    """Rows and columns of the full-resolution level of a mosaic pyramid (its header)."""
+    import tifffile
+
     try:
-        grid = WallGrid.from_json(full, int(full["n_cols"]), radius_mm=float(radius_mm))
+        with tifffile.TiffFile(path) as tif:
+            shape = tif.series[0].levels[0].shape
+        return int(shape[0]), int(shape[1])
+    except (OSError, ValueError, IndexError, tifffile.TiffFileError) as exc:
+        raise DatasetError(path, f"unreadable mosaic pyramid: {exc}") from None
+
+
+def _measure_pyramid(path: Path, grid: WallGrid, crown_deg: float) -> list[Defect]:
+    """Defects of the full-resolution mosaic in ``path`` on ``grid``, read a tile column
+    at a time and measured by blocks as ``run`` does (pipeline/stitched_output.py)."""
+    try:
         finder = BlockDefects(grid, up_theta_deg=crown_deg)
         for col0, block in read_column_blocks(path):
             finder.push(col0, mosaic_from_uint8(block))

@@ -296,6 +296,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
             return replace(summary, out=out)
     finally:
         dataset.close()   # a video's decoder
+        release_free_memory()   # the run's freed heap back to the system, for the caller
 
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,

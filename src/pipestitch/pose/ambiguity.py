@@ -202,9 +202,11 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
     pairwise : dict of int -> numpy.ndarray (2, 2), optional
         Photometric costs between frame k and the next frame with a fit, keyed by k
         (:func:`pipestitch.mosaic.photometric.pair_costs`).
-    step_angle_deg, step_offset_mm : float
-        Typical pose change between consecutive frames (transition scale); the offset's
-        default is ``STEP_OFFSET_RADII`` of the median fitted radius.
+    step_angle_deg : float
+        Typical tilt change between consecutive frames (transition scale).
+    step_offset_mm : float, optional
+        The same for the offset; default ``STEP_OFFSET_RADII`` of the median fitted
+        radius (1 mm when no radius is finite).
     min_margin : float
         Margin below which a frame is flagged ambiguous (5 ≈ 150:1 odds).
     infeasible_cost : float
@@ -223,8 +225,9 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
     if not idx:
         return choices
     if step_offset_mm is None:
-        radius = np.median([h.radius_mm for i in idx for h in fits[i].hypotheses])
-        step_offset_mm = STEP_OFFSET_RADII * float(radius)
+        radii = [h.radius_mm for i in idx for h in fits[i].hypotheses
+                 if np.isfinite(h.radius_mm) and h.radius_mm > 0]
+        step_offset_mm = STEP_OFFSET_RADII * float(np.median(radii)) if radii else 1.0
     ang, off = np.deg2rad(step_angle_deg), step_offset_mm
     u = unary[idx].copy()
     # Both hypotheses impossible (an oval pipe read as tilt, a wrong calibration):
@@ -249,7 +252,7 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
             choices[i] = Choice(chosen, True, "infeasible", margin)
         elif coincide(fits[i]):
             choices[i] = Choice(chosen, False, "coincide", margin)
-        elif margin < min_margin:
+        elif not margin >= min_margin:   # a NaN margin decides nothing either
             choices[i] = Choice(chosen, True, "undecided", margin)
         else:
             choices[i] = Choice(chosen, False, _reason(u[k], _photo_evidence(photo, idx, k),

@@ -164,9 +164,13 @@ class WallGrid:
                    z0_mm=z0_mm, n_cols=n_cols)
 
     @classmethod
-    def from_json(cls, meta: Mapping[str, Any], n_cols: int, *,
+    def from_json(cls, meta: Mapping[str, Any], n_cols: int, *, n_rows: int | None = None,
                   radius_mm: float | None = None) -> WallGrid:
         """The grid of a wall image from its SPEC metadata (the inverse of :meth:`to_json`).
+
+        A pitch written rounded (``0.237938`` for 1513 rows, by another tool) is read as
+        the whole number of rows it stands for: ``deg_per_px = 360 / rows``, which is the
+        value itself for metadata that :meth:`to_json` wrote.
 
         Parameters
         ----------
@@ -176,6 +180,9 @@ class WallGrid:
             ``full_resolution`` record; other keys are ignored).
         n_cols : int
             The image's width.
+        n_rows : int, optional
+            The image's height, when it is at hand: the pitch must give that many rows
+            (default: ``round(360 / deg_per_px)``).
         radius_mm : float, optional
             Wall radius, for metadata that does not hold it (mosaic.json's
             ``full_resolution``, whose radius is the document's).
@@ -190,11 +197,21 @@ class WallGrid:
         KeyError
             When ``meta`` lacks a key.
         ValueError
-            On values the grid refuses (see :class:`WallGrid`).
+            When the pitch gives no whole number of rows (within a quarter of a row
+            around the pipe) or not ``n_rows``, or on values the grid refuses (see
+            :class:`WallGrid`).
         """
+        deg = float(meta["deg_per_px"])
+        if not (deg > 0 and math.isfinite(360.0 / deg)):
+            raise ValueError(f"deg_per_px: expected a positive pitch, a finite number of rows "
+                             f"around the pipe, got {deg!r}")
+        rows = round(360.0 / deg) if n_rows is None else int(n_rows)
+        if rows < 1 or abs(rows * deg - 360.0) >= deg / 4:
+            raise ValueError(f"deg_per_px {deg!r} does not give {rows} rows around the pipe"
+                             if n_rows is not None else
+                             f"deg_per_px {deg!r} does not divide 360° into whole rows")
         return cls(radius_mm=float(meta["radius_mm"] if radius_mm is None else radius_mm),
-                   deg_per_px=float(meta["deg_per_px"]),
-                   mm_per_px_axial=float(meta["mm_per_px_axial"]),
+                   deg_per_px=360.0 / rows, mm_per_px_axial=float(meta["mm_per_px_axial"]),
                    z0_mm=float(meta["z0_mm"]), n_cols=n_cols)
 
     @property

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -86,25 +85,12 @@ def _measure(out: Path, crown_deg: float | None) -> tuple[Path, list[Defect]]:
 
 def _grid(out: Path, record: dict, radius_mm: float, n_cols: int, *,
           n_rows: int | None = None) -> WallGrid:
-    """The grid a mosaic.json record (the overview's or ``full_resolution``) describes,
-    for an image of ``n_rows`` rows (else 360 / deg_per_px of them).
-
-    A pitch written rounded (``0.237938`` for 1513 rows) is taken as the whole number
-    of rows it stands for; raises DatasetError naming mosaic.json when no whole number
-    of rows fits it, or when a value is not a number.
-    """
+    """The grid a mosaic.json record (the overview's or ``full_resolution``) describes
+    (:meth:`WallGrid.from_json`); DatasetError naming mosaic.json when it describes none."""
     try:
-        deg = float(record["deg_per_px"])
-        rows = round(360.0 / deg) if n_rows is None else int(n_rows)
-        if not (math.isfinite(deg) and deg > 0 and rows >= 1
-                and abs(rows * deg - 360.0) < deg / 4):
-            raise ValueError(f"deg_per_px {deg!r} does not give {rows} rows around the pipe"
-                             if n_rows is not None else
-                             f"deg_per_px {deg!r} does not divide 360° into whole rows")
-        return WallGrid(radius_mm=float(radius_mm), deg_per_px=360.0 / rows,
-                        mm_per_px_axial=float(record["mm_per_px_axial"]),
-                        z0_mm=float(record["z0_mm"]), n_cols=max(1, int(n_cols)))
-    except (KeyError, TypeError, ValueError, OverflowError, ZeroDivisionError) as exc:
+        return WallGrid.from_json(record, max(1, int(n_cols)), n_rows=n_rows,
+                                  radius_mm=float(radius_mm))
+    except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(out / "mosaic.json", f"mosaic grid: {exc}") from None
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,12 @@ from typer.testing import CliRunner
 
 from pipestitch.cli.app import app
 from pipestitch.geometry import WallGrid
-from pipestitch.io.dataset import read_csv_columns
+from pipestitch.io.dataset import open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
-from pipestitch.pipeline.run import run_dataset
+from pipestitch.io.mask import write_mask
+from pipestitch.pipeline.progress import StageTimer
+from pipestitch.pipeline.run import _occluders_ahead, run_dataset
+from pipestitch.pipeline.stitching import MosaicSettings, find_occluders
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -401,3 +405,30 @@ def test_measure_reads_a_rounded_pitch_and_refuses_an_impossible_one(
     result = runner.invoke(app, ["measure", str(copy)])
     assert result.exit_code == 2 and "mosaic.json" in result.output
     assert "Traceback" not in result.output
+
+
+def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
+                                                                  tmp_path: Path) -> None:
+    """The mask ``run`` finds beside the pose pass is the one the mosaic stage would find
+    from the posed frames; a mask named in probe.toml or frames read in order (a video)
+    leave it to the mosaic stage."""
+    settings, timer = MosaicSettings(), StageTimer()
+    ds = open_dataset(dataset)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        ahead = _occluders_ahead(pool, ds, settings, timer, in_order=False)
+        assert ahead is not None
+        assert _occluders_ahead(pool, ds, settings, timer, in_order=True) is None
+        mask = ahead.result()
+    posed = [int(i) for i in read_csv_columns(dataset / "truth" / "poses.csv", ("frame",))["frame"]]
+    own = find_occluders(ds, posed, settings.reference_frames, timer, settings.workers)
+    np.testing.assert_array_equal(mask, own)
+    assert 0 < mask.mean() < 0.9   # the image circle's outside and the arm, not the wall
+
+    named = tmp_path / "named"
+    shutil.copytree(dataset, named)
+    toml = named / "probe.toml"
+    toml.write_text(toml.read_text().replace("[probe]\n", '[probe]\nmask = "mask.png"\n'))
+    assert 'mask = "mask.png"' in toml.read_text()
+    write_mask(named / "mask.png", mask)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        assert _occluders_ahead(pool, open_dataset(named), settings, timer, False) is None

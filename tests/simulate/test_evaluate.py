@@ -54,3 +54,20 @@ def test_shading_left_in_the_mosaic_is_measured(truth) -> None:
 def test_an_image_off_its_grid_is_refused(truth) -> None:
     with pytest.raises(ValueError, match="shape"):
         WallImage(image=truth.image[:, :-1], grid=truth.grid)
+
+
+def test_ssim_per_tenth_of_the_run_finds_the_damaged_tenth(truth) -> None:
+    """A mosaic true everywhere but in its sixth tenth (columns 600-719 of 1200, noise of
+    a third of the wall's range added): that tenth scores lowest, well below the
+    others, and the whole run's mean hides most of it."""
+    clean = _mosaic(truth, 1.0)
+    image = clean.image.copy()
+    rng = np.random.default_rng(0)
+    image[:, 600:720] += rng.normal(0.0, 0.1, image[:, 600:720].shape).astype(np.float32)
+    s = score_mosaic(WallImage(image=image, grid=clean.grid), truth, 0.0, 0.0)
+    assert len(s.ssim_tenths) == 10
+    assert int(np.argmin(s.ssim_tenths)) == 5
+    others = np.delete(np.array(s.ssim_tenths), 5)
+    assert s.ssim_worst_tenth == s.ssim_tenths[5]
+    assert s.ssim_worst_tenth < others.min() - 0.2
+    assert s.ssim_worst_tenth < s.ssim - 0.1

@@ -13,6 +13,7 @@ import math
 import shutil
 import time
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -49,7 +50,13 @@ from pipestitch.pipeline.stitched_output import (
     WrittenMosaic,
     write_viewer,
 )
-from pipestitch.pipeline.stitching import FrameView, MosaicResult, MosaicSettings, build_mosaic
+from pipestitch.pipeline.stitching import (
+    FrameView,
+    MosaicResult,
+    MosaicSettings,
+    build_mosaic,
+    find_occluders,
+)
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
 from pipestitch.report.html import PROBLEMS_CSV, TABLES, FrameRow, ReportData, render_report
@@ -285,7 +292,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         with (opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings,
               StagedOutput(out) as staged):
             summary = _run(dataset, staged.path, settings, show_progress, tolerance_pct,
-                           crown_deg, rings)
+                           crown_deg, rings, in_order=video is not None)
             if summary.mosaic_failed:
                 kept = staged.keep()
                 note = (f"the previous outputs in {out} are left as they were; this run's "
@@ -299,19 +306,42 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         release_free_memory()   # the run's freed heap back to the system, for the caller
 
 
+def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: MosaicSettings,
+                     timer: StageTimer, in_order: bool) -> Future[np.ndarray] | None:
+    """The occluder mask, found from the LED frames while the poses are fitted (it needs
+    no pose, and the pose pass's two workers leave it a share of the machine instead of a
+    stage of its own on one core afterwards).
+
+    None where the mosaic stage finds or reads it itself: a mask named in probe.toml, no
+    LED frames, or frames read ``in_order`` (a video's one decoder: reading frames spread
+    along the run would make the pose pass seek back each time).
+    """
+    if in_order or not dataset.has_led or read_mask(dataset.root, dataset.config) is not None:
+        return None
+    missing = set(dataset.led_missing())
+    frames = [i for i in range(dataset.n_pairs) if i not in missing]
+    if not frames:
+        return None
+    return pool.submit(find_occluders, dataset, frames, settings.reference_frames, timer,
+                       settings.workers)
+
+
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,
                       timer: StageTimer, show_progress: bool, out: Path,
+                      occluders: Future[np.ndarray] | None,
                       ) -> tuple[MosaicResult | None, WrittenMosaic | None, str]:
     """The mosaic, streamed into OUT's pyramid, overview and defects as it is stitched;
-    or None and why not (the poses are worth writing all the same)."""
+    or None and why not (the poses are worth writing all the same). ``occluders``: the
+    occluder mask being found (:func:`_occluders_ahead`), else the mosaic stage's own."""
     if not views:
         return None, None, "no mosaic: no frame has a pose"
     if not dataset.has_led:
         return None, None, "the dataset has no LED frames: no mosaic"
     try:
+        occluded = occluders.result() if occluders is not None else None
         with StreamedMosaic(out, timer) as sink:
             result = build_mosaic(dataset, views, settings, timer=timer,
-                                  show_progress=show_progress, sink=sink)
+                                  show_progress=show_progress, sink=sink, occluded=occluded)
             return result, sink.finish(), ""
     except PipestitchError as exc:
         return None, None, f"no mosaic: {exc}"
@@ -321,22 +351,25 @@ def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: M
 
 
 def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: bool,
-         tolerance_pct: float, crown_deg: float | None, rings: RingStore) -> RunSummary:
+         tolerance_pct: float, crown_deg: float | None, rings: RingStore, *,
+         in_order: bool = False) -> RunSummary:
     start = time.perf_counter()
     timer = StageTimer()
     # only the section refits of the photometric refinement read the ring points again
     refits = dataset.has_led and settings.refine_rounds > 0
-    frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                     workers=settings.workers, timer=timer, rings=rings,
-                                     drop_rings=not refits, oval_start=refits)
-    if rings.problem:
-        report_frame_messages([(-1, rings.problem)])
-    views = _views(frames, choices)
-    frames = _without_rings(frames)
-    out.mkdir(parents=True, exist_ok=True)
-    release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
-    result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
-                                                   show_progress, out)
+    with ThreadPoolExecutor(max_workers=1) as ahead:
+        occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order)
+        frames, choices = estimate_poses(dataset, show_progress=show_progress,
+                                         workers=settings.workers, timer=timer, rings=rings,
+                                         drop_rings=not refits, oval_start=refits)
+        if rings.problem:
+            report_frame_messages([(-1, rings.problem)])
+        views = _views(frames, choices)
+        frames = _without_rings(frames)
+        out.mkdir(parents=True, exist_ok=True)
+        release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
+        result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
+                                                       show_progress, out, occluders)
     release_free_memory()
     if result is not None:
         choices = _apply_switches(choices, result.switched)

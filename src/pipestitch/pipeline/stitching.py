@@ -4,7 +4,8 @@ Two passes over the LED frames, each frame unwrapped straight from its pixels:
 
 1. every frame is unwrapped over its own axial window (at the mosaic's scale) and
    linked to the next two frames by phase correlation; the run's positions (z, roll)
-   are solved globally with the odometer; the lens' fall-off is measured (flat_field);
+   are solved globally with the odometer (or taken as known, when the caller gives
+   them); the lens' fall-off is measured (flat_field);
 2. every placed frame is unwrapped again, this time onto the canvas nodes it covers
    (sub-pixel, so the image is resampled once), shaded, gain-matched and blended.
 
@@ -649,9 +650,50 @@ def _windows(camera: CameraModel, views: Mapping[int, FrameView], radius_mm: flo
             for k in scales}
 
 
+def _check_positions(positions: Positions | None, n_frames: int) -> None:
+    """Refuse known positions that do not give z and roll for each of the run's frames."""
+    if positions is None:
+        return
+    shapes = (np.shape(positions.z_mm), np.shape(positions.roll_deg))
+    if any(shape != (n_frames,) for shape in shapes):
+        raise ValueError(f"positions: expected z_mm and roll_deg of shape ({n_frames},) (one "
+                         f"per frame of the run), got {shapes[0]} and {shapes[1]}")
+
+
+def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
+             skipped: dict[int, str], timer: StageTimer) -> tuple[Positions, list[int]]:
+    """The run's positions and the registered frames they place.
+
+    The positions are solved from the registration links and the odometer, or are the
+    ``given`` ones. Registered frames left without a finite z and roll are reported in
+    ``skipped``.
+
+    Raises
+    ------
+    StageError
+        When no frame can be placed.
+    """
+    if given is None:
+        with timer("register"):
+            positions = solve_positions(dataset.n_pairs, reg.links,
+                                        odometry_mm=dataset.odometry_mm, placed=reg.done)
+        why = "not registered to the run (no common texture, no odometer)"
+    else:
+        positions, why = given, "no position given for the frame"
+    placed = [i for i in reg.done
+              if np.isfinite(positions.z_mm[i]) and np.isfinite(positions.roll_deg[i])]
+    for i in sorted(set(reg.done) - set(placed)):
+        skipped[i] = why
+    if not placed:
+        raise StageError("no frame could be placed in the mosaic")
+    return positions, placed
+
+
 def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                  settings: MosaicSettings, *, timer: StageTimer | None = None,
-                 show_progress: bool = True, sink: MosaicSink | None = None) -> MosaicResult:
+                 show_progress: bool = True, sink: MosaicSink | None = None,
+                 positions: Positions | None = None,
+                 occluded: np.ndarray | None = None) -> MosaicResult:
     """Unwrap, register and stitch the frames that have a pose.
 
     Parameters
@@ -667,8 +709,36 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         Streams the mosaic: finished columns go to the sink as the stitching proceeds
         and the result holds no image (``image`` and ``weights`` are None). Without a
         sink the whole mosaic is returned.
+    positions : Positions, optional
+        Known axial position and roll of every frame of the run (arrays of
+        ``dataset.n_pairs``; from a survey, or the simulator's truth). The registration
+        passes still run (they measure the flat field the stitch divides by), but the
+        frames are placed at these positions instead of the ones solved from the links
+        and the odometer, and the result's ``positions`` are these. A frame whose given
+        z or roll is NaN is reported in ``skipped``. Default: solved.
+    occluded : numpy.ndarray, optional
+        The camera's occluded pixels (bool, the frames' shape; True: never the wall),
+        when the caller has them already (``pipestitch run`` finds them while the poses
+        are fitted). Default: probe.toml's mask, else found from the LED frames
+        (:func:`find_occluders`).
+
+    Returns
+    -------
+    MosaicResult
+        The mosaic, the frames' positions, the placed frames and why the others were
+        skipped.
+
+    Raises
+    ------
+    DatasetError
+        When the dataset has no LED frames.
+    StageError
+        When no frame has both a pose and an LED frame, or none can be placed.
+    ValueError
+        When ``positions`` does not give one z and roll per frame of the run.
     """
     timer = timer or StageTimer()
+    _check_positions(positions, dataset.n_pairs)
     if not dataset.has_led:
         raise DatasetError(dataset.root / "frames", "no LED frames: nothing to stitch")
     camera = dataset.config.camera_model()
@@ -681,7 +751,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if not usable:
         raise StageError("no frame has both a pose and an LED frame")
     views = _views(usable, settings.mode, nominal)
-    occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
+    if occluded is None:
+        occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
     if occluded is None:
         occluded = find_occluders(dataset, sorted(usable), settings.reference_frames, timer,
                                   settings.workers)
@@ -698,16 +769,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     views, links = reg.views, reg.links
-    with timer("register"):
-        positions = solve_positions(dataset.n_pairs, links, odometry_mm=dataset.odometry_mm,
-                                    placed=reg.done)
-    placed = [i for i in reg.done if np.isfinite(positions.z_mm[i])]
-    for i in reg.done:
-        if i not in placed:
-            skipped[i] = "not registered to the run (no common texture, no odometer)"
-    if not placed:
-        raise StageError("no frame could be placed in the mosaic")
-    canvas = Canvas(canvas_grid(positions.z_mm, window, WallGrid.window(radius, mm, *window)))
+    positions, placed = _placing(dataset, reg, positions, skipped, timer)
+    canvas = Canvas(canvas_grid(positions.z_mm[placed], window,
+                                WallGrid.window(radius, mm, *window)))
     release_free_memory()   # the stitch starts from what is live, not the passes' peak
     if sink is not None:
         sink.start(canvas.grid, radius)

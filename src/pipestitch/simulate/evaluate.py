@@ -8,7 +8,8 @@ allowed to get wrong. Then:
 
 * SSIM (scikit-image) between the mosaic and the true albedo on the nodes the mosaic
   covers, after a least-squares gain and offset (the mosaic's brightness scale is
-  arbitrary);
+  arbitrary); and the same SSIM per tenth of the run (the covered columns in ten
+  axial chunks), whose worst shows a stretch of the run the whole run's mean hides;
 * local geometric error: the RMS displacement (mm) of 64 x 64 patches against the
   true wall, measured by phase correlation, after removing the median displacement.
   A patch of periodic texture (gratings, checkers) can lock onto the wrong period:
@@ -38,6 +39,7 @@ from pipestitch.mosaic.register import phase_shift
 __all__ = ["MosaicScore", "WallImage", "score_mosaic", "truth_on_grid"]
 
 PATCH_PX = 64
+SSIM_CHUNKS = 10          # MosaicScore.ssim_tenths: the run in this many axial chunks
 MIN_PATCH_RESPONSE = 0.1
 MIN_PATCH_STD = 0.005     # flatter true-wall patches carry no position
 SHADING_SIGMA_MM = 4.0
@@ -71,7 +73,31 @@ class WallImage:
 
 @dataclass(frozen=True)
 class MosaicScore:
-    """SSIM, geometric RMS (mm), patches used, and the offsets that aligned the mosaic."""
+    """A mosaic's score against the true wall (see the module docstring).
+
+    Attributes
+    ----------
+    ssim : float
+        Mean SSIM over the covered nodes (NaN with too little data).
+    geometric_rms_mm : float
+        RMS displacement of the kept patches about their median (mm).
+    n_patches, n_rejected : int
+        Patches kept, and rejected as failed matches.
+    coverage : float
+        Fraction of the mosaic's nodes that have data.
+    z_offset_mm, roll_offset_deg : float
+        The offsets that took mosaic coordinates to true ones (after refinement).
+    axial_scale_error : float
+        Mosaic z per true z, minus 1.
+    local_rms_mm : float
+        RMS displacement after removing the axial scale and the offsets (mm).
+    shading_dn : float
+        Low-frequency brightness error (8-bit levels of the true wall).
+    ssim_tenths : tuple of float
+        Mean SSIM per tenth of the run: the columns with SSIM nodes, in
+        ``SSIM_CHUNKS`` axial chunks of (nearly) equal width, left to right (NaN for
+        a chunk without columns; empty with too little data).
+    """
 
     ssim: float
     geometric_rms_mm: float
@@ -83,6 +109,13 @@ class MosaicScore:
     axial_scale_error: float = float("nan")
     local_rms_mm: float = float("nan")
     shading_dn: float = float("nan")
+    ssim_tenths: tuple[float, ...] = ()
+
+    @property
+    def ssim_worst_tenth(self) -> float:
+        """The lowest SSIM of the run's tenths (NaN without them)."""
+        finite = [v for v in self.ssim_tenths if np.isfinite(v)]
+        return float(min(finite)) if finite else float("nan")
 
 
 def truth_on_grid(truth: WallImage, mosaic: WallImage, z_offset_mm: float,
@@ -160,9 +193,10 @@ def score_mosaic(mosaic: WallImage, truth: WallImage, z_offset_mm: float,
         scale, local = _scale_and_local(disp[kept])
     coverage = float(np.mean(np.isfinite(mosaic.image)))
     fitted = _fitted(mosaic.image, reference)
-    return MosaicScore(_ssim(fitted), rms, int(len(disp) - n_rejected),
+    ssim, tenths = _ssim(fitted)
+    return MosaicScore(ssim, rms, int(len(disp) - n_rejected),
                        n_rejected, coverage, z_offset_mm, roll_offset_deg, scale, local,
-                       _shading_dn(fitted, mosaic.grid.mm_per_px_axial))
+                       _shading_dn(fitted, mosaic.grid.mm_per_px_axial), tenths)
 
 
 def _scale_and_local(disp: np.ndarray) -> tuple[float, float]:
@@ -190,17 +224,24 @@ def _fitted(mosaic: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.n
             np.where(valid, reference, np.nan).astype(np.float32))
 
 
-def _ssim(fitted: tuple[np.ndarray, np.ndarray]) -> float:
-    """Mean SSIM over the nodes 3 or more away from missing data."""
+def _ssim(fitted: tuple[np.ndarray, np.ndarray]) -> tuple[float, tuple[float, ...]]:
+    """Mean SSIM over the nodes 3 or more away from missing data, and its mean per
+    axial chunk (``SSIM_CHUNKS`` of the columns holding such nodes); NaN and no chunks
+    with too little data."""
     mosaic, reference = fitted
     valid = np.isfinite(mosaic)
     if valid.sum() < 1000:
-        return float("nan")
+        return float("nan"), ()
     a = np.where(valid, mosaic, 0).astype(np.float64)
     ref = np.where(valid, reference, 0).astype(np.float64)
     _, smap = structural_similarity(ref, a, data_range=1.0, full=True, win_size=7)
     inner = cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
-    return float(np.mean(smap[inner]))
+    if not inner.any():
+        return float("nan"), ()
+    chunks = np.array_split(np.flatnonzero(inner.any(axis=0)), SSIM_CHUNKS)
+    tenths = tuple(float(np.mean(smap[:, c][inner[:, c]])) if c.size else float("nan")
+                   for c in chunks)
+    return float(np.mean(smap[inner])), tenths
 
 
 def _shading_dn(fitted: tuple[np.ndarray, np.ndarray], mm_per_px: float) -> float:

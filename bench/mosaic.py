@@ -34,6 +34,7 @@ Run: python bench/mosaic.py [--quick] [--keep DIR] [--only quality|throughput]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -140,8 +141,10 @@ def quality_row(name: str, label: str, s: MosaicScore, reference: MosaicScore,
             f"{tilt:>8} | {rate:>7}")
 
 
-def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> None:
-    print(f"\nMosaic quality ({size} size; reference design: SSIM 0.3502 centralised, "
+def quality(root: Path, scenarios: list[str], size: str, pairs: int | None,
+            led_gain: float | None = None) -> None:
+    gain = "" if led_gain is None else f", LED frames exposed {led_gain:g}x"
+    print(f"\nMosaic quality ({size} size{gain}; reference design: SSIM 0.3502 centralised, "
           "0.3022 uncentred)")
     print("(tilt err: mean |alpha, beta error| of poses.csv; ours = refined with the LED "
           "frames, the others = the ring alone)")
@@ -154,9 +157,13 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None) -> N
           f"{'geom RMS mm':>11} | {'axial scale':>11} | {'local mm':>8} | {'shading':>7} | "
           f"{'patches (rejected)':>18} | {'placed':>6} | {'tilt err':>8} | {'pairs/s':>7}")
     for name in scenarios:
-        dataset = root / f"{name}_{size}"
+        scenario = SCENARIOS[name]
+        if led_gain is not None:
+            scenario = dataclasses.replace(
+                scenario, optics=dataclasses.replace(scenario.optics, led_gain=led_gain))
+        dataset = root / (f"{name}_{size}" + ("" if led_gain is None else f"_gain{led_gain:g}"))
         if not (dataset / "probe.toml").exists():
-            simulate_dataset(SCENARIOS[name], dataset, seed=1, size=size, n_pairs=pairs,
+            simulate_dataset(scenario, dataset, seed=1, size=size, n_pairs=pairs,
                              show_progress=False)
         truth_wall = true_wall(dataset)
         runs = {}
@@ -235,6 +242,12 @@ def main() -> None:
     parser.add_argument("--scenarios", nargs="+", choices=QUALITY_SCENARIOS,
                         default=list(QUALITY_SCENARIOS),
                         help="datasets of the quality part (default all)")
+    parser.add_argument("--full-scenarios", nargs="+", choices=QUALITY_SCENARIOS,
+                        default=["chart83"],
+                        help="datasets of the full-size quality table (default chart83)")
+    parser.add_argument("--led-gain", type=float,
+                        help="exposure of the simulated LED frames instead of the scenario's "
+                             "(1.8: the chart's lit wall is clipped in most frames; 0.9: not)")
     parser.add_argument("--pairs", type=int, default=30,
                         help="pairs of the throughput dataset (default 30)")
     args = parser.parse_args()
@@ -247,9 +260,10 @@ def main() -> None:
             return
         if args.only != "throughput":
             if "half" in args.sizes:
-                quality(root, args.scenarios, "half", None)
-            if "full" in args.sizes and "chart83" in args.scenarios:
-                quality(root, ["chart83"], "full", None)
+                quality(root, args.scenarios, "half", None, args.led_gain)
+            full = [name for name in args.full_scenarios if name in args.scenarios]
+            if "full" in args.sizes and full:
+                quality(root, full, "full", None, args.led_gain)
         if args.only != "quality":
             throughput(root, args.sizes, args.pairs)
 

@@ -18,8 +18,13 @@ F32 = np.float32
 
 @numba.njit(cache=True, nogil=True)
 def _unit(re: float, im: float) -> tuple[float, float]:
-    """(re, im) / max(|re + i·im|, 1e-12) in float32."""
-    mag = max(F32(np.hypot(re, im)), F32(1e-12))
+    """(re, im) / max(|re + i·im|, 1e-12) in float32.
+
+    The modulus in float64, rounded once: what C's ``hypotf`` (``np.hypot`` of float32)
+    returns for finite values, without its library call per element.
+    """
+    mag = max(F32(np.sqrt(np.float64(re) * np.float64(re) + np.float64(im) * np.float64(im))),
+              F32(1e-12))
     return F32(re / mag), F32(im / mag)
 
 

@@ -109,10 +109,16 @@ def _group_medians(group: np.ndarray, value: np.ndarray
     middle one), from one sort. ``value`` are logs of brightness ratios: finite ones
     within ±16 (a factor of 9e6), or ±inf (censored), which sort to the ends."""
     group = group.astype(np.int64)
-    order = np.argsort(group * 64.0 + np.clip(value, -16.0, 16.0), kind="stable")
+    # Not a stable sort: nodes of equal keys have equal values (the same group, the
+    # same value within ±16), so their order changes nothing, and numpy's quicksort of
+    # float64 keys is vectorised (~5x faster than its stable sort).
+    order = np.argsort(group * 64.0 + np.clip(value, -16.0, 16.0))
     group, value = group[order], value[order]
-    groups, starts, counts = np.unique(group, return_index=True, return_counts=True)
-    return groups, counts, value[starts + counts // 2]
+    if not len(group):
+        return group, np.zeros(0, np.int64), value
+    starts = np.flatnonzero(np.diff(group, prepend=group[0] - 1))   # sorted: no np.unique
+    counts = np.diff(starts, append=len(group))
+    return group[starts], counts, value[starts + counts // 2]
 
 
 @dataclass(frozen=True)
@@ -219,6 +225,17 @@ def _ring_of(radius: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return ring.astype(np.int16)
 
 
+def _radius(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """``np.hypot(dx, dy)`` of float32 arrays, bitwise: C's ``hypotf`` computes in
+    float64 and rounds once, as this does, without a library call per element (a
+    third less time)."""
+    x, y = dx.astype(np.float64), dy.astype(np.float64)
+    x *= x
+    y *= y
+    x += y
+    return np.sqrt(x, out=x).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class FlatInput:
     """What one strip gives the flat field: ``log(value / shading)`` per node (NaN where
@@ -241,8 +258,8 @@ def flat_input(grey: np.ndarray, values: np.ndarray, shading: np.ndarray, weight
     touched = _touches_clipped(grey, map_x, map_y)
     if touched is not None:
         log_albedo[touched & ok] = np.inf
-    radius = np.hypot(map_x - np.float32(centre[0]), map_y - np.float32(centre[1]))
-    ring = _ring_of(radius, edges)
+    ring = _ring_of(_radius(map_x - np.float32(centre[0]), map_y - np.float32(centre[1])),
+                    edges)
     ring[~ok] = -1
     return FlatInput(log_albedo, ring)
 
@@ -267,13 +284,16 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     2nd column of the second strip is paired with its nearest node in the first."""
     n_rows, n_cols = second.ring.shape
     dr, dc = round(motion_px[0]), round(motion_px[1])
-    cols = np.arange(max(0, -dc), min(n_cols, n_cols - dc), 2)
-    rows = np.arange(0, n_rows, 4)
-    r2, c2 = np.meshgrid(rows, cols, indexing="ij")
-    r1, c1 = (r2 + dr) % n_rows, c2 + dc
-    ring1, ring2 = first.ring[r1, c1].ravel(), second.ring[r2, c2].ravel()
+    # Rows 0, 4, .. of the second and their rows in the first (wrapping: one gather of
+    # rows); every 2nd column of their common columns (slices, no index arrays).
+    c_lo, c_hi = max(0, -dc), min(n_cols, n_cols - dc)
+    rows2 = slice(0, n_rows, 4)
+    rows1 = (np.arange(0, n_rows, 4) + dr) % n_rows
+    cols2, cols1 = slice(c_lo, max(c_lo, c_hi), 2), slice(c_lo + dc, max(c_lo, c_hi) + dc, 2)
+    ring1 = first.ring[:, cols1][rows1].ravel()
+    ring2 = second.ring[rows2, cols2].ravel()
     with np.errstate(invalid="ignore"):   # clipped in both (inf - inf): left out below
-        y = (second.log_albedo[r2, c2] - first.log_albedo[r1, c1]).ravel()
+        y = (second.log_albedo[rows2, cols2] - first.log_albedo[:, cols1][rows1]).ravel()
     keep = (ring1 >= 0) & (ring2 >= 0) & np.isfinite(y)
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
     cell = ring1[keep].astype(np.int64) * n_bins + ring2[keep]

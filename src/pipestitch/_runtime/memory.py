@@ -12,8 +12,12 @@ strip-sized buffer then costs a mapping and its page faults; not done.) The oppo
 :func:`keep_buffers_in_heap`, is done: buffers up to ``HEAP_BUFFER_MB`` (a full-size
 frame as float32 is 20 MB) come from the heap and are reused after they are freed,
 instead of being mapped, zeroed by the kernel and unmapped each time, and freeing
-does not trim the heap by itself (the trims above do, at known points). Elsewhere
-(another C library) both are no-ops.
+does not trim the heap by itself (the trims above do, at known points); and every
+thread allocates from the one main heap (glibc's ``M_ARENA_MAX`` = 1): a worker thread's
+own arena grows in heaps of at most 64 MB that glibc deletes as soon as they are empty,
+so a frame-sized buffer there was mapped and zeroed afresh for nearly every frame (936
+heaps made and deleted in a 60-pair full-size run). Elsewhere (another C library) all
+of this is a no-op.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ TRIM_EVERY = 50
 # most its own adaptive threshold reaches on 64-bit systems), which is trimmed only by
 # release_free_memory (glibc's trim threshold set far above any run).
 HEAP_BUFFER_MB = 32
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3   # glibc's mallopt parameters
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8   # glibc's mallopt parameters
 
 
 @functools.cache
@@ -89,22 +93,26 @@ def release_free_memory() -> bool:
 
 @functools.cache
 def keep_buffers_in_heap() -> bool:
-    """Serve buffers up to ``HEAP_BUFFER_MB`` from the heap, trimmed only on request.
+    """Serve buffers up to ``HEAP_BUFFER_MB`` from one heap, trimmed only on request.
 
     glibc maps every buffer above its (adaptive) mmap threshold separately: each of a
     run's per-frame strips, spectra and frames then costs a mapping, the kernel's
     zeroing of its pages and an unmapping: on a 60-pair half-size run, 370 000 page
     faults and ~3 s of system time of its ~13 s of CPU time, against 175 000 faults
-    held in the heap. Process-wide and idempotent; the heap's free pages are still handed back by
-    :func:`release_free_memory` between passes and every ``TRIM_EVERY`` frames.
+    held in the heap. The worker threads' own arenas would do the same in heaps glibc
+    deletes when they empty, so every thread allocates from the main arena (at full
+    size: 350 000 faults and 6-8 s of system time against 200 000 and 4-5 s, peak
+    ~100 MB lower). Process-wide and idempotent, for threads started after it; the
+    heap's free pages are still handed back by :func:`release_free_memory` between
+    passes and every ``TRIM_EVERY`` frames.
 
     Settings the user gave glibc (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
-    ``malloc`` tunables in ``GLIBC_TUNABLES``) are left as they are.
+    ``MALLOC_ARENA_MAX``, ``malloc`` tunables in ``GLIBC_TUNABLES``) are left as they are.
 
     Returns
     -------
     bool
-        True when the C library took both settings (glibc), False otherwise (then
+        True when the C library took the settings (glibc), False otherwise (then
         nothing was changed, or on a C library that refused the first, nothing more).
     """
     mallopt = _libc_function("mallopt")
@@ -112,12 +120,14 @@ def keep_buffers_in_heap() -> bool:
         return False
     if not mallopt(_M_MMAP_THRESHOLD, HEAP_BUFFER_MB << 20):   # e.g. above 32-bit limits
         return False
-    return bool(mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1))   # a C int: 2 GB
+    trims = bool(mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1))   # a C int: 2 GB
+    return bool(mallopt(_M_ARENA_MAX, 1)) and trims
 
 
 def _user_allocator_settings() -> bool:
-    """Whether the environment sets glibc's mmap or trim threshold itself."""
+    """Whether the environment sets glibc's mmap or trim threshold or its arenas itself."""
     tunables = os.environ.get("GLIBC_TUNABLES", "")
-    return (any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"))
-            or "glibc.malloc.mmap_threshold" in tunables
-            or "glibc.malloc.trim_threshold" in tunables)
+    names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
+    return (any(k in os.environ for k in names)
+            or any(f"glibc.malloc.{t}" in tunables
+                   for t in ("mmap_threshold", "trim_threshold", "arena_max")))

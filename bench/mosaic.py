@@ -141,11 +141,37 @@ def quality_row(name: str, label: str, s: MosaicScore, reference: MosaicScore,
             f"{tilt:>8} | {rate:>7}")
 
 
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """How the quality datasets are made and run: the simulated LED exposure (None: the
+    scenario's), the simulation's seed (wall, trajectory and noise) and the unwraps run
+    beside the true-pose mosaic (``ours`` always)."""
+
+    led_gain: float | None = None
+    seed: int = 1
+    modes: tuple[str, ...] = MODES
+
+    def dataset(self, root: Path, name: str, size: str, pairs: int | None) -> Path:
+        """The scenario's dataset in ``root``, simulated on first use."""
+        gain = "" if self.led_gain is None else f"_gain{self.led_gain:g}"
+        seed = "" if self.seed == 1 else f"_seed{self.seed}"
+        dataset = root / f"{name}_{size}{gain}{seed}"
+        scenario = SCENARIOS[name]
+        if self.led_gain is not None:
+            scenario = dataclasses.replace(
+                scenario, optics=dataclasses.replace(scenario.optics, led_gain=self.led_gain))
+        if not (dataset / "probe.toml").exists():
+            simulate_dataset(scenario, dataset, seed=self.seed, size=size, n_pairs=pairs,
+                             show_progress=False)
+        return dataset
+
+
 def quality(root: Path, scenarios: list[str], size: str, pairs: int | None,
-            led_gain: float | None = None) -> None:
-    gain = "" if led_gain is None else f", LED frames exposed {led_gain:g}x"
-    print(f"\nMosaic quality ({size} size{gain}; reference design: SSIM 0.3502 centralised, "
-          "0.3022 uncentred)")
+            variant: Variant = Variant()) -> dict[str, MosaicScore]:
+    """Print the quality table of ``scenarios``; return ours' score per scenario."""
+    gain = "" if variant.led_gain is None else f", LED frames exposed {variant.led_gain:g}x"
+    print(f"\nMosaic quality ({size} size{gain}, seed {variant.seed}; reference design: "
+          "SSIM 0.3502 centralised, 0.3022 uncentred)")
     print("(tilt err: mean |alpha, beta error| of poses.csv; ours = refined with the LED "
           "frames, the others = the ring alone)")
     print("(axial scale: mosaic z per true z - 1, in %; local: RMS after removing the "
@@ -156,19 +182,13 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None,
     print(f"{'dataset':>10} | {'unwrap':>9} | {'SSIM':>6} | {'vs true':>7} | {'worst 10th':>10} | "
           f"{'geom RMS mm':>11} | {'axial scale':>11} | {'local mm':>8} | {'shading':>7} | "
           f"{'patches (rejected)':>18} | {'placed':>6} | {'tilt err':>8} | {'pairs/s':>7}")
+    ours = {}
     for name in scenarios:
-        scenario = SCENARIOS[name]
-        if led_gain is not None:
-            scenario = dataclasses.replace(
-                scenario, optics=dataclasses.replace(scenario.optics, led_gain=led_gain))
-        dataset = root / (f"{name}_{size}" + ("" if led_gain is None else f"_gain{led_gain:g}"))
-        if not (dataset / "probe.toml").exists():
-            simulate_dataset(scenario, dataset, seed=1, size=size, n_pairs=pairs,
-                             show_progress=False)
+        dataset = variant.dataset(root, name, size, pairs)
         truth_wall = true_wall(dataset)
         runs = {}
-        for mode in MODES:
-            out = root / f"out_{name}_{size}_{mode}"
+        for mode in dict.fromkeys(("ours", *variant.modes)):
+            out = root / f"out_{dataset.name}_{mode}"
             summary = run_dataset(dataset, out, settings=MosaicSettings(mode=mode),
                                   show_progress=False)
             runs[mode] = (summary, score(dataset, summary, truth_wall),
@@ -186,6 +206,22 @@ def quality(root: Path, scenarios: list[str], size: str, pairs: int | None,
         for label, s in (("ours", runs["ours"][1]), (TRUE_POSE, reference)):
             print(f"{'':>10}   SSIM per tenth, {label:>9}: "
                   + " ".join(f"{v:.3f}" for v in s.ssim_tenths), flush=True)
+        ours[name] = runs["ours"][1]
+    return ours
+
+
+def over_seeds(root: Path, scenarios: list[str], size: str, seeds: list[int],
+               variant: Variant) -> None:
+    """The quality table for each seed, then ours' axial scale error over the seeds: its
+    mean is the bias, its spread what one run can tell of it."""
+    scores = [quality(root, scenarios, size, None, dataclasses.replace(variant, seed=seed))
+              for seed in seeds]
+    print(f"\nAxial scale error of ours over seeds {seeds} ({size} size):")
+    for name in scenarios:
+        values = 100 * np.array([s[name].axial_scale_error for s in scores])
+        spread = f", sd {values.std(ddof=1):.3f} %" if len(values) > 1 else ""
+        print(f"{name:>10}: mean {values.mean():+.3f} %{spread}; "
+              + " ".join(f"{v:+.3f}" for v in values), flush=True)
 
 
 def warm_up(dataset: Path, out: Path) -> None:
@@ -248,6 +284,12 @@ def main() -> None:
     parser.add_argument("--led-gain", type=float,
                         help="exposure of the simulated LED frames instead of the scenario's "
                              "(1.8: the chart's lit wall is clipped in most frames; 0.9: not)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1],
+                        help="simulation seeds of the quality datasets (default 1); with "
+                             "several, ours' axial scale error over them")
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES),
+                        help="unwraps of the quality table besides the true-pose mosaic "
+                             "(default all; ours always)")
     parser.add_argument("--pairs", type=int, default=30,
                         help="pairs of the throughput dataset (default 30)")
     args = parser.parse_args()
@@ -259,11 +301,12 @@ def main() -> None:
             throughput(root, ["half"], 4)
             return
         if args.only != "throughput":
+            variant = Variant(args.led_gain, modes=tuple(args.modes))
             if "half" in args.sizes:
-                quality(root, args.scenarios, "half", None, args.led_gain)
+                over_seeds(root, args.scenarios, "half", args.seeds, variant)
             full = [name for name in args.full_scenarios if name in args.scenarios]
             if "full" in args.sizes and full:
-                quality(root, full, "full", None, args.led_gain)
+                over_seeds(root, full, "full", args.seeds, variant)
         if args.only != "quality":
             throughput(root, args.sizes, args.pairs)
 

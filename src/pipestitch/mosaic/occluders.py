@@ -118,10 +118,13 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
     (unknown) where too few pixels measure it.
     """
     picks = stack[::max(1, len(stack) // 4)]
+    residuals = np.empty_like(picks)   # each pick's, written in place (no list, no stack)
+    for frame, out in zip(picks, residuals, strict=True):
+        cv2.subtract(frame, cv2.blur(frame, (3, 3)), dst=out)
+        cv2.multiply(out, out, dst=out)
+        cv2.blur(out, (5, 5), dst=out)
     # the median over the picks (numpy.median's, from the compiled kernel: one pass)
-    local = quantile_over_frames(
-        np.stack([cv2.blur(np.square(f - cv2.blur(f, (3, 3))), (5, 5)) for f in picks]),
-        0.0, True)[1] * np.float32(81.0 / 72.0)
+    local = quantile_over_frames(residuals, 0.0, True)[1] * np.float32(81.0 / 72.0)
     valid = level > 0
     none = np.full(level.shape, np.nan, np.float32)   # no measure of the noise
     if np.count_nonzero(valid) < 100:

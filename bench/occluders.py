@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 from holes import evaluate
-from mosaic import score
+from mosaic import score, true_wall
 
 import pipestitch.mosaic.occluders as occluders
 from pipestitch.pipeline.run import run_dataset
@@ -70,7 +70,7 @@ def main() -> None:
                 finally:
                     occluders.MIN_STATIC_FRAMES = static_frames
                 holes = evaluate(dataset, summary, radius)
-                ssim = score(dataset, summary).ssim
+                ssim = score(dataset, summary, true_wall(dataset)).ssim
                 black_ssim.setdefault(method, ssim) if arm == "black" else None
                 diff = ssim - black_ssim[method]
                 print(f"{arm:>5} {method:>8} | {100 * holes['recall']:5.0f}% | "

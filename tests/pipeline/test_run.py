@@ -19,7 +19,7 @@ from pipestitch.io.images import read_image
 from pipestitch.io.mask import write_mask
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.run import _occluders_ahead, run_dataset
-from pipestitch.pipeline.stitching import MosaicSettings, find_occluders
+from pipestitch.pipeline.stitching import MosaicSettings, find_occluders, led_frames
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -409,9 +409,10 @@ def test_measure_reads_a_rounded_pitch_and_refuses_an_impossible_one(
 
 def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
                                                                   tmp_path: Path) -> None:
-    """The mask ``run`` finds beside the pose pass is the one the mosaic stage would find
-    from the posed frames; a mask named in probe.toml or frames read in order (a video)
-    leave it to the mosaic stage."""
+    """The mask ``run`` finds beside the pose pass is the one the mosaic stage finds on
+    its own: both sample every pair with an LED frame, posed or not (as ``pipestitch
+    mask`` does); a mask named in probe.toml or frames read in order (a video) leave it
+    to the mosaic stage."""
     settings, timer = MosaicSettings(), StageTimer()
     ds = open_dataset(dataset)
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -419,10 +420,16 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
         assert ahead is not None
         assert _occluders_ahead(pool, ds, settings, timer, in_order=True) is None
         mask = ahead.result()
-    posed = [int(i) for i in read_csv_columns(dataset / "truth" / "poses.csv", ("frame",))["frame"]]
-    own = find_occluders(ds, posed, settings.reference_frames, timer, settings.workers)
+    assert led_frames(ds) == list(range(ds.n_pairs))
+    own = find_occluders(ds, led_frames(ds), settings.reference_frames, timer, settings.workers)
     np.testing.assert_array_equal(mask, own)
     assert 0 < mask.mean() < 0.9   # the image circle's outside and the arm, not the wall
+
+    short = tmp_path / "short"
+    shutil.copytree(dataset, short)
+    led = sorted((short / "frames").glob("led_*"))
+    led[2].unlink()
+    assert led_frames(open_dataset(short)) == [i for i in range(ds.n_pairs) if i != 2]
 
     named = tmp_path / "named"
     shutil.copytree(dataset, named)

@@ -100,34 +100,45 @@ def keep_buffers_in_heap() -> bool:
     zeroing of its pages and an unmapping: on a 60-pair half-size run, 370 000 page
     faults and ~3 s of system time of its ~13 s of CPU time, against 175 000 faults
     held in the heap. The worker threads' own arenas would do the same in heaps glibc
-    deletes when they empty, so every thread allocates from the main arena (at full
-    size: 350 000 faults and 6-8 s of system time against 200 000 and 4-5 s, peak
-    ~100 MB lower). Process-wide and idempotent, for threads started after it; the
-    heap's free pages are still handed back by :func:`release_free_memory` between
-    passes and every ``TRIM_EVERY`` frames.
+    deletes when they empty, so threads allocate from the main arena (at full size:
+    350 000 faults and 6-8 s of system time against 200 000 and 4-5 s, peak ~100 MB
+    lower). Process-wide and idempotent. The arena limit holds for threads that have
+    not allocated before it (glibc gives a new thread an arena an exited one left
+    free, and shares the existing arenas once there are more than the limit), so it
+    is set before a run starts its threads. The heap's free pages are still handed
+    back by :func:`release_free_memory` between passes and every ``TRIM_EVERY`` frames.
 
-    Settings the user gave glibc (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
-    ``MALLOC_ARENA_MAX``, ``malloc`` tunables in ``GLIBC_TUNABLES``) are left as they are.
+    Each setting the user gave glibc is left as it is: the thresholds when
+    ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_TRIM_THRESHOLD_`` (or their ``GLIBC_TUNABLES``)
+    are set, the arenas when ``MALLOC_ARENA_MAX`` (or ``glibc.malloc.arena_max``) is.
 
     Returns
     -------
     bool
-        True when the C library took the settings (glibc), False otherwise (then
-        nothing was changed, or on a C library that refused the first, nothing more).
+        True when the C library took every setting made here and at least one was
+        made (glibc), False otherwise (on a C library that refused the mmap threshold,
+        nothing more was set).
     """
     mallopt = _libc_function("mallopt")
-    if mallopt is None or _user_allocator_settings():
+    if mallopt is None:
         return False
-    if not mallopt(_M_MMAP_THRESHOLD, HEAP_BUFFER_MB << 20):   # e.g. above 32-bit limits
-        return False
-    trims = bool(mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1))   # a C int: 2 GB
-    return bool(mallopt(_M_ARENA_MAX, 1)) and trims
+    thresholds_set, arenas_set = _user_allocator_settings()
+    took = not (thresholds_set and arenas_set)
+    if not thresholds_set:
+        if not mallopt(_M_MMAP_THRESHOLD, HEAP_BUFFER_MB << 20):   # e.g. above 32-bit limits
+            return False
+        took = bool(mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1)) and took   # a C int: 2 GB
+    if not arenas_set:
+        took = bool(mallopt(_M_ARENA_MAX, 1)) and took
+    return took
 
 
-def _user_allocator_settings() -> bool:
-    """Whether the environment sets glibc's mmap or trim threshold or its arenas itself."""
+def _user_allocator_settings() -> tuple[bool, bool]:
+    """Whether the environment sets glibc's mmap or trim threshold, and its arenas."""
     tunables = os.environ.get("GLIBC_TUNABLES", "")
-    names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
-    return (any(k in os.environ for k in names)
-            or any(f"glibc.malloc.{t}" in tunables
-                   for t in ("mmap_threshold", "trim_threshold", "arena_max")))
+    thresholds = (any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_",
+                                                "MALLOC_TRIM_THRESHOLD_"))
+                  or any(f"glibc.malloc.{t}" in tunables
+                         for t in ("mmap_threshold", "trim_threshold")))
+    arenas = "MALLOC_ARENA_MAX" in os.environ or "glibc.malloc.arena_max" in tunables
+    return thresholds, arenas

@@ -109,9 +109,10 @@ def _group_medians(group: np.ndarray, value: np.ndarray
     middle one), from one sort. ``value`` are logs of brightness ratios: finite ones
     within ±16 (a factor of 9e6), or ±inf (censored), which sort to the ends."""
     group = group.astype(np.int64)
-    # Not a stable sort: nodes of equal keys have equal values (the same group, the
-    # same value within ±16), so their order changes nothing, and numpy's quicksort of
-    # float64 keys is vectorised (~5x faster than its stable sort).
+    # Not a stable sort (numpy's quicksort of float64 keys is vectorised, ~5x faster):
+    # nodes of equal keys are in the same group with values equal to within the key's
+    # rounding (a few 1e-16 of group x 64), or clipped at the same end (±16 and ±inf,
+    # censored alike), so their order moves a median by at most that rounding.
     order = np.argsort(group * 64.0 + np.clip(value, -16.0, 16.0))
     group, value = group[order], value[order]
     if not len(group):

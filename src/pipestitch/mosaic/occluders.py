@@ -117,8 +117,9 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
     themselves), where texture adds nothing. Interpolated to every pixel's level; NaN
     (unknown) where too few pixels measure it.
     """
-    picks = stack[::max(1, len(stack) // 4)]
-    residuals = np.empty_like(picks)   # each pick's, written in place (no list, no stack)
+    picks = np.asarray(stack, np.float32)[::max(1, len(stack) // 4)]
+    # each pick's, written in place (no list, no stack); C order for OpenCV's dst
+    residuals = np.empty(picks.shape, np.float32)
     for frame, out in zip(picks, residuals, strict=True):
         cv2.subtract(frame, cv2.blur(frame, (3, 3)), dst=out)
         cv2.multiply(out, out, dst=out)

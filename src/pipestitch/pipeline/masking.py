@@ -17,7 +17,7 @@ from pipestitch.errors import DatasetError
 from pipestitch.io.dataset import open_dataset
 from pipestitch.io.mask import mask_path, write_mask
 from pipestitch.pipeline.progress import StageTimer
-from pipestitch.pipeline.stitching import MosaicSettings, find_occluders
+from pipestitch.pipeline.stitching import MosaicSettings, find_occluders, led_frames
 
 __all__ = ["MaskSummary", "run_mask"]
 
@@ -48,8 +48,7 @@ def run_mask(root: str | Path, out: str | Path, *, video: Path | None = None,
                                                   "the LED frames")
     if frames < 1:
         raise DatasetError(Path(root), f"--frames: expected at least 1, got {frames}")
-    missing = set(dataset.led_missing())
-    pairs = [i for i in range(dataset.n_pairs) if i not in missing]
+    pairs = led_frames(dataset)
     try:
         occluded = find_occluders(dataset, pairs, min(frames, len(pairs)), StageTimer(),
                                   workers)

@@ -56,6 +56,7 @@ from pipestitch.pipeline.stitching import (
     MosaicSettings,
     build_mosaic,
     find_occluders,
+    led_frames,
 )
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
@@ -318,8 +319,7 @@ def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: Mosai
     """
     if in_order or not dataset.has_led or read_mask(dataset.root, dataset.config) is not None:
         return None
-    missing = set(dataset.led_missing())
-    frames = [i for i in range(dataset.n_pairs) if i not in missing]
+    frames = led_frames(dataset)
     if not frames:
         return None
     return pool.submit(find_occluders, dataset, frames, settings.reference_frames, timer,
@@ -357,7 +357,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     timer = StageTimer()
     # only the section refits of the photometric refinement read the ring points again
     refits = dataset.has_led and settings.refine_rounds > 0
-    with ThreadPoolExecutor(max_workers=1) as ahead:
+    ahead = ThreadPoolExecutor(max_workers=1)
+    try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order)
         frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                          workers=settings.workers, timer=timer, rings=rings,
@@ -370,6 +371,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
         result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
                                                        show_progress, out, occluders)
+    finally:
+        # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops
+        ahead.shutdown(wait=False, cancel_futures=True)
     release_free_memory()
     if result is not None:
         choices = _apply_switches(choices, result.switched)

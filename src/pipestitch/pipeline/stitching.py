@@ -80,7 +80,7 @@ from pipestitch.pose.fit import RingPoints
 from pipestitch.pose.section import SectionFit, fit_section
 
 __all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "MosaicSink",
-           "build_mosaic", "find_occluders"]
+           "build_mosaic", "find_occluders", "led_frames"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
 LINK_SPAN = 2          # each frame is registered to this many following frames
@@ -237,6 +237,13 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
         return to_grey(led, out=out)
+
+
+def led_frames(dataset: Dataset) -> list[int]:
+    """The pairs whose LED frame the dataset has: the occluder mask's sample, posed or
+    not (the arm and the mirror are fixed to the camera whatever the pose)."""
+    missing = set(dataset.led_missing())
+    return [i for i in range(dataset.n_pairs) if i not in missing]
 
 
 def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
@@ -720,7 +727,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         The camera's occluded pixels (bool, the frames' shape; True: never the wall),
         when the caller has them already (``pipestitch run`` finds them while the poses
         are fitted). Default: probe.toml's mask, else found from the LED frames
-        (:func:`find_occluders`).
+        (:func:`find_occluders` over :func:`led_frames`).
 
     Returns
     -------
@@ -754,7 +761,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if occluded is None:
         occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
     if occluded is None:
-        occluded = find_occluders(dataset, sorted(usable), settings.reference_frames, timer,
+        occluded = find_occluders(dataset, led_frames(dataset), settings.reference_frames, timer,
                                   settings.workers)
     with timer("unwrap"):
         windows = _windows(camera, views, radius, mm, settings, occluded)

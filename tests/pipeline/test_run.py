@@ -16,7 +16,7 @@ from pipestitch.cli.app import app
 from pipestitch.geometry import WallGrid
 from pipestitch.io.dataset import open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
-from pipestitch.io.mask import write_mask
+from pipestitch.io.mask import read_mask, write_mask
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.run import _occluders_ahead, run_dataset
 from pipestitch.pipeline.stitching import MosaicSettings, find_occluders, led_frames
@@ -416,9 +416,9 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
     settings, timer = MosaicSettings(), StageTimer()
     ds = open_dataset(dataset)
     with ThreadPoolExecutor(max_workers=1) as pool:
-        ahead = _occluders_ahead(pool, ds, settings, timer, in_order=False)
+        ahead = _occluders_ahead(pool, ds, settings, timer, False, None)
         assert ahead is not None
-        assert _occluders_ahead(pool, ds, settings, timer, in_order=True) is None
+        assert _occluders_ahead(pool, ds, settings, timer, True, None) is None
         mask = ahead.result()
     assert led_frames(ds) == list(range(ds.n_pairs))
     own = find_occluders(ds, led_frames(ds), settings.reference_frames, timer, settings.workers)
@@ -437,5 +437,8 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
     toml.write_text(toml.read_text().replace("[probe]\n", '[probe]\nmask = "mask.png"\n'))
     assert 'mask = "mask.png"' in toml.read_text()
     write_mask(named / "mask.png", mask)
+    declared = read_mask(named, open_dataset(named).config)
+    assert declared is not None
     with ThreadPoolExecutor(max_workers=1) as pool:
-        assert _occluders_ahead(pool, open_dataset(named), settings, timer, False) is None
+        assert _occluders_ahead(pool, open_dataset(named), settings, timer, False,
+                                declared) is None

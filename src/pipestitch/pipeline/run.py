@@ -283,7 +283,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
                               budget_bytes=int(led_cache_mb * 2**20))
     try:
         read_imu(dataset.root)   # a bad imu.csv or mask is bad input: say so before the work
-        read_mask(dataset.root, dataset.config)
+        declared = read_mask(dataset.root, dataset.config)
         keep_buffers_in_heap()   # per-frame buffers reused, not mapped anew (_runtime/memory.py)
         # The frames are spread over the workers: OpenCV splitting each call again
         # costs more than it gains (_runtime/threads.py).
@@ -293,7 +293,7 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
         with (opencv_threads(1 if settings.workers > 1 else 0), RingStore() as rings,
               StagedOutput(out) as staged):
             summary = _run(dataset, staged.path, settings, show_progress, tolerance_pct,
-                           crown_deg, rings, in_order=video is not None)
+                           crown_deg, rings, declared, in_order=video is not None)
             if summary.mosaic_failed:
                 kept = staged.keep()
                 note = (f"the previous outputs in {out} are left as they were; this run's "
@@ -308,16 +308,18 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
 
 
 def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: MosaicSettings,
-                     timer: StageTimer, in_order: bool) -> Future[np.ndarray] | None:
+                     timer: StageTimer, in_order: bool, declared: np.ndarray | None,
+                     ) -> Future[np.ndarray] | None:
     """The occluder mask, found from the LED frames while the poses are fitted (it needs
     no pose, and the pose pass's two workers leave it a share of the machine instead of a
     stage of its own on one core afterwards).
 
-    None where the mosaic stage finds or reads it itself: a mask named in probe.toml, no
-    LED frames, or frames read ``in_order`` (a video's one decoder: reading frames spread
-    along the run would make the pose pass seek back each time).
+    None where there is nothing to find or the mosaic stage finds it itself: a mask
+    named in probe.toml (``declared``, as read), no LED frames, or frames read
+    ``in_order`` (a video's one decoder: reading frames spread along the run would make
+    the pose pass seek back each time).
     """
-    if in_order or not dataset.has_led or read_mask(dataset.root, dataset.config) is not None:
+    if in_order or not dataset.has_led or declared is not None:
         return None
     frames = led_frames(dataset)
     if not frames:
@@ -328,17 +330,18 @@ def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: Mosai
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,
                       timer: StageTimer, show_progress: bool, out: Path,
-                      occluders: Future[np.ndarray] | None,
+                      declared: np.ndarray | None, occluders: Future[np.ndarray] | None,
                       ) -> tuple[MosaicResult | None, WrittenMosaic | None, str]:
     """The mosaic, streamed into OUT's pyramid, overview and defects as it is stitched;
-    or None and why not (the poses are worth writing all the same). ``occluders``: the
-    occluder mask being found (:func:`_occluders_ahead`), else the mosaic stage's own."""
+    or None and why not (the poses are worth writing all the same). The occluder mask:
+    probe.toml's (``declared``), else the one being found (``occluders``,
+    :func:`_occluders_ahead`), else the mosaic stage's own."""
     if not views:
         return None, None, "no mosaic: no frame has a pose"
     if not dataset.has_led:
         return None, None, "the dataset has no LED frames: no mosaic"
     try:
-        occluded = occluders.result() if occluders is not None else None
+        occluded = declared if occluders is None else occluders.result()
         with StreamedMosaic(out, timer) as sink:
             result = build_mosaic(dataset, views, settings, timer=timer,
                                   show_progress=show_progress, sink=sink, occluded=occluded)
@@ -351,15 +354,15 @@ def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: M
 
 
 def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: bool,
-         tolerance_pct: float, crown_deg: float | None, rings: RingStore, *,
-         in_order: bool = False) -> RunSummary:
+         tolerance_pct: float, crown_deg: float | None, rings: RingStore,
+         declared: np.ndarray | None, *, in_order: bool = False) -> RunSummary:
     start = time.perf_counter()
     timer = StageTimer()
     # only the section refits of the photometric refinement read the ring points again
     refits = dataset.has_led and settings.refine_rounds > 0
     ahead = ThreadPoolExecutor(max_workers=1)
     try:
-        occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order)
+        occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
         frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                          workers=settings.workers, timer=timer, rings=rings,
                                          drop_rings=not refits, oval_start=refits)
@@ -370,7 +373,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         out.mkdir(parents=True, exist_ok=True)
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
         result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
-                                                       show_progress, out, occluders)
+                                                       show_progress, out, declared,
+                                                       occluders)
     finally:
         # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops
         ahead.shutdown(wait=False, cancel_futures=True)

@@ -279,7 +279,10 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     _check_frame("laser frame", img, camera)
     channel = laser_channel(img)
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
-    step = 0.5
+    # Samples along a ray: two per expected line sigma (a 1224-px frame's 1-px line at
+    # half-pixel steps, a 2448-px frame's 2-px line at whole pixels), and never finer
+    # than half a pixel (a small frame's thin line is sampled as a 1224-px frame's).
+    step = max(SAMPLES_MIN_STEP_PX, sigma / SAMPLES_PER_SIGMA)
     if band_px is not None:
         # Widened by the wide ridge Gaussian's kernel (16 sigma), so that the ridge of a
         # ring inside the band is what the whole ray would give; whole pixels (cache key).
@@ -293,7 +296,8 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
                                                                  np.float32))
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     if reflectance is not None:
-        polar = _flatten_reflectance(polar, reflectance, channel, crop, map_x, map_y, camera)
+        polar = _flatten_reflectance(polar, reflectance, channel, crop, map_x, map_y, camera,
+                                     step)
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
     narrow = _blur_along_rays(polar, sigma / step)
     wide = _blur_along_rays(polar, 4 * sigma / step)
@@ -327,6 +331,9 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
                          n_azimuths=n_azimuths, noise=noise, line_sigma_px=width)
 
 
+SAMPLES_PER_SIGMA = 2.0     # polar samples per expected line sigma, along a ray
+SAMPLES_MIN_STEP_PX = 0.5   # the finest sampling along a ray (px)
+BROAD_BOX_PX = 40.5         # the reflectance's broad mean: box length along a ray (px)
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 MIN_WIDTH_SAMPLES = 12   # strongest candidates needed to measure the line's width
 
@@ -427,7 +434,7 @@ def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
 
 def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,
                          crop: tuple[slice, slice], map_x: np.ndarray, map_y: np.ndarray,
-                         camera: CameraModel) -> np.ndarray:
+                         camera: CameraModel, step_px: float) -> np.ndarray:
     """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
 
     The LED image is normalised by its own broad average (LED fall-off, vignetting)
@@ -442,8 +449,9 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", led.shape,
                                                                 np.float32))
     local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    # A broad local mean (two passes of an 81-sample box, ~ a Gaussian of 33 samples).
-    broad = cv2.blur(cv2.blur(local, (81, 1), borderType=cv2.BORDER_REPLICATE), (81, 1),
+    # A broad local mean: two passes of a 40-px box along the ray (~ a Gaussian of 16 px).
+    box = (2 * round(BROAD_BOX_PX / step_px / 2) + 1, 1)
+    broad = cv2.blur(cv2.blur(local, box, borderType=cv2.BORDER_REPLICATE), box,
                      borderType=cv2.BORDER_REPLICATE)
     return divide_by_reflectance(polar, local, broad, 0.15, 0.15)
 

@@ -442,3 +442,19 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
     with ThreadPoolExecutor(max_workers=1) as pool:
         assert _occluders_ahead(pool, open_dataset(named), settings, timer, False,
                                 declared) is None
+
+
+def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
+    """The run's modules load without matplotlib (its import is ~0.25 s of every start);
+    :func:`pipestitch.report.html.prepare_plots`, which the run calls in a thread while
+    the passes work, loads it and draws one figure."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pipestitch.pipeline.run, pipestitch.pipeline.review; "
+            "print('matplotlib' in sys.modules); "
+            "from pipestitch.report.html import prepare_plots; prepare_plots(); "
+            "print('matplotlib.pyplot' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["False", "True"]

@@ -13,7 +13,7 @@ import math
 import shutil
 import time
 from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -60,7 +60,14 @@ from pipestitch.pipeline.stitching import (
 )
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
-from pipestitch.report.html import PROBLEMS_CSV, TABLES, FrameRow, ReportData, render_report
+from pipestitch.report.html import (
+    PROBLEMS_CSV,
+    TABLES,
+    FrameRow,
+    ReportData,
+    prepare_plots,
+    render_report,
+)
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -273,14 +280,14 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
     ``tolerance_pct``: profile.csv flags diameters further than this from nominal.
     ``crown_deg``: mosaic theta of 12 o'clock for the clock positions (the standards
     stage; default: imu.csv, else a detected invert, else relative).
-    ``led_cache_mb``: the decoded LED frames are kept when the whole run fits this
-    (pipeline/frame_cache.py; 0: never).
+    ``led_cache_mb``: the decoded LED frames are kept in memory when the whole run fits
+    this (0: never), else in a spill file in ``out`` (pipeline/frame_cache.py).
     """
     settings = settings or MosaicSettings()
     out = Path(out)
     check_out_folder(Path(root), out)
     dataset = CachedLedFrames(open_dataset(root, video=video),
-                              budget_bytes=int(led_cache_mb * 2**20))
+                              budget_bytes=int(led_cache_mb * 2**20), spill_dir=out)
     try:
         read_imu(dataset.root)   # a bad imu.csv or mask is bad input: say so before the work
         declared = read_mask(dataset.root, dataset.config)
@@ -363,6 +370,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     ahead = ThreadPoolExecutor(max_workers=1)
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
+        plots = ahead.submit(prepare_plots)   # after the mask, while the passes run
         frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                          workers=settings.workers, timer=timer, rings=rings,
                                          drop_rings=not refits, oval_start=refits)
@@ -415,6 +423,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                          dict(timer.seconds), problems, result, no_mosaic,
                          not views or (dataset.has_led and result is None))
     with timer("report"):
+        wait([plots])   # done, or cancelled by a run that stopped (pyplot: one thread)
         data = _report_data(dataset, frames, choices, z, written, result, summary)
         data.defects = coded.defects if coded is not None and result is not None else defects
         data.tolerance_pct = tolerance_pct

@@ -7,24 +7,25 @@ writes it. Plots are drawn with matplotlib's Agg backend (no display needed).
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import io
 from dataclasses import dataclass, field
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import cv2
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.patches import Ellipse
 
 from pipestitch.measure.defects import Defect
 from pipestitch.standards import DEFINITIONS, Observation, Survey
 from pipestitch.standards.observations import ProfileSection
 
-__all__ = ["FrameRow", "ReportData", "StandardsView", "observation_section", "render_report",
-           "with_observation_section"]
+if TYPE_CHECKING:
+    import matplotlib.pyplot as plt
+
+__all__ = ["FrameRow", "ReportData", "StandardsView", "observation_section", "prepare_plots",
+           "render_report", "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
@@ -89,6 +90,33 @@ class ReportData:
     tables: list[str] = field(default_factory=list)   # CSV files beside the report to link
 
 
+@functools.cache
+def _pyplot() -> ModuleType:
+    """matplotlib's pyplot on the Agg backend, imported on first use: a quarter of a second
+    that commands without plots (and the report's callers until it is drawn) do not pay."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot
+
+    return matplotlib.pyplot
+
+
+def prepare_plots() -> None:
+    """Import matplotlib and draw a small labelled figure, so that the report's first
+    figure finds the backend, the fonts and the text layout ready.
+
+    A caller runs it in a thread while other work leaves a core free; the report is the
+    same whether it ran or not.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(2, 1.5))
+    ax.plot([0, 1], [0, 1], ".-", label="α")
+    ax.set_xlabel("z (mm)")
+    ax.legend(fontsize=8)
+    _png(fig)
+
+
 def _png(fig: plt.Figure, *, photo: bool = False) -> str:
     """The figure as a data URI: PNG for plots; JPEG (quality 90) for ``photo``, a figure
     that is mostly an image (the mosaic: a tenth of the bytes, a third of the time)."""
@@ -98,12 +126,13 @@ def _png(fig: plt.Figure, *, photo: bool = False) -> str:
                     pil_kwargs={"quality": 90})
     else:
         fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    _pyplot().close(fig)
     kind = "jpeg" if photo else "png"
     return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _mosaic_figure(data: ReportData) -> str:
+    plt = _pyplot()
     img = data.mosaic
     scale = min(1.0, MAX_MOSAIC_PX / max(img.shape))
     shown = img if scale == 1.0 else cv2.resize(img, None, fx=scale, fy=scale,
@@ -139,6 +168,8 @@ def _clock_axis(ax: plt.Axes, crown_theta_deg: float, theta_max: float) -> None:
 
 def _outline_defects(ax: plt.Axes, data: ReportData) -> None:
     """Each defect as an ellipse of its equivalent diameter (in mm and degrees), labelled."""
+    from matplotlib.patches import Ellipse
+
     deg_per_mm = 360.0 / (data.mosaic.shape[0] * data.mm_per_px) if data.mosaic is not None else 1
     for k, d in enumerate(data.defects, start=1):
         colour = "#ff3030" if d.kind == "hole" else "#ffb000"
@@ -153,6 +184,7 @@ def _series(data: ReportData, name: str) -> np.ndarray:
 
 
 def _pose_figure(data: ReportData) -> str:
+    plt = _pyplot()
     z = _series(data, "z_mm")
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     for name, label in (("alpha_deg", "α"), ("beta_deg", "β")):
@@ -173,6 +205,7 @@ def _pose_figure(data: ReportData) -> str:
 
 
 def _profile_figure(data: ReportData) -> str:
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(9, 3))
     ax.plot(_series(data, "z_mm"), _series(data, "diameter_mm"), ".-", label="from the ring")
     ax.axhline(data.nominal_diameter_mm, color="k", ls="--", lw=1, label="nominal")
@@ -305,6 +338,7 @@ def _fmt_pct(value: float) -> str:
 
 
 def _ovality_figure(sections: list[ProfileSection]) -> str:
+    plt = _pyplot()
     z = np.array([s.z_mm for s in sections])
     fig, ax = plt.subplots(figsize=(9, 3))
     for name, label in (("f1216_mean_min_pct", "ASTM F1216 (mean−min)/mean"),

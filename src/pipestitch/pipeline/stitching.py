@@ -9,7 +9,8 @@ Two passes over the LED frames, each frame unwrapped straight from its pixels:
 2. every placed frame is unwrapped again, this time onto the canvas nodes it covers
    (sub-pixel, so the image is resampled once), shaded, gain-matched and blended.
 
-Re-reading a frame costs one decode; holding the strips instead would make memory
+Each pass reads the LED frames again: from memory, or from the run's spill file, each
+decoded once (pipeline/frame_cache.py); holding the strips instead would make memory
 grow with the run. Frames that cannot be read, have no pose, or are not connected to
 the run by registration or the odometer are reported and skipped.
 """
@@ -273,7 +274,7 @@ class _Candidate:
     valid: np.ndarray
     image: np.ndarray
     spectrum: np.ndarray
-    flat: FlatInput
+    flat: FlatInput | None   # None: a pass whose flat field data are not kept
 
 
 @dataclass(frozen=True)
@@ -303,14 +304,14 @@ class _Pass1:
 
 
 def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
-                      grid: WallGrid, timer: StageTimer) -> _Candidate:
+                      grid: WallGrid, timer: StageTimer, *, flat: bool) -> _Candidate:
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
         contrast = strip_contrast(strip)
         image = registration_image(contrast, strip.weight)
         return _Candidate(contrast, strip.weight > 0, image, spectrum(image),
-                          unwrapper.flat(grey, strip, maps))
+                          unwrapper.flat(grey, strip, maps) if flat else None)
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: WallGrid,
@@ -345,7 +346,7 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
 
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: WallGrid, timer: StageTimer, show_progress: bool,
-              skipped: dict[int, str], *, patches: bool) -> _Pass1:
+              skipped: dict[int, str], *, patches: bool, flat: bool) -> _Pass1:
     """Pass 1: own-window strips, links to the next frames, and the flat field's data
     (ring levels and overlap ratios) of the frames
     :func:`pipestitch.mosaic.blend.profile_step` samples.
@@ -354,7 +355,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     one whose strip correlates better with the previous frames is kept (``views`` is
     updated; a frame kept on its first hypothesis keeps the other, so a later, finer
     round can still reverse the choice). With ``patches`` the local patch shifts of
-    every link are measured too (for the photometric pose refinement).
+    every link are measured too (for the photometric pose refinement); without
+    ``flat``, no flat field data (a round followed by another, which gathers its own).
     """
     def work(i: int) -> _Registered:
         try:
@@ -362,7 +364,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
         except DatasetError as exc:
             return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
         options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
-        return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer)
+        return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer, flat=flat)
                                for v in options])
 
     def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
@@ -414,7 +416,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 out.links.append(link)
                 if patches:
                     pending.append(pool.submit(patch_job, link, prev, cand))
-            if sampled:
+            if sampled and flat:
                 flats.append(pool.submit(flat_job, cand, found[best or 0]))
             while len(pending) > 2 * max(1, workers):
                 out.patches.append(pending.popleft().result())
@@ -513,7 +515,8 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     come out a few hundredths of a degree off per degree of correction) or found frames
     oval that it registered as circles (their strips had the wrong section). Each pass's
     patch shifts are released once the refinement has used them, and only the last
-    pass's flat field data are kept, reduced to the flat field at once.
+    pass's flat field data are kept, reduced to the flat field at once (earlier rounds
+    do not gather them; the last planned round does, and an extra one replaces them).
     """
     camera, switched = unwrapper.camera, {}
     total, k = max(1, rounds), 0
@@ -521,7 +524,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         own = grids[0] if k < rounds - 1 else grids[1]
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
-                          patches=rounds > 0)
+                          patches=rounds > 0, flat=k >= rounds - 1)
         switched.update(pass1.switched)
         links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
         if pass1.patches:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +27,25 @@ class FakeDataset:
         return np.full((10, 100), index, np.uint8)
 
 
+class MixedDataset(FakeDataset):
+    """Colour 8-bit frames and grey 16-bit ones, alternately; can be closed."""
+
+    closed = False
+
+    def frame(self, index: int) -> np.ndarray:
+        rng = np.random.default_rng(index)
+        if index % 2:
+            return rng.integers(0, 65535, (12, 20), dtype=np.uint16)
+        return rng.integers(0, 255, (12, 20, 3), dtype=np.uint8)
+
+    def read_led(self, index: int) -> np.ndarray:
+        super().read_led(index)
+        return self.frame(index)
+
+    def close(self) -> None:
+        self.closed = True
+
+
 def test_a_run_that_fits_is_decoded_once_per_frame() -> None:
     ds = FakeDataset(5)
     cache = CachedLedFrames(ds, budget_bytes=5000)
@@ -38,7 +58,7 @@ def test_a_run_that_fits_is_decoded_once_per_frame() -> None:
         cache.read_led(0)[0, 0] = 7                 # shared frames are read-only
 
 
-def test_a_run_larger_than_the_budget_is_not_cached_at_all() -> None:
+def test_a_run_larger_than_the_budget_without_a_spill_folder_is_not_cached() -> None:
     ds = FakeDataset(6)
     cache = CachedLedFrames(ds, budget_bytes=5000)  # 6 x 1000 bytes do not fit
     for _ in range(2):
@@ -48,9 +68,52 @@ def test_a_run_larger_than_the_budget_is_not_cached_at_all() -> None:
     assert cache._bytes == 0                        # memory does not grow with the run
 
 
-def test_concurrent_reads_give_the_right_frames() -> None:
+def test_a_run_larger_than_the_budget_is_decoded_once_into_the_spill_file(
+        tmp_path: Path) -> None:
+    """Each frame is decoded once and read back from an unlinked file in the spill
+    folder (nothing is left there, nothing is kept in memory); colour and 16-bit
+    frames come back exactly, read-only."""
+    ds = MixedDataset(6)
+    cache = CachedLedFrames(ds, budget_bytes=1000, spill_dir=tmp_path)   # 6 frames do not fit
+    for _ in range(3):
+        for i in range(6):
+            got = cache.read_led(i)
+            np.testing.assert_array_equal(got, ds.frame(i))
+            assert got.dtype == ds.frame(i).dtype and not got.flags.writeable
+    assert all(ds.reads[i] == 1 for i in range(6))
+    assert cache._bytes == 0 and cache.spilled_bytes == sum(ds.frame(i).nbytes for i in range(6))
+    assert list(tmp_path.iterdir()) == []           # the file has no name
+    cache.close()
+    assert ds.closed
+    np.testing.assert_array_equal(cache.read_led(2), ds.frame(2))   # decoded again
+    assert ds.reads[2] == 2
+
+
+def test_the_spill_file_stays_within_its_budget(tmp_path: Path) -> None:
+    ds = FakeDataset(6)
+    cache = CachedLedFrames(ds, budget_bytes=0, spill_dir=tmp_path, spill_budget_bytes=2500)
+    for _ in range(2):
+        for i in range(6):
+            assert cache.read_led(i)[0, 0] == i
+    assert cache.spilled_bytes == 2000              # the first two frames kept
+    assert [ds.reads[i] for i in range(6)] == [1, 1, 2, 2, 2, 2]
+
+
+def test_a_spill_folder_that_cannot_take_the_file_leaves_the_frames_decoded(
+        tmp_path: Path) -> None:
+    ds = FakeDataset(3)
+    cache = CachedLedFrames(ds, budget_bytes=0, spill_dir=tmp_path / "missing")
+    for _ in range(2):
+        for i in range(3):
+            assert cache.read_led(i)[0, 0] == i
+    assert all(ds.reads[i] == 2 for i in range(3)) and cache.spilled_bytes == 0
+
+
+@pytest.mark.parametrize("where", ["memory", "spill file"])
+def test_concurrent_reads_give_the_right_frames(where: str, tmp_path: Path) -> None:
     ds = FakeDataset(20)
-    cache = CachedLedFrames(ds, budget_bytes=10**6)
+    cache = (CachedLedFrames(ds, budget_bytes=10**6) if where == "memory" else
+             CachedLedFrames(ds, budget_bytes=0, spill_dir=tmp_path))
     errors = []
 
     def work(offset: int) -> None:

@@ -1,41 +1,79 @@
-"""A bounded cache of decoded LED frames shared by the stages of one run.
+"""The decoded LED frames of one run, shared by its stages: in memory or in a spill file.
 
 ``pipestitch run`` reads each LED frame in the pose stage (ring reflectance,
 photometric evidence), for the occluder mask, in every registration round and
-for the stitch: four or five PNG decodes of the same file. Decoding is a tenth of
-the run's time, so the frames are kept when the whole run's LED frames fit in a
-memory budget. A longer run is read in full passes, which an LRU cache of part of it
-would never hit: it is not cached at all, so its memory does not grow with its length.
+for the stitch: four or five PNG decodes of the same file. So every frame is decoded
+once and kept:
+
+- in memory, when the whole run's LED frames fit a memory budget;
+- else in a spill file: each decoded frame's pixels are appended, as stored, to an
+  unlinked temporary file in a folder the caller names (the run's output folder, on
+  the disk that takes the mosaic) and read back from there. Reading 1.2 MB back from
+  the page cache takes a twentieth of a millisecond, a PNG decode of it ~9 ms. What
+  the file holds is in the system's page cache, not in the process's resident memory,
+  so memory does not grow with the run's length. The file takes at most a quarter of
+  the folder's free space (and ``spill_budget_bytes``); frames beyond it, and all
+  frames when no file can be made or written, are decoded each time they are read.
+
+An LRU cache of part of a run would never hit: a run is read in full passes.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import threading
 from collections import OrderedDict
-from typing import Any
+from pathlib import Path
+from typing import Any, BinaryIO
 
 import numpy as np
 
 __all__ = ["CachedLedFrames"]
 
 DEFAULT_BUDGET_BYTES = 512 * 2**20
+SPILL_SHARE_OF_FREE = 0.25   # of the spill folder's free space the file may take
 
 
 class CachedLedFrames:
-    """A dataset whose ``read_led`` keeps decoded frames when the run fits ``budget_bytes``.
+    """A dataset whose ``read_led`` decodes each LED frame once: kept in memory when the
+    run fits ``budget_bytes``, else in a spill file in ``spill_dir`` (when given).
 
-    Whether it fits is judged from the first frame read (all frames of a run have one
-    size). Every other attribute is the wrapped dataset's. Thread-safe; frames are
-    returned read-only (callers convert them, never write into them).
+    Whether the run fits is judged from the first frame read (all frames of a run have
+    one size). Every other attribute is the wrapped dataset's. Thread-safe; frames are
+    returned read-only (callers convert them, never write into them). :meth:`close`
+    closes (and so deletes) the spill file and the dataset.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        What is wrapped (``read_led``, ``n_pairs`` and everything else).
+    budget_bytes : int
+        Memory the run's decoded frames may take.
+    spill_dir : str or pathlib.Path, optional
+        Folder of the spill file for a run that does not fit; None: such a run is
+        decoded at every read.
+    spill_budget_bytes : int, optional
+        Most bytes the spill file may take (besides the share of the free space).
     """
 
-    def __init__(self, dataset: Any, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> None:
+    def __init__(self, dataset: Any, budget_bytes: int = DEFAULT_BUDGET_BYTES,
+                 spill_dir: str | Path | None = None,
+                 spill_budget_bytes: int | None = None) -> None:
         self._dataset = dataset
         self._budget = budget_bytes
         self._frames: OrderedDict[int, np.ndarray] = OrderedDict()
         self._bytes = 0
-        self._enabled: bool | None = None   # decided on the first frame read
-        self._lock = threading.Lock()
+        self._mode: str | None = None   # "memory", "spill" or "off": on the first frame read
+        self._spill_dir = spill_dir
+        self._spill_budget = spill_budget_bytes
+        self._file: BinaryIO | None = None
+        self._spilled: dict[int, tuple[int, tuple[int, ...], np.dtype]] = {}
+        self._end = 0
+        self._in_flight = 0   # spill reads and writes under way: closing waits for them
+        self._closing = False
+        self._lock = threading.Condition()
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._dataset, name)
@@ -47,15 +85,113 @@ class CachedLedFrames:
             if frame is not None:
                 self._frames.move_to_end(index)
                 return frame
+            where = self._spilled.get(index)
+        if where is not None:
+            frame = self._read_spilled(*where)
+            if frame is not None:
+                return frame
         frame = self._dataset.read_led(index)
         frame.flags.writeable = False
         with self._lock:
-            if self._enabled is None:
-                self._enabled = frame.nbytes * self._dataset.n_pairs <= self._budget
-            if self._enabled and index not in self._frames:
+            if self._mode is None:
+                self._mode = self._choose_mode(frame.nbytes * self._dataset.n_pairs)
+            if self._mode == "memory" and index not in self._frames:
                 self._frames[index] = frame
                 self._bytes += frame.nbytes
                 while self._bytes > self._budget:   # a frame of another size: stay bounded
                     _, old = self._frames.popitem(last=False)
                     self._bytes -= old.nbytes
+            offset = self._reserve(index, frame)
+        if offset is not None:
+            self._spill(index, offset, frame)
         return frame
+
+    @property
+    def spilled_bytes(self) -> int:
+        """Bytes written to the spill file so far."""
+        return self._end
+
+    def close(self) -> None:
+        """Close (and so delete) the spill file, then the dataset (a video's decoder)."""
+        with self._lock:
+            self._closing = True
+            self._spilled.clear()
+            self._lock.wait_for(lambda: self._in_flight == 0)
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+        close = getattr(self._dataset, "close", None)
+        if close is not None:
+            close()
+
+    def _choose_mode(self, run_bytes: int) -> str:
+        """Memory when the run fits the budget, else a spill file when one can be made
+        (its budget set from the folder's free space), else nothing kept."""
+        if run_bytes <= self._budget:
+            return "memory"
+        if self._spill_dir is None:
+            return "off"
+        try:
+            free = shutil.disk_usage(self._spill_dir).free
+            self._file = tempfile.TemporaryFile(dir=self._spill_dir)
+        except OSError:
+            return "off"
+        limit = int(SPILL_SHARE_OF_FREE * free)
+        self._spill_budget = min(limit, self._spill_budget or limit)
+        return "spill"
+
+    def _reserve(self, index: int, frame: np.ndarray) -> int | None:
+        """Where in the spill file ``frame`` goes (the lock is held); None: not kept."""
+        if (self._mode != "spill" or self._closing or index in self._spilled
+                or self._end + frame.nbytes > (self._spill_budget or 0)):
+            return None
+        offset, self._end = self._end, self._end + frame.nbytes
+        return offset
+
+    def _begin_io(self) -> int | None:
+        """The spill file's descriptor, held open until :meth:`_end_io`; None when closed."""
+        with self._lock:
+            if self._file is None or self._closing:
+                return None
+            self._in_flight += 1
+            return self._file.fileno()
+
+    def _end_io(self) -> None:
+        with self._lock:
+            self._in_flight -= 1
+            self._lock.notify_all()
+
+    def _spill(self, index: int, offset: int, frame: np.ndarray) -> None:
+        """Write ``frame`` at ``offset``; readable from the file once written."""
+        fd = self._begin_io()
+        if fd is None:
+            return
+        try:
+            written = os.pwrite(fd, np.ascontiguousarray(frame).data, offset) == frame.nbytes
+        except OSError:   # a full disk: the frames not kept yet are decoded at every read
+            written = False
+            with self._lock:
+                self._spill_budget = 0
+        finally:
+            self._end_io()
+        if written:
+            with self._lock:
+                if not self._closing:
+                    self._spilled[index] = (offset, frame.shape, frame.dtype)
+
+    def _read_spilled(self, offset: int, shape: tuple[int, ...],
+                      dtype: np.dtype) -> np.ndarray | None:
+        """A spilled frame (read-only), or None when it cannot be read back."""
+        size = int(np.prod(shape)) * dtype.itemsize
+        fd = self._begin_io()
+        if fd is None:
+            return None
+        try:
+            data = os.pread(fd, size, offset)
+        except OSError:
+            return None
+        finally:
+            self._end_io()
+        if len(data) != size:
+            return None
+        return np.frombuffer(data, dtype=dtype).reshape(shape)

@@ -38,6 +38,11 @@ NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of 
 # (of a pure-noise pixel the ratio is ~1; over 11 frames its 99.9th percentile is ~3).
 STATIC_RATIO = 4.0
 MIN_STATIC_FRAMES = 5   # fewer frames cannot tell a static pixel from a slow wall
+# Frames taller than this are area-averaged by a whole factor to about this many rows
+# first (a 2448 x 2048 frame by 2): the mask's finest structures (the static test's
+# 5 x 5 mean, a static region of 1/100 of the frame) still span >= 5 px there, the
+# margin dilation is applied at the frames' own pixels, and the mask costs a quarter.
+MASK_ROWS = 1024
 
 
 def _smooth(frame: np.ndarray, sigma: float) -> np.ndarray:
@@ -83,13 +88,18 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     shape = np.shape(frames[0])
     if any(np.shape(f) != shape for f in frames) or len(shape) != 2:
         raise ValueError("occluder_mask: expected grey frames of one size")
-    stack = np.empty((len(frames), *shape), np.float32)
+    factor = max(1, round(shape[0] / MASK_ROWS))
+    work = (shape[0] // factor, shape[1] // factor)
+    stack = np.empty((len(frames), *work), np.float32)
     ratios = np.empty_like(stack)
-    height = shape[0]
-    sigma = max(3.0, height / 40)
+    sigma = max(3.0, work[0] / 40)
 
     def fill(k: int) -> None:   # each frame's rows of the stacks: no copy of the list
-        stack[k] = frames[k]
+        if factor == 1:
+            stack[k] = frames[k]
+        else:
+            cv2.resize(np.asarray(frames[k], np.float32), work[::-1], dst=stack[k],
+                       interpolation=cv2.INTER_AREA)
         np.divide(stack[k], np.maximum(_smooth(stack[k], sigma), 1e-6), out=ratios[k])
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
@@ -102,9 +112,16 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     mask = (ratio < relative) | (level < absolute * scale)
     if len(frames) >= MIN_STATIC_FRAMES:
         mask |= static_pixels(stack, typical)
-    margin = max(2, round(height / 200)) if margin_px is None else margin_px
+    mask = mask.astype(np.uint8)
+    if factor > 1:   # back to the frames' pixels (a border row or column: its neighbour's)
+        mask = cv2.copyMakeBorder(
+            cv2.resize(mask, (work[1] * factor, work[0] * factor),
+                       interpolation=cv2.INTER_NEAREST),
+            0, shape[0] - work[0] * factor, 0, shape[1] - work[1] * factor,
+            cv2.BORDER_REPLICATE)
+    margin = max(2, round(shape[0] / 200)) if margin_px is None else margin_px
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+    return cv2.dilate(mask, kernel).astype(bool)
 
 
 def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> np.ndarray:

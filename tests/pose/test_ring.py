@@ -201,3 +201,32 @@ def test_row_percentile_is_numpys_nanpercentile_per_row() -> None:
     # the same interpolation of the same sorted values, but numpy rounds the weight
     # another way: apart by 2e-16 at most here (an ulp of these values)
     np.testing.assert_allclose(row_percentile(values, 20.0), expected, rtol=0, atol=1e-12)
+
+
+def test_a_line_thinner_than_the_sampling_resolves_is_searched_again_finer(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A full-size frame's rays are sampled at whole pixels (two samples per expected
+    2-px line sigma); a laser sheet a third as thick gives a line the coarse sampling
+    would centre less exactly, so it is searched again at half pixels: as exact as a
+    search at half pixels from the start."""
+    import pipestitch.pose.ring as ring
+
+    r = renderer("full", Optics(laser_sigma_mm=0.05))
+    laser = r.render_laser(POSE, np.random.default_rng(4))
+    steps: list[float] = []
+    search = ring._search_rays
+
+    def spy(*args, **kwargs):
+        steps.append(kwargs["step"])
+        return search(*args, **kwargs)
+
+    monkeypatch.setattr(ring, "_search_rays", spy)
+    det = detect_ring(laser, r.camera)
+    monkeypatch.undo()
+    assert steps[0] == 1.0 and len(steps) == 2 and steps[1] < 1.0
+    assert det.line_sigma_px < ring.RESAMPLE_BELOW
+    fine = ring._search_rays(laser, None, r.camera, None, det.n_azimuths, None, 2.0,
+                             step=0.5, min_snr=8.0, max_candidates=3, min_relative=0.2)
+    rms = [float(np.sqrt(np.mean(distance_to_true_ring(r.camera, POSE, d.best())**2)))
+           for d in (det, fine)]
+    assert rms[0] < 1.1 * rms[1] + 0.005

@@ -277,17 +277,37 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         Possibly empty (no ring in the frame): check ``coverage``.
     """
     _check_frame("laser frame", img, camera)
-    channel = laser_channel(img)
     sigma = line_sigma_px or 2.0 * max(camera.width, camera.height) / 2448
-    # Samples along a ray: two per expected line sigma (a 1224-px frame's 1-px line at
-    # half-pixel steps, a 2448-px frame's 2-px line at whole pixels), and never finer
-    # than half a pixel (a small frame's thin line is sampled as a 1224-px frame's).
-    step = max(SAMPLES_MIN_STEP_PX, sigma / SAMPLES_PER_SIGMA)
     if band_px is not None:
         # Widened by the wide ridge Gaussian's kernel (16 sigma), so that the ridge of a
         # ring inside the band is what the whole ray would give; whole pixels (cache key).
         reach = 16 * sigma + 2
         band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
+    search = functools.partial(_search_rays, img, reflectance, camera, laser_channel(img),
+                               n_azimuths, band_px, sigma, min_snr=min_snr,
+                               max_candidates=max_candidates, min_relative=min_relative)
+    # Samples along a ray: two per expected line sigma (a 1224-px frame's 1-px line at
+    # half-pixel steps, a 2448-px frame's 2-px line at whole pixels), never finer than
+    # half a pixel (a small frame's thin line is sampled as a 1224-px frame's). A line
+    # measured thinner than that sampling resolves is searched again at its own width.
+    step = max(SAMPLES_MIN_STEP_PX, sigma / SAMPLES_PER_SIGMA)
+    found = search(step=step)
+    if step > SAMPLES_MIN_STEP_PX and found.line_sigma_px < RESAMPLE_BELOW * step:
+        found = search(step=max(SAMPLES_MIN_STEP_PX, found.line_sigma_px / SAMPLES_PER_SIGMA))
+    return found
+
+
+SAMPLES_PER_SIGMA = 2.0     # polar samples per expected line sigma, along a ray
+SAMPLES_MIN_STEP_PX = 0.5   # the finest sampling along a ray (px)
+RESAMPLE_BELOW = 1.5        # a measured line sigma under this many samples: sampled again
+BROAD_BOX_PX = 40.5         # the reflectance's broad mean: box length along a ray (px)
+
+
+def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: CameraModel,
+                 channel: int | None, n_azimuths: int, band_px: tuple[float, float] | None,
+                 sigma: float, *, step: float, min_snr: float, max_candidates: int,
+                 min_relative: float) -> RingDetection:
+    """:func:`detect_ring` at one sampling step along the rays."""
     _, _, radii, centre = polar_grid(camera, n_azimuths, step, band_px)
     crop, map_x, map_y = polar_crop(camera, n_azimuths, step, band_px)
     part = np.asarray(img)[crop]
@@ -331,9 +351,6 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
                          n_azimuths=n_azimuths, noise=noise, line_sigma_px=width)
 
 
-SAMPLES_PER_SIGMA = 2.0     # polar samples per expected line sigma, along a ray
-SAMPLES_MIN_STEP_PX = 0.5   # the finest sampling along a ray (px)
-BROAD_BOX_PX = 40.5         # the reflectance's broad mean: box length along a ray (px)
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 MIN_WIDTH_SAMPLES = 12   # strongest candidates needed to measure the line's width
 

@@ -246,8 +246,9 @@ def bench_runs(work: Path, pairs: list[int], size: str, threads: int,
         else:
             root = simulate(work / f"run{n}", n, size, seed=n)
         video = to_video(root, work / f"run{n}.avi") if "video" in inputs else None
-        # "nocache": frames with the LED frame cache off (a short run is otherwise cached
-        # whole, which makes it the larger one)
+        # "nocache": frames with the LED frames' memory cache off, so the run reads them
+        # back from its spill file as a run too long for the cache does (a short run is
+        # otherwise cached whole, which makes it the larger one)
         for kind in inputs:
             args = ["--child-run", str(root), str(work / f"out{n}_{kind}"), str(threads)]
             args += ["--video", str(video)] if kind == "video" else []

@@ -129,3 +129,32 @@ def test_concurrent_reads_give_the_right_frames(where: str, tmp_path: Path) -> N
         t.join()
     assert errors == []
     assert sum(ds.reads.values()) <= 20 * 4       # at most one decode per frame and thread
+
+
+def test_a_full_disk_gives_the_spill_file_up_and_its_space_back(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A write that fails (ENOSPC) ends the spilling: the file is emptied so that the
+    outputs still fit, every frame is still right, decoded at each read from then on."""
+    import errno
+    import os
+
+    from pipestitch.pipeline import frame_cache
+
+    ds = FakeDataset(4)
+    cache = CachedLedFrames(ds, budget_bytes=0, spill_dir=tmp_path)
+    cache.read_led(0)
+    assert cache.spilled_bytes == 1000
+    written = os.pwrite
+
+    def full(fd: int, data: object, offset: int) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(frame_cache.os, "pwrite", full)
+    assert cache.read_led(1)[0, 0] == 1
+    monkeypatch.setattr(frame_cache.os, "pwrite", written)
+    assert cache.spilled_bytes == 0 and os.fstat(cache._file.fileno()).st_size == 0
+    for _ in range(2):
+        for i in range(4):
+            assert cache.read_led(i)[0, 0] == i
+    assert [ds.reads[i] for i in range(4)] == [3, 3, 2, 2]
+    cache.close()

@@ -38,10 +38,11 @@ NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of 
 # (of a pure-noise pixel the ratio is ~1; over 11 frames its 99.9th percentile is ~3).
 STATIC_RATIO = 4.0
 MIN_STATIC_FRAMES = 5   # fewer frames cannot tell a static pixel from a slow wall
-# Frames taller than this are area-averaged by a whole factor to about this many rows
-# first (a 2448 x 2048 frame by 2): the mask's finest structures (the static test's
-# 5 x 5 mean, a static region of 1/100 of the frame) still span >= 5 px there, the
-# margin dilation is applied at the frames' own pixels, and the mask costs a quarter.
+# Frames of 1.5 times this many rows or more are area-averaged by a whole factor (the
+# rows over this, rounded; a 2448 x 2048 frame by 2) to about this many rows first: the
+# mask's finest structures (the static test's 5 x 5 mean, a static region of 1/100 of
+# the frame) still span >= 5 px there, the margin dilation is applied at the frames' own
+# pixels, and the mask costs a quarter. The windows named below are in those pixels.
 MASK_ROWS = 1024
 
 
@@ -98,8 +99,8 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
         if factor == 1:
             stack[k] = frames[k]
         else:
-            cv2.resize(np.asarray(frames[k], np.float32), work[::-1], dst=stack[k],
-                       interpolation=cv2.INTER_AREA)
+            whole = np.asarray(frames[k], np.float32)[:work[0] * factor, :work[1] * factor]
+            cv2.resize(whole, work[::-1], dst=stack[k], interpolation=cv2.INTER_AREA)
         np.divide(stack[k], np.maximum(_smooth(stack[k], sigma), 1e-6), out=ratios[k])
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:

@@ -34,6 +34,7 @@ __all__ = ["CachedLedFrames"]
 
 DEFAULT_BUDGET_BYTES = 512 * 2**20
 SPILL_SHARE_OF_FREE = 0.25   # of the spill folder's free space the file may take
+CLOSE_WAIT_S = 10.0          # closing waits this long at most for spill reads and writes
 
 
 class CachedLedFrames:
@@ -73,6 +74,7 @@ class CachedLedFrames:
         self._end = 0
         self._in_flight = 0   # spill reads and writes under way: closing waits for them
         self._closing = False
+        self._failed = False   # a write failed: the file is given up
         self._lock = threading.Condition()
 
     def __getattr__(self, name: str) -> Any:
@@ -108,7 +110,7 @@ class CachedLedFrames:
 
     @property
     def spilled_bytes(self) -> int:
-        """Bytes written to the spill file so far."""
+        """Bytes of the spill file given to frames so far (0 after a failed write)."""
         return self._end
 
     def close(self) -> None:
@@ -116,7 +118,9 @@ class CachedLedFrames:
         with self._lock:
             self._closing = True
             self._spilled.clear()
-            self._lock.wait_for(lambda: self._in_flight == 0)
+            # a read or write under way ends within milliseconds; one that an interrupt
+            # left counted must not hold the run's exit
+            self._lock.wait_for(lambda: self._in_flight == 0, timeout=CLOSE_WAIT_S)
             if self._file is not None:
                 self._file.close()
                 self._file = None
@@ -129,15 +133,16 @@ class CachedLedFrames:
         (its budget set from the folder's free space), else nothing kept."""
         if run_bytes <= self._budget:
             return "memory"
-        if self._spill_dir is None:
-            return "off"
+        if self._spill_dir is None or self._closing or not hasattr(os, "pread"):
+            return "off"   # (os.pread and os.pwrite are POSIX only)
         try:
             free = shutil.disk_usage(self._spill_dir).free
             self._file = tempfile.TemporaryFile(dir=self._spill_dir)
         except OSError:
             return "off"
         limit = int(SPILL_SHARE_OF_FREE * free)
-        self._spill_budget = min(limit, self._spill_budget or limit)
+        self._spill_budget = limit if self._spill_budget is None else min(limit,
+                                                                          self._spill_budget)
         return "spill"
 
     def _reserve(self, index: int, frame: np.ndarray) -> int | None:
@@ -151,7 +156,7 @@ class CachedLedFrames:
     def _begin_io(self) -> int | None:
         """The spill file's descriptor, held open until :meth:`_end_io`; None when closed."""
         with self._lock:
-            if self._file is None or self._closing:
+            if self._file is None or self._closing or self._failed:
                 return None
             self._in_flight += 1
             return self._file.fileno()
@@ -168,16 +173,29 @@ class CachedLedFrames:
             return
         try:
             written = os.pwrite(fd, np.ascontiguousarray(frame).data, offset) == frame.nbytes
-        except OSError:   # a full disk: the frames not kept yet are decoded at every read
+        except OSError:
             written = False
-            with self._lock:
-                self._spill_budget = 0
         finally:
             self._end_io()
-        if written:
-            with self._lock:
-                if not self._closing:
-                    self._spilled[index] = (offset, frame.shape, frame.dtype)
+        with self._lock:
+            if written and not (self._closing or self._failed):
+                self._spilled[index] = (offset, frame.shape, frame.dtype)
+            elif not written:
+                self._give_up()
+
+    def _give_up(self) -> None:
+        """After a failed write (a full disk): no more reads or writes of the file, whose
+        space is handed back once those under way have ended, so that the outputs still
+        fit; frames are decoded at every read. The lock is held."""
+        self._failed = True
+        self._spill_budget, self._end = 0, 0
+        self._spilled.clear()
+        self._lock.wait_for(lambda: self._in_flight == 0, timeout=CLOSE_WAIT_S)
+        if self._file is not None and self._in_flight == 0:
+            try:
+                os.ftruncate(self._file.fileno(), 0)
+            except OSError:
+                pass
 
     def _read_spilled(self, offset: int, shape: tuple[int, ...],
                       dtype: np.dtype) -> np.ndarray | None:

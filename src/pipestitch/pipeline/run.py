@@ -368,6 +368,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     # only the section refits of the photometric refinement read the ring points again
     refits = dataset.has_led and settings.refine_rounds > 0
     ahead = ThreadPoolExecutor(max_workers=1)
+    plots: Future[None] | None = None
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
         plots = ahead.submit(prepare_plots)   # after the mask, while the passes run
@@ -384,8 +385,11 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                                        show_progress, out, declared,
                                                        occluders)
     finally:
-        # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops
+        # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops;
+        # pyplot is left to one thread at a time (the report's, or the caller's)
         ahead.shutdown(wait=False, cancel_futures=True)
+        if plots is not None:
+            wait([plots])
     release_free_memory()
     if result is not None:
         choices = _apply_switches(choices, result.switched)
@@ -423,7 +427,6 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                          dict(timer.seconds), problems, result, no_mosaic,
                          not views or (dataset.has_led and result is None))
     with timer("report"):
-        wait([plots])   # done, or cancelled by a run that stopped (pyplot: one thread)
         data = _report_data(dataset, frames, choices, z, written, result, summary)
         data.defects = coded.defects if coded is not None and result is not None else defects
         data.tolerance_pct = tolerance_pct

@@ -9,10 +9,11 @@ Two passes over the LED frames, each frame unwrapped straight from its pixels:
 2. every placed frame is unwrapped again, this time onto the canvas nodes it covers
    (sub-pixel, so the image is resampled once), shaded, gain-matched and blended.
 
-Each pass reads the LED frames again: from memory, or from the run's spill file, each
-decoded once (pipeline/frame_cache.py); holding the strips instead would make memory
-grow with the run. Frames that cannot be read, have no pose, or are not connected to
-the run by registration or the odometer are reported and skipped.
+Each pass reads the LED frames again: from memory or from the run's spill file, where
+``pipestitch run`` keeps each one once decoded (pipeline/frame_cache.py; past the spill
+file's budget, and for a dataset without that cache, decoded again); holding the strips
+instead would make memory grow with the run. Frames that cannot be read, have no pose,
+or are not connected to the run by registration or the odometer are reported and skipped.
 """
 
 from __future__ import annotations

@@ -20,12 +20,15 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import av
 import numpy as np
 
 from pipestitch.errors import DatasetError
 from pipestitch.io import images
+
+if TYPE_CHECKING:
+    import av
 
 __all__ = [
     "FrameIndex",
@@ -229,6 +232,8 @@ class VideoReader:
             raise
 
     def _open(self) -> av.container.InputContainer:
+        import av  # PyAV on first use (~0.1 s): runs of image files never load it
+
         try:
             container = av.open(str(self.path))
         except (av.FFmpegError, OSError) as exc:
@@ -248,6 +253,8 @@ class VideoReader:
         return container
 
     def _decode_all(self) -> Iterator[av.VideoFrame]:
+        import av
+
         try:
             yield from self._container.decode(self._stream)
         except av.FFmpegError as exc:
@@ -277,6 +284,8 @@ class VideoReader:
         return len(self.index.pts)
 
     def _seek_to(self, k: int) -> None:
+        import av
+
         try:
             self._container.seek(int(self.index.pts[k]), stream=self._stream, backward=True,
                                  any_frame=False)
@@ -286,6 +295,8 @@ class VideoReader:
         self._next = -1  # unknown until the first frame after the seek is decoded
 
     def _decode_next(self) -> tuple[int, np.ndarray]:
+        import av
+
         try:
             frame = next(self._decoder)
         except StopIteration:
@@ -375,6 +386,8 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float = 
         Timestamp of each frame in frame periods (default 0, 1, 2, ...): gaps
         simulate dropped frames.
     """
+    import av
+
     from pipestitch.io.atomic import atomic_path
 
     if codec not in CODEC_CONTAINERS:

@@ -459,3 +459,37 @@ def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == ["False", "True"]
+
+
+def test_a_run_that_stops_during_the_pose_pass_returns_at_once(
+        dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run stopped while its helper thread still finds the occluder mask (the plotting
+    warm-up queued behind it) gives up both and ends: the warm-up the shutdown cancelled
+    is not waited for (a cancelled, never-started future never counts as done)."""
+    import threading
+    import time
+
+    from pipestitch.pipeline import run as run_module
+
+    def slow_mask(*args, **kwargs):
+        time.sleep(1.0)
+        return np.zeros((1, 1), bool)
+
+    def stop(*args, **kwargs):
+        raise RuntimeError("stopped")
+
+    monkeypatch.setattr(run_module, "find_occluders", slow_mask)
+    monkeypatch.setattr(run_module, "estimate_poses", stop)
+    raised: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            run_dataset(dataset, tmp_path / "out", show_progress=False)
+        except BaseException as exc:   # what the run raised is the result
+            raised.append(exc)
+
+    worker = threading.Thread(target=target, daemon=True)
+    worker.start()
+    worker.join(timeout=30)
+    assert not worker.is_alive(), "the stopped run is still waiting"
+    assert len(raised) == 1 and "stopped" in str(raised[0])

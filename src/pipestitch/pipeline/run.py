@@ -388,7 +388,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops;
         # pyplot is left to one thread at a time (the report's, or the caller's)
         ahead.shutdown(wait=False, cancel_futures=True)
-        if plots is not None:
+        # (a future the shutdown cancelled never counts as done for `wait`: ask cancel())
+        if plots is not None and not plots.cancel():
             wait([plots])
     release_free_memory()
     if result is not None:

@@ -120,9 +120,10 @@ class CachedLedFrames:
             self._spilled.clear()
             # a read or write under way ends within milliseconds; one that an interrupt
             # left counted must not hold the run's exit
-            self._lock.wait_for(lambda: self._in_flight == 0, timeout=CLOSE_WAIT_S)
-            if self._file is not None:
-                self._file.close()
+            # (one still counted then stays open until exit: its descriptor is not reused)
+            if self._lock.wait_for(lambda: self._in_flight == 0, timeout=CLOSE_WAIT_S):
+                if self._file is not None:
+                    self._file.close()
                 self._file = None
         close = getattr(self._dataset, "close", None)
         if close is not None:
@@ -133,7 +134,8 @@ class CachedLedFrames:
         (its budget set from the folder's free space), else nothing kept."""
         if run_bytes <= self._budget:
             return "memory"
-        if self._spill_dir is None or self._closing or not hasattr(os, "pread"):
+        if (self._spill_dir is None or self._closing or self._spill_budget == 0
+                or not hasattr(os, "pread")):
             return "off"   # (os.pread and os.pwrite are POSIX only)
         try:
             free = shutil.disk_usage(self._spill_dir).free

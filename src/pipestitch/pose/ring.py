@@ -289,11 +289,12 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     # Samples along a ray: two per expected line sigma (a 1224-px frame's 1-px line at
     # half-pixel steps, a 2448-px frame's 2-px line at whole pixels), never finer than
     # half a pixel (a small frame's thin line is sampled as a 1224-px frame's). A line
-    # measured thinner than that sampling resolves is searched again at its own width.
+    # measured thinner than that sampling resolves is searched again at half-pixel steps
+    # (one step for all such frames: the polar maps are cached by step).
     step = max(SAMPLES_MIN_STEP_PX, sigma / SAMPLES_PER_SIGMA)
     found = search(step=step)
     if step > SAMPLES_MIN_STEP_PX and found.line_sigma_px < RESAMPLE_BELOW * step:
-        found = search(step=max(SAMPLES_MIN_STEP_PX, found.line_sigma_px / SAMPLES_PER_SIGMA))
+        found = search(step=SAMPLES_MIN_STEP_PX)
     return found
 
 

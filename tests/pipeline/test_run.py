@@ -461,11 +461,13 @@ def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
     assert out == ["False", "True"]
 
 
-def test_a_run_that_stops_during_the_pose_pass_returns_at_once(
-        dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("how", ["stopped", "no pose"])
+def test_a_run_whose_pose_pass_ends_early_does_not_wait_for_its_helper(
+        how: str, dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A run stopped while its helper thread still finds the occluder mask (the plotting
-    warm-up queued behind it) gives up both and ends: the warm-up the shutdown cancelled
-    is not waited for (a cancelled, never-started future never counts as done)."""
+    warm-up queued behind it), or one whose frames all fail their pose, ends without
+    waiting for the warm-up the helper's shutdown cancelled (a cancelled, never-started
+    future never counts as done); the run without poses still writes its report."""
     import threading
     import time
 
@@ -479,17 +481,25 @@ def test_a_run_that_stops_during_the_pose_pass_returns_at_once(
         raise RuntimeError("stopped")
 
     monkeypatch.setattr(run_module, "find_occluders", slow_mask)
-    monkeypatch.setattr(run_module, "estimate_poses", stop)
-    raised: list[BaseException] = []
+    if how == "stopped":
+        monkeypatch.setattr(run_module, "estimate_poses", stop)
+    else:
+        monkeypatch.setattr(run_module, "_views", lambda frames, choices: {})
+    ended: list[object] = []
 
     def target() -> None:
         try:
-            run_dataset(dataset, tmp_path / "out", show_progress=False)
+            ended.append(run_dataset(dataset, tmp_path / "out", show_progress=False))
         except BaseException as exc:   # what the run raised is the result
-            raised.append(exc)
+            ended.append(exc)
 
     worker = threading.Thread(target=target, daemon=True)
     worker.start()
     worker.join(timeout=30)
-    assert not worker.is_alive(), "the stopped run is still waiting"
-    assert len(raised) == 1 and "stopped" in str(raised[0])
+    assert not worker.is_alive(), "the run is still waiting"
+    if how == "stopped":
+        assert len(ended) == 1 and "stopped" in str(ended[0])
+    else:
+        summary = ended[0]
+        assert summary.no_mosaic.startswith("no mosaic: no frame has a pose")
+        assert (summary.out / "report.html").is_file()

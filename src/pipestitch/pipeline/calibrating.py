@@ -42,6 +42,7 @@ from pipestitch.io.probe_toml import (
 from pipestitch.pipeline.progress import track
 from pipestitch.pose.fit import fit_pose
 from pipestitch.pose.ring import detect_ring
+from pipestitch.report.html import agg_pyplot
 
 __all__ = [
     "FORMATS",
@@ -161,11 +162,7 @@ def _write_camera(out: Path, camera: CameraModel) -> bool:
 
 def residual_plot(calibration: CameraCalibration, path: str | Path) -> Path:
     """Residual plot in the report's style: vectors over the image, per-view RMS."""
-    import matplotlib  # here, not at module level: the CLI starts faster without it
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = agg_pyplot()
     cam = calibration.camera
     fig, (ax_img, ax_bar) = plt.subplots(1, 2, figsize=(12, 4.2),
                                          gridspec_kw={"width_ratios": [1.5, 1]})

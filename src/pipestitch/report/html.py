@@ -24,8 +24,8 @@ from pipestitch.standards.observations import ProfileSection
 if TYPE_CHECKING:
     import matplotlib.pyplot as plt
 
-__all__ = ["FrameRow", "ReportData", "StandardsView", "observation_section", "prepare_plots",
-           "render_report", "with_observation_section"]
+__all__ = ["FrameRow", "ReportData", "StandardsView", "agg_pyplot", "observation_section",
+           "prepare_plots", "render_report", "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
@@ -91,9 +91,10 @@ class ReportData:
 
 
 @functools.cache
-def _pyplot() -> ModuleType:
-    """matplotlib's pyplot on the Agg backend, imported on first use: a quarter of a second
-    that commands without plots (and the report's callers until it is drawn) do not pay."""
+def agg_pyplot() -> ModuleType:
+    """matplotlib's pyplot on the Agg backend (no display), imported on first use: a
+    quarter of a second that commands without plots (and the report's callers until it is
+    drawn) do not pay. Every plot of the package is drawn through it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -109,7 +110,7 @@ def prepare_plots() -> None:
     A caller runs it in a thread while other work leaves a core free; the report is the
     same whether it ran or not.
     """
-    plt = _pyplot()
+    plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(2, 1.5))
     ax.plot([0, 1], [0, 1], ".-", label="α")
     ax.set_xlabel("z (mm)")
@@ -126,13 +127,13 @@ def _png(fig: plt.Figure, *, photo: bool = False) -> str:
                     pil_kwargs={"quality": 90})
     else:
         fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    _pyplot().close(fig)
+    agg_pyplot().close(fig)
     kind = "jpeg" if photo else "png"
     return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _mosaic_figure(data: ReportData) -> str:
-    plt = _pyplot()
+    plt = agg_pyplot()
     img = data.mosaic
     scale = min(1.0, MAX_MOSAIC_PX / max(img.shape))
     shown = img if scale == 1.0 else cv2.resize(img, None, fx=scale, fy=scale,
@@ -184,7 +185,7 @@ def _series(data: ReportData, name: str) -> np.ndarray:
 
 
 def _pose_figure(data: ReportData) -> str:
-    plt = _pyplot()
+    plt = agg_pyplot()
     z = _series(data, "z_mm")
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     for name, label in (("alpha_deg", "α"), ("beta_deg", "β")):
@@ -205,7 +206,7 @@ def _pose_figure(data: ReportData) -> str:
 
 
 def _profile_figure(data: ReportData) -> str:
-    plt = _pyplot()
+    plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(9, 3))
     ax.plot(_series(data, "z_mm"), _series(data, "diameter_mm"), ".-", label="from the ring")
     ax.axhline(data.nominal_diameter_mm, color="k", ls="--", lw=1, label="nominal")
@@ -338,7 +339,7 @@ def _fmt_pct(value: float) -> str:
 
 
 def _ovality_figure(sections: list[ProfileSection]) -> str:
-    plt = _pyplot()
+    plt = agg_pyplot()
     z = np.array([s.z_mm for s in sections])
     fig, ax = plt.subplots(figsize=(9, 3))
     for name, label in (("f1216_mean_min_pct", "ASTM F1216 (mean−min)/mean"),

@@ -65,6 +65,7 @@ from pipestitch.report.html import (
     TABLES,
     FrameRow,
     ReportData,
+    draw_track_figures,
     prepare_plots,
     render_report,
 )
@@ -402,38 +403,46 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         z, roll = dict(dataset.odometry_mm or {}), {}
     frames, choices = _unrefined_ovals_back(frames, choices,
                                             result.views if result is not None else {})
-    # Defects were measured while the mosaic was written, on the 8-bit values that
-    # mosaic.ome.tif holds, so `pipestitch measure OUT` finds exactly the same ones.
-    defects: list[Defect] = written.defects if written is not None else []
-    with timer("write"):
-        _write_mosaic(out, result, written, dataset, settings)
-    with timer("write"):
-        if result is not None:
-            write_defects_csv(out / "defects.csv", defects)
-        write_poses_csv(out / "poses.csv", frames, choices, z, roll,
-                        result.gains if result is not None else None)
-        write_csv(out / "profile.csv", PROFILE_COLUMNS,
-                  _profile_rows(frames, choices, z, roll, dataset.config.laser.plane_distance_mm,
-                                dataset.config.pipe.inner_diameter_mm, tolerance_pct))
-    problems = _problems(frames, result, choices, no_mosaic)
-    # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
-    problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
-                + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes] + problems)
-    with timer("standards"):
-        coded = _coded(out, dataset, crown_deg, problems)
-    report_frame_messages(problems)
-    summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
-                         sum(1 for c in choices if c.ambiguous),
-                         len(result.placed) if result else 0, time.perf_counter() - start,
-                         dict(timer.seconds), problems, result, no_mosaic,
-                         not views or (dataset.has_led and result is None))
-    with timer("report"):
-        data = _report_data(dataset, frames, choices, z, written, result, summary)
-        data.defects = coded.defects if coded is not None and result is not None else defects
-        data.tolerance_pct = tolerance_pct
-        data.standards = coded.report_view() if coded is not None else None
-        _write_report(out, data, result is not None)
-    return summary
+    rows = _frame_rows(frames, choices, z)
+    with ThreadPoolExecutor(max_workers=1) as tail:
+        # the pose and profile plots need only the rows: drawn while the outputs are written
+        track_figures = tail.submit(draw_track_figures, ReportData(
+            "", None, 0.0, 1.0, 1.0, dataset.config.pipe.inner_diameter_mm, rows,
+            tolerance_pct=tolerance_pct))
+        # Defects were measured while the mosaic was written, on the 8-bit values that
+        # mosaic.ome.tif holds, so `pipestitch measure OUT` finds exactly the same ones.
+        defects: list[Defect] = written.defects if written is not None else []
+        with timer("write"):
+            _write_mosaic(out, result, written, dataset, settings)
+        with timer("write"):
+            if result is not None:
+                write_defects_csv(out / "defects.csv", defects)
+            write_poses_csv(out / "poses.csv", frames, choices, z, roll,
+                            result.gains if result is not None else None)
+            write_csv(out / "profile.csv", PROFILE_COLUMNS,
+                      _profile_rows(frames, choices, z, roll,
+                                    dataset.config.laser.plane_distance_mm,
+                                    dataset.config.pipe.inner_diameter_mm, tolerance_pct))
+        problems = _problems(frames, result, choices, no_mosaic)
+        # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
+        problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
+                    + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes] + problems)
+        with timer("standards"):
+            coded = _coded(out, dataset, crown_deg, problems)
+        report_frame_messages(problems)
+        summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
+                             sum(1 for c in choices if c.ambiguous),
+                             len(result.placed) if result else 0, time.perf_counter() - start,
+                             dict(timer.seconds), problems, result, no_mosaic,
+                             not views or (dataset.has_led and result is None))
+        with timer("report"):
+            data = _report_data(dataset, rows, written, result, summary)
+            data.drawn = track_figures.result()
+            data.defects = coded.defects if coded is not None and result is not None else defects
+            data.tolerance_pct = tolerance_pct
+            data.standards = coded.report_view() if coded is not None else None
+            _write_report(out, data, result is not None)
+        return summary
 
 
 def _write_report(out: Path, data: ReportData, with_mosaic: bool) -> None:
@@ -485,8 +494,7 @@ def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic
     write_json(out / "mosaic.json", _mosaic_json(result, written, dataset, settings))
 
 
-def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice],
-                 z: dict[int, float], written: WrittenMosaic | None,
+def _report_data(dataset: Dataset, rows: list[FrameRow], written: WrittenMosaic | None,
                  result: MosaicResult | None, summary: RunSummary) -> ReportData:
     total = sum(summary.stage_seconds.values()) or 1.0
     figures = {
@@ -506,5 +514,5 @@ def _report_data(dataset: Dataset, frames: list[FramePose], choices: list[Choice
     return ReportData(f"pipestitch report: {dataset.root.name}", image,
                       grid.z0_mm if grid else 0.0, grid.mm_per_px_axial if grid else 1.0,
                       grid.deg_per_px if grid else 1.0,
-                      dataset.config.pipe.inner_diameter_mm, _frame_rows(frames, choices, z),
+                      dataset.config.pipe.inner_diameter_mm, rows,
                       summary.problems, figures, viewer_href=VIEWER if result else None)

@@ -23,6 +23,7 @@ from pipestitch.standards.observations import ProfileSection
 
 if TYPE_CHECKING:
     import matplotlib.pyplot as plt
+    from matplotlib.transforms import Bbox
 
 __all__ = ["FrameRow", "ReportData", "StandardsView", "agg_pyplot", "observation_section",
            "prepare_plots", "render_report", "with_observation_section"]
@@ -88,6 +89,8 @@ class ReportData:
     viewer_href: str | None = None      # relative link to the pan-and-zoom viewer page
     review_href: str | None = None      # relative link to the review page
     tables: list[str] = field(default_factory=list)   # CSV files beside the report to link
+    # figures already drawn (:func:`draw_track_figures`); the others are drawn on render
+    drawn: dict[str, str] = field(default_factory=dict)
 
 
 @functools.cache
@@ -118,15 +121,39 @@ def prepare_plots() -> None:
     _png(fig)
 
 
+FIGURE_DPI = 110
+
+
+def _tight_bbox(fig: plt.Figure, dpi: float) -> Bbox:
+    """What ``bbox_inches="tight"`` would crop to, padded the same, from a layout pass
+    with the images hidden: images are clipped to their axes, so the box is the same,
+    and the image is resampled once (by the saving draw) instead of twice."""
+    from matplotlib import rcParams
+
+    images = [im for ax in fig.axes for im in ax.get_images() if im.get_visible()]
+    fig.set_dpi(dpi)
+    for im in images:
+        im.set_visible(False)
+    try:
+        fig.draw_without_rendering()
+        bbox = fig.get_tightbbox(fig.canvas.get_renderer())
+    finally:
+        for im in images:
+            im.set_visible(True)
+    pad = rcParams["savefig.pad_inches"]
+    return bbox.padded(pad, pad)
+
+
 def _png(fig: plt.Figure, *, photo: bool = False) -> str:
     """The figure as a data URI: PNG for plots; JPEG (quality 90) for ``photo``, a figure
     that is mostly an image (the mosaic: a tenth of the bytes, a third of the time)."""
     buf = io.BytesIO()
+    bbox = _tight_bbox(fig, FIGURE_DPI)
     if photo:
-        fig.savefig(buf, format="jpeg", dpi=110, bbox_inches="tight",
+        fig.savefig(buf, format="jpeg", dpi=FIGURE_DPI, bbox_inches=bbox,
                     pil_kwargs={"quality": 90})
     else:
-        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+        fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches=bbox)
     agg_pyplot().close(fig)
     kind = "jpeg" if photo else "png"
     return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
@@ -219,6 +246,16 @@ def _profile_figure(data: ReportData) -> str:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _png(fig)
+
+
+def draw_track_figures(data: ReportData) -> dict[str, str]:
+    """The pose track and the diameter profile as data URIs, for ``data.drawn``.
+
+    They need only the per-frame rows, the nominal diameter and the tolerance, so a
+    caller can draw them in a thread while it writes the other outputs (one thread at a
+    time draws with pyplot).
+    """
+    return {"pose": _pose_figure(data), "profile": _profile_figure(data)}
 
 
 def _table(headers: list[str], rows: list[list[str]]) -> str:
@@ -475,6 +512,7 @@ def render_report(data: ReportData) -> str:
     """The report as one HTML string (no external resources); the per-frame tables are
     the CSV files beside it, linked (``data.tables``)."""
     figures = _table(["figure", "value"], [[k, v] for k, v in data.figures.items()])
+    drawn = data.drawn or draw_track_figures(data)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
 <style>{_STYLE}</style></head><body>
@@ -496,8 +534,8 @@ mosaic's coordinates; clock: {_clock_note(data)}, clockwise looking along the su
 {_exceedances(data)}
 <h2>Ovality and deflection</h2>
 {_ovality_section(data)}
-<h2>Probe pose along the run</h2><img alt="pose track" src="{_pose_figure(data)}">
-<h2>Diameter profile</h2><img alt="diameter profile" src="{_profile_figure(data)}">
+<h2>Probe pose along the run</h2><img alt="pose track" src="{drawn['pose']}">
+<h2>Diameter profile</h2><img alt="diameter profile" src="{drawn['profile']}">
 <h2>Frames that failed, were skipped or stayed ambiguous</h2>{_problems_section(data)}
 <h2>Processing</h2>{figures}
 <h2>Per-frame tables</h2>{_tables_section(data)}

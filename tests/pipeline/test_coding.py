@@ -9,6 +9,7 @@ import json
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -16,6 +17,7 @@ from typer.testing import CliRunner
 from pipestitch.cli.app import app
 from pipestitch.io.outputs import mosaic_to_uint8, write_json, write_mosaic_png
 from pipestitch.pipeline.coding import code_run
+from pipestitch.pipeline.review import render_review_page
 from pipestitch.report.html import ReportData, render_report
 from pipestitch.standards import clock_hour, parse_en13508, parse_json, parse_pacp_csv
 
@@ -255,3 +257,19 @@ def test_observations_csv_not_utf8_is_named(tmp_path: Path) -> None:
     result = runner.invoke(app, ["export", str(tmp_path)])
     assert result.exit_code == 2 and "observations.csv" in result.output
     assert "not UTF-8" in result.output
+
+
+def test_the_run_s_overview_in_memory_codes_and_reviews_as_the_file_does(
+        output: Path, dataset: Path, tmp_path: Path) -> None:
+    """`pipestitch run` hands the overview it wrote to the coding and the review page
+    instead of decoding mosaic.png again: the same reference, observations and page."""
+    out = tmp_path / "out"
+    shutil.copytree(output, out)
+    overview = cv2.imread(str(out / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+    from_file = code_run(out, dataset=dataset)
+    page = render_review_page(out)
+    (out / "mosaic.png").unlink()   # now only the array can give the pixels
+    in_memory = code_run(out, dataset=dataset, overview=overview)
+    assert in_memory.reference == from_file.reference
+    assert in_memory.observations == from_file.observations
+    assert render_review_page(out, overview=overview) == page

@@ -91,8 +91,8 @@ def write_csv(path: Path, header: Iterable[str], rows: Iterable[Iterable[object]
     return atomic_write_text(path, buffer.getvalue())
 
 
-def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -> tuple[
-        np.ndarray, dict]:
+def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None,
+                image: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """OUT/mosaic.png as float (NaN where no data) and OUT/mosaic.json.
 
     ``columns`` (the image width -> column indices) keeps only those columns, before the
@@ -100,7 +100,8 @@ def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -
     then no longer matches the metadata's column scale and origin, and is for per-column
     statistics only. Raises DatasetError naming the file when either is missing or
     unreadable, and naming the key when mosaic.json's scale or origin is impossible
-    (:func:`mosaic_meta_problems`), before the image is read.
+    (:func:`mosaic_meta_problems`), before the image is read. ``image``: mosaic.png's
+    pixels, when the caller holds them (the run that wrote it): not read again.
     """
     meta_path = Path(out) / "mosaic.json"
     try:
@@ -112,7 +113,8 @@ def read_mosaic(out: Path, columns: Callable[[int], np.ndarray] | None = None) -
     problems = mosaic_meta_problems(meta)
     if problems:
         raise DatasetError(meta_path, "; ".join(problems))
-    image = read_image(Path(out) / "mosaic.png")
+    if image is None:
+        image = read_image(Path(out) / "mosaic.png")
     if image.ndim != 2:
         raise DatasetError(Path(out) / "mosaic.png", f"expected a grey image, got {image.shape}")
     return mosaic_from_uint8(image if columns is None else image[:, columns(image.shape[1])]), meta

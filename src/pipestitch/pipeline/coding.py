@@ -247,7 +247,7 @@ def _earlier_observations(out: Path) -> ObservationsFile | None:
 def code_run(out: str | Path, *, dataset: str | Path | None = None,
              crown_deg: float | None = None, nominal_diameter_mm: float | None = None,
              ovality_threshold_pct: float = 1.0, continuous_min_m: float | None = None,
-             units: str | None = None) -> CodedRun:
+             units: str | None = None, overview: np.ndarray | None = None) -> CodedRun:
     """Code a finished run: reference, observations, ovality figures and exports.
 
     Parameters
@@ -268,6 +268,8 @@ def code_run(out: str | Path, *, dataset: str | Path | None = None,
         else EN 13508-2's 1 m).
     units : {"metric", "imperial"}, optional
         Units of the PACP 7 tables (default: survey.toml's, else metric).
+    overview : numpy.ndarray, optional
+        OUT/mosaic.png's pixels, when the caller holds them (the run that wrote them).
 
     Raises
     ------
@@ -283,8 +285,8 @@ def code_run(out: str | Path, *, dataset: str | Path | None = None,
     meta_file = read_survey_toml(folder) if folder is not None else None
     coding = _coding(meta_file, continuous_min_m, units)
     # only the columns the invert detection reads (a long run's overview is ~10^4 wide)
-    image, meta = (read_mosaic(out, columns=invert_columns) if (out / "mosaic.json").is_file()
-                   else (None, {}))
+    image, meta = (read_mosaic(out, columns=invert_columns, image=overview)
+                   if (out / "mosaic.json").is_file() else (None, {}))
     reference = resolve_reference(out, dataset=folder, crown_deg=crown_deg, image=image,
                                   deg_per_px=meta.get("deg_per_px"))
     nominal = _nominal(folder, nominal_diameter_mm, previous)

@@ -156,9 +156,11 @@ def observation_rows(file: ObservationsFile | None) -> list[dict[str, object]]:
             for k, r in enumerate(file.rows)]
 
 
-def _nodata_png(out: Path) -> str | None:
-    """The overview's no-data pixels as a translucent red PNG data URI."""
-    image = cv2.imread(str(out / "mosaic.png"), cv2.IMREAD_UNCHANGED)
+def _nodata_png(out: Path, overview: np.ndarray | None = None) -> str | None:
+    """The overview's no-data pixels as a translucent red PNG data URI (``overview``:
+    OUT/mosaic.png's pixels, when the caller holds them)."""
+    image = (overview if overview is not None
+             else cv2.imread(str(out / "mosaic.png"), cv2.IMREAD_UNCHANGED))
     if image is None:
         return None
     empty = image[..., -1] == 0 if image.ndim == 3 and image.shape[2] == 4 else (
@@ -198,7 +200,8 @@ def _tiles(out: Path, page_dir: Path) -> dict[str, object]:
 
 
 def review_data(out: str | Path, *, editable: bool = False,
-                frames_url: str | None = None) -> ReviewData:
+                frames_url: str | None = None,
+                overview: np.ndarray | None = None) -> ReviewData:
     """What the review page of the run in ``out`` shows.
 
     Parameters
@@ -209,6 +212,8 @@ def review_data(out: str | Path, *, editable: bool = False,
         The page is served and may edit observations.
     frames_url : str, optional
         The server's URL of source frames (None: the page shows the poses only).
+    overview : numpy.ndarray, optional
+        OUT/mosaic.png's pixels, when the caller holds them (not read again).
 
     Raises
     ------
@@ -237,7 +242,7 @@ def review_data(out: str | Path, *, editable: bool = False,
         poses=_columns(out / "poses.csv", ("frame", "z_mm", "roll_deg", "alpha_deg",
                                            "beta_deg", "dx_mm", "dy_mm")),
         profile=_columns(out / "profile.csv", ("z_mm", "diameter_mm", "ovality")),
-        nodata=_nodata_png(out), editable=editable, frames_url=frames_url, codes=CODES)
+        nodata=_nodata_png(out, overview), editable=editable, frames_url=frames_url, codes=CODES)
 
 
 def _json_ready(data: ReviewData) -> ReviewData:
@@ -251,10 +256,11 @@ def render_review_page(out: str | Path, **options: object) -> str:
     return render_review(_json_ready(review_data(out, **options)))  # type: ignore[arg-type]
 
 
-def write_review_page(out: str | Path) -> Path:
-    """Write the read-only ``OUT/review.html`` (works from file://); its path."""
+def write_review_page(out: str | Path, overview: np.ndarray | None = None) -> Path:
+    """Write the read-only ``OUT/review.html`` (works from file://); its path
+    (``overview``: OUT/mosaic.png's pixels, when the caller holds them)."""
     out = Path(out)
-    return atomic_write_text(out / REVIEW_NAME, render_review_page(out))
+    return atomic_write_text(out / REVIEW_NAME, render_review_page(out, overview=overview))
 
 
 # --- editing observations.csv ---------------------------------------------------------------

@@ -413,7 +413,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         # mosaic.ome.tif holds, so `pipestitch measure OUT` finds exactly the same ones.
         defects: list[Defect] = written.defects if written is not None else []
         with timer("write"):
-            _write_mosaic(out, result, written, dataset, settings)
+            # mosaic.png is encoded in the thread (the stages below use the overview
+            # in memory); the block's end waits for it, and .result() raises its error
+            png = _write_mosaic(out, result, written, dataset, settings, tail)
         with timer("write"):
             if result is not None:
                 write_defects_csv(out / "defects.csv", defects)
@@ -428,7 +430,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                     + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes] + problems)
         with timer("standards"):
-            coded = _coded(out, dataset, crown_deg, problems)
+            coded = _coded(out, dataset, crown_deg, problems,
+                           written.overview if written is not None else None)
         report_frame_messages(problems)
         summary = RunSummary(out, len(frames), sum(1 for f in frames if not f.fit.ok),
                              sum(1 for c in choices if c.ambiguous),
@@ -442,6 +445,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
             data.tolerance_pct = tolerance_pct
             data.standards = coded.report_view() if coded is not None else None
             _write_report(out, data, result is not None)
+        if png is not None:
+            png.result()
         return summary
 
 
@@ -449,17 +454,18 @@ def _write_report(out: Path, data: ReportData, with_mosaic: bool) -> None:
     """report.html, the problems it lists as problems.csv beside it, and review.html."""
     write_csv(out / PROBLEMS_CSV, ("frame", "problem"), data.problems)
     if with_mosaic:
-        data.review_href = write_review_page(out).name
+        data.review_href = write_review_page(out, data.mosaic).name
     data.tables = [name for name, _ in TABLES if (out / name).is_file()]
     atomic_write_text(out / "report.html", render_report(data))
 
 
 def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
-           problems: list[tuple[int, str]]) -> CodedRun | None:
+           problems: list[tuple[int, str]], overview: np.ndarray | None) -> CodedRun | None:
     """The standards stage; a failure there is reported, and the report still written."""
     try:
         return code_run(out, dataset=dataset.root, crown_deg=crown_deg,
-                        nominal_diameter_mm=dataset.config.pipe.inner_diameter_mm)
+                        nominal_diameter_mm=dataset.config.pipe.inner_diameter_mm,
+                        overview=overview)
     except Exception as exc:  # e.g. a malformed row a user kept in observations.csv
         problems.append((-1, f"observations not coded: {exc}"))
         return None
@@ -473,8 +479,10 @@ VIEWER = "viewer.html"
 
 
 def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic | None,
-                  dataset: Dataset, settings: MosaicSettings) -> None:
-    """mosaic.png (the overview), mosaic.json and viewer.html.
+                  dataset: Dataset, settings: MosaicSettings,
+                  pool: ThreadPoolExecutor) -> Future[Path] | None:
+    """mosaic.png (the overview, written by ``pool``: the future), mosaic.json and
+    viewer.html.
 
     The full-resolution ``mosaic.ome.tif`` and the viewer's Deep Zoom ``tiles/`` were
     written while the mosaic was stitched (pipeline/stitched_output.py). Outputs of an
@@ -485,13 +493,14 @@ def _write_mosaic(out: Path, result: MosaicResult | None, written: WrittenMosaic
         for name in ("mosaic.png", "mosaic.json", PYRAMID, VIEWER, "defects.csv"):
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / TILES, ignore_errors=True)
-        return
+        return None
     (out / "mosaic.tif").unlink(missing_ok=True)   # the tiled TIFF of earlier versions
-    write_mosaic_png(out / "mosaic.png", written.overview)
+    png = pool.submit(write_mosaic_png, out / "mosaic.png", written.overview)
     g = written.grid
     write_viewer(out, out / TILES, title=f"pipestitch mosaic: {dataset.root.name}",
                  z0_mm=g.z0_mm, mm_per_px=g.mm_per_px_axial, deg_per_px=g.deg_per_px)
     write_json(out / "mosaic.json", _mosaic_json(result, written, dataset, settings))
+    return png
 
 
 def _report_data(dataset: Dataset, rows: list[FrameRow], written: WrittenMosaic | None,

@@ -11,6 +11,7 @@ from pipestitch.mosaic.flat_field import (
     CLIPPED_WEIGHT,
     FlatInput,
     RadialFlatField,
+    clipped_level,
     flat_input,
     pair_ratios,
     radial_levels,
@@ -144,6 +145,10 @@ def test_a_node_reading_a_clipped_pixel_is_blended_only_where_nothing_else_is(
     map_y, map_x = np.mgrid[0:50, 0:60].astype(np.float32) + np.float32(0.25)
     weight = np.ones((50, 60), np.float32)
     out = unclipped_weight(grey, map_x, map_y, weight)
+    # the level found once per frame (what a run passes in every later pass) is the same
+    assert clipped_level(grey) == pytest.approx(full_scale, rel=1e-6)
+    np.testing.assert_array_equal(
+        unclipped_weight(grey, map_x, map_y, weight, clipped_level(grey)), out)
     touched = np.zeros((50, 60), bool)
     touched[row - 1:row + 2, col - 1:col + 2] = True   # bilinear: nodes reading the block
     np.testing.assert_array_equal(out[touched], np.float32(CLIPPED_WEIGHT))
@@ -151,6 +156,8 @@ def test_a_node_reading_a_clipped_pixel_is_blended_only_where_nothing_else_is(
     grey[row:row + 2, col:col + 2] = 0.5 * full_scale
     grey[row, col] = full_scale                      # the brightest pixel, alone
     assert unclipped_weight(grey, map_x, map_y, weight) is weight
+    assert clipped_level(grey) is None
+    assert unclipped_weight(grey, map_x, map_y, weight, None) is weight
 
 
 def test_the_compiled_fall_off_is_numpys_interpolation() -> None:

@@ -43,9 +43,9 @@ import numpy as np
 
 from pipestitch.mosaic._flat_field_kernels import fall_off_at
 
-__all__ = ["CLIPPED_WEIGHT", "RING_BINS", "FlatInput", "PairRatios", "RadialFlatField",
-           "flat_input", "optical_centre_px", "pair_ratios", "radial_edges", "radial_levels",
-           "unclipped_weight"]
+__all__ = ["CLIPPED_WEIGHT", "FIND", "RING_BINS", "FlatInput", "PairRatios", "RadialFlatField",
+           "clipped_level", "flat_input", "optical_centre_px", "pair_ratios", "radial_edges",
+           "radial_levels", "unclipped_weight"]
 
 RING_BINS = 96          # rings of image radius: the fall-off is smooth over ~10 of them
 MIN_RING_NODES = 20     # nodes a ring needs in one frame for a median
@@ -185,35 +185,54 @@ class RadialFlatField:
                            ring_px, np.ascontiguousarray(self.level, np.float64))
 
 
+class _Find:
+    """The type of :data:`FIND`."""
+
+
+FIND = _Find()   # a clipping level not given: found from the frame
+
+
 def unclipped_weight(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
-                     weight: np.ndarray) -> np.ndarray:
+                     weight: np.ndarray, level: float | _Find | None = FIND) -> np.ndarray:
     """``weight`` times ``CLIPPED_WEIGHT`` at the strip nodes whose interpolation reads
     a clipped pixel of the frame ``grey`` (their albedo is too low by an unknown amount:
     the wall there is taken from the frames that saw it unclipped, and from these only
-    where none did)."""
-    touched = _touches_clipped(grey, map_x, map_y)
+    where none did). ``level``: the frame's :func:`clipped_level`, when known."""
+    touched = _touches_clipped(grey, map_x, map_y, level)
     if touched is None:
         return weight
     return np.where(touched, weight * np.float32(CLIPPED_WEIGHT), weight).astype(np.float32)
 
 
-def _touches_clipped(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray
-                     ) -> np.ndarray | None:
-    """Nodes whose bilinear interpolation reads a clipped pixel; None when none is.
+def clipped_level(grey: np.ndarray) -> float | None:
+    """The value at which the frame ``grey`` is clipped, or None when it is not.
 
     A pixel is clipped at the frame's maximum when that value is a plateau (at least
     ``CLIPPED_PLATEAU`` of the pixels): the full scale of the sensor, which for 12-bit
     data in 16-bit files is not the file's, and which a colour frame's grey reaches only
     where every channel clipped. A maximum held by a few pixels is light, not a limit.
+    A frame unwrapped in several passes is looked at once (a full scan of the frame).
     """
     if not grey.size:
         return None
     top = cv2.minMaxLoc(grey)[1]
+    if top <= 0 or cv2.countNonZero(cv2.compare(grey, top, cv2.CMP_GE)) < \
+            CLIPPED_PLATEAU * grey.size:
+        return None
+    return float(top)
+
+
+def _touches_clipped(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
+                     level: float | _Find | None = FIND) -> np.ndarray | None:
+    """Nodes whose bilinear interpolation reads a clipped pixel (:func:`clipped_level`,
+    found when not given); None when none is."""
+    if isinstance(level, _Find):
+        level = clipped_level(grey)
+    if level is None:
+        return None
     # 8-bit at 255: OpenCV's bilinear weights are multiples of 1/32, so any pixel the
     # interpolation reads (weight >= 1/64) gives a node at least 8.
-    mask = cv2.compare(grey, top, cv2.CMP_GE)
-    if top <= 0 or cv2.countNonZero(mask) < CLIPPED_PLATEAU * grey.size:
-        return None
+    mask = cv2.compare(grey, level, cv2.CMP_GE)
     return cv2.remap(mask, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                      borderValue=0) > 0
 
@@ -250,13 +269,14 @@ class FlatInput:
 
 def flat_input(grey: np.ndarray, values: np.ndarray, shading: np.ndarray, weight: np.ndarray,
                map_x: np.ndarray, map_y: np.ndarray, centre: tuple[float, float],
-               edges: np.ndarray) -> FlatInput:
-    """The strip's :class:`FlatInput` (``grey``: the frame it was unwrapped from)."""
+               edges: np.ndarray, level: float | _Find | None = FIND) -> FlatInput:
+    """The strip's :class:`FlatInput` (``grey``: the frame it was unwrapped from;
+    ``level``: its :func:`clipped_level`, when known)."""
     ok = (weight > 0) & (shading > 0) & (values >= 0)
     with np.errstate(divide="ignore", invalid="ignore"):   # black: -inf, sorts first
         log_albedo = np.log(values / shading, dtype=np.float32)
     log_albedo[~ok] = np.nan
-    touched = _touches_clipped(grey, map_x, map_y)
+    touched = _touches_clipped(grey, map_x, map_y, level)
     if touched is not None:
         log_albedo[touched & ok] = np.inf
     ring = _ring_of(_radius(map_x - np.float32(centre[0]), map_y - np.float32(centre[1])),

@@ -47,6 +47,7 @@ from pipestitch.mosaic.flat_field import (
     FlatInput,
     PairRatios,
     RadialFlatField,
+    clipped_level,
     flat_input,
     optical_centre_px,
     pair_ratios,
@@ -211,6 +212,15 @@ class _Unwrapper:
     occluded: np.ndarray
     centre: tuple[float, float]     # optical centre (px): the flat field's rings
     edges: np.ndarray               # ring edges (px), mosaic/flat_field.py
+    # each frame's clipping level, found on its first unwrap that needs it (a full scan)
+    levels: dict[int, float | None] = field(default_factory=dict)
+
+    def clipped(self, index: int, grey: np.ndarray) -> float | None:
+        """Frame ``index``'s :func:`~pipestitch.mosaic.flat_field.clipped_level`
+        (``grey``: the frame), found once per run."""
+        if index not in self.levels:
+            self.levels[index] = clipped_level(grey)
+        return self.levels[index]
 
     def maps(self, view: FrameView, grid: WallGrid) -> UnwrapMaps:
         if self.settings.mode == "polar":
@@ -224,10 +234,10 @@ class _Unwrapper:
         return unwrap_with_quality(grey, maps, min_resolution=self.settings.min_resolution,
                                    occluded=self.occluded), maps
 
-    def flat(self, grey: np.ndarray, strip: Strip, maps: UnwrapMaps) -> FlatInput:
+    def flat(self, index: int, grey: np.ndarray, strip: Strip, maps: UnwrapMaps) -> FlatInput:
         """The strip's nodes as the flat field's pairwise solve takes them."""
         return flat_input(grey, strip.values, strip.shading, strip.weight, maps.map_x,
-                          maps.map_y, self.centre, self.edges)
+                          maps.map_y, self.centre, self.edges, self.clipped(index, grey))
 
 
 def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
@@ -304,7 +314,7 @@ class _Pass1:
     patches: list[PatchShifts] = field(default_factory=list)
 
 
-def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
+def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view: FrameView,
                       grid: WallGrid, timer: StageTimer, *, flat: bool) -> _Candidate:
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
@@ -312,7 +322,7 @@ def _unwrap_candidate(unwrapper: _Unwrapper, grey: np.ndarray, view: FrameView,
         contrast = strip_contrast(strip)
         image = registration_image(contrast, strip.weight)
         return _Candidate(contrast, strip.weight > 0, image, spectrum(image),
-                          unwrapper.flat(grey, strip, maps) if flat else None)
+                          unwrapper.flat(index, grey, strip, maps) if flat else None)
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: WallGrid,
@@ -365,7 +375,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
         except DatasetError as exc:
             return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
         options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
-        return _Registered(i, [_unwrap_candidate(unwrapper, grey, v, own, timer, flat=flat)
+        return _Registered(i, [_unwrap_candidate(unwrapper, i, grey, v, own, timer, flat=flat)
                                for v in options])
 
     def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
@@ -609,7 +619,8 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
             strip, maps = unwrapper.strip(grey, views[i], grid)
         with timer("blend"):
             lit = replace(strip, shading=strip.shading * flat.at(maps.map_x, maps.map_y),
-                          weight=unclipped_weight(grey, maps.map_x, maps.map_y, strip.weight))
+                          weight=unclipped_weight(grey, maps.map_x, maps.map_y, strip.weight,
+                                                  unwrapper.clipped(i, grey)))
             return i, shade(lit), col, ""
 
     gains = {}

@@ -1,5 +1,5 @@
 """The registration rounds of a run: when another round follows; strips of a camera
-whose exposure steps; frames placed at known positions."""
+whose exposure steps; frames placed at known positions; a frame's clipping level."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS, open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
 from pipestitch.mosaic.register import Positions
-from pipestitch.pipeline.stitching import FrameView, MosaicSettings, build_mosaic
+from pipestitch.pipeline.stitching import FrameView, MosaicSettings, _Unwrapper, build_mosaic
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 
@@ -109,3 +110,18 @@ def test_frames_are_placed_at_given_positions(tmp_path: Path, simulate_small) ->
     with pytest.raises(ValueError, match="positions"):
         build_mosaic(open_dataset(root), views, settings, show_progress=False,
                      positions=short)
+
+
+def test_a_frame_s_clipping_level_is_found_once_per_run_and_per_frame() -> None:
+    """The flat-field round and the stitch read the level each frame had on its first
+    unwrap that needed it; another frame gets its own."""
+    unwrapper = _Unwrapper(default_camera("half"), MosaicSettings(), 32.5,
+                           np.zeros((1, 1), bool), (0.0, 0.0), np.zeros(2))
+    clipped = np.full((100, 100), 0.5, np.float32)
+    clipped[:5, :5] = 1.0                      # 25 of 10 000 pixels at the maximum: a plateau
+    unclipped = np.full((100, 100), 0.5, np.float32)
+    unclipped[0, 0] = 1.0                      # the maximum held by one pixel: light
+    assert unwrapper.clipped(3, clipped) == 1.0
+    assert unwrapper.clipped(3, unclipped) == 1.0   # frame 3: its first level, not found again
+    assert unwrapper.clipped(4, unclipped) is None
+    assert unwrapper.clipped(5, clipped) == 1.0

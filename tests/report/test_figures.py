@@ -67,3 +67,10 @@ def test_track_figures_drawn_ahead_give_the_same_report() -> None:
     late = ReportData("t", None, 0.0, 1.0, 1.0, 65.0, rows, tolerance_pct=2.0)
     early = ReportData("t", None, 0.0, 1.0, 1.0, 65.0, rows, tolerance_pct=2.0, drawn=drawn)
     assert render_report(early) == render_report(late)
+    # the report takes the figures it is given and draws no others in their place
+    given = ReportData("t", None, 0.0, 1.0, 1.0, 65.0, rows,
+                       drawn={"pose": "data:image/png;base64,POSE",
+                              "profile": "data:image/png;base64,PROFILE"})
+    page = render_report(given)
+    assert "base64,POSE" in page and "base64,PROFILE" in page
+    assert drawn["pose"] not in page and drawn["profile"] not in page

@@ -197,7 +197,8 @@ def unclipped_weight(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
     """``weight`` times ``CLIPPED_WEIGHT`` at the strip nodes whose interpolation reads
     a clipped pixel of the frame ``grey`` (their albedo is too low by an unknown amount:
     the wall there is taken from the frames that saw it unclipped, and from these only
-    where none did). ``level``: the frame's :func:`clipped_level`, when known."""
+    where none did). ``level``: the frame's :func:`clipped_level` when already known
+    (None: known to be unclipped); by default (``FIND``) it is found here."""
     touched = _touches_clipped(grey, map_x, map_y, level)
     if touched is None:
         return weight
@@ -271,7 +272,8 @@ def flat_input(grey: np.ndarray, values: np.ndarray, shading: np.ndarray, weight
                map_x: np.ndarray, map_y: np.ndarray, centre: tuple[float, float],
                edges: np.ndarray, level: float | _Find | None = FIND) -> FlatInput:
     """The strip's :class:`FlatInput` (``grey``: the frame it was unwrapped from;
-    ``level``: its :func:`clipped_level`, when known)."""
+    ``level``: its :func:`clipped_level` when already known, None: known to be
+    unclipped; by default (``FIND``) it is found here)."""
     ok = (weight > 0) & (shading > 0) & (values >= 0)
     with np.errstate(divide="ignore", invalid="ignore"):   # black: -inf, sorts first
         log_albedo = np.log(values / shading, dtype=np.float32)

@@ -404,7 +404,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     frames, choices = _unrefined_ovals_back(frames, choices,
                                             result.views if result is not None else {})
     rows = _frame_rows(frames, choices, z)
-    with ThreadPoolExecutor(max_workers=1) as tail:
+    tail = ThreadPoolExecutor(max_workers=1)
+    try:
         # the pose and profile plots need only the rows: drawn while the outputs are written
         track_figures = tail.submit(draw_track_figures, ReportData(
             "", None, 0.0, 1.0, 1.0, dataset.config.pipe.inner_diameter_mm, rows,
@@ -414,7 +415,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         defects: list[Defect] = written.defects if written is not None else []
         with timer("write"):
             # mosaic.png is encoded in the thread (the stages below use the overview
-            # in memory); the block's end waits for it, and .result() raises its error
+            # in memory); png.result() below waits for it and raises its error
             png = _write_mosaic(out, result, written, dataset, settings, tail)
         with timer("write"):
             if result is not None:
@@ -448,6 +449,12 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         if png is not None:
             png.result()
         return summary
+    except BaseException:
+        # a run that stops does not wait for queued work it drops (the one running ends)
+        tail.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        tail.shutdown(wait=True)
 
 
 def _write_report(out: Path, data: ReportData, with_mosaic: bool) -> None:

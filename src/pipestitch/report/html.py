@@ -126,11 +126,12 @@ FIGURE_DPI = 110
 
 def _tight_bbox(fig: plt.Figure, dpi: float) -> Bbox:
     """What ``bbox_inches="tight"`` would crop to, padded the same, from a layout pass
-    with the images hidden: images are clipped to their axes, so the box is the same,
-    and the image is resampled once (by the saving draw) instead of twice."""
+    with the images clipped to their axes hidden: they do not reach past the axes, so
+    the box is the same, and each is resampled once (by the saving draw), not twice."""
     from matplotlib import rcParams
 
-    images = [im for ax in fig.axes for im in ax.get_images() if im.get_visible()]
+    images = [im for ax in fig.axes for im in ax.get_images()
+              if im.get_visible() and im.get_clip_on()]
     fig.set_dpi(dpi)
     for im in images:
         im.set_visible(False)

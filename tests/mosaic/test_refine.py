@@ -6,7 +6,14 @@ import numpy as np
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid
-from pipestitch.mosaic.refine import PATCHES_AROUND, node_jacobian, patch_shifts
+from pipestitch.mosaic.refine import (
+    PATCHES_AROUND,
+    PatchShifts,
+    node_jacobian,
+    patch_shifts,
+    solve_in_windows,
+    solve_pose_errors,
+)
 from pipestitch.mosaic.unwrap import unwrap_maps
 
 R = 32.5
@@ -53,3 +60,37 @@ def test_node_jacobian_predicts_the_strip_warp_of_a_pose_error() -> None:
         rr, cc = np.unravel_index(np.argmin(d), d.shape)
         predicted = np.array([r, c]) + gn @ error
         assert np.allclose(predicted, [rr, cc], atol=1.0)
+
+
+def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
+    """Patch shifts exactly consistent with known pose errors, where the held frames'
+    errors are 0: the held frames come out at exactly 0, the free ones at their
+    errors, and every pair's rigid motion as made; the windowed solve agrees."""
+    rng = np.random.default_rng(3)
+    n = 6
+    truth = rng.normal(0, [2e-3, 2e-3, 0.05, 0.05], (n, 4))
+    held = {0, 2, 5}
+    truth[sorted(held)] = 0.0
+    observations, jacobians, rigid = [], {}, {}
+    for i in range(n):
+        for j in (i + 1, i + 2):
+            if j < n:
+                g_i, g_j = rng.normal(0, 40, (2, 30, 2, 4))
+                rigid[(i, j)] = rng.normal(0, 30, 2)
+                shift = rigid[(i, j)] + g_j @ truth[j] - g_i @ truth[i]
+                observations.append(PatchShifts(i, j, rng.uniform(0, 500, (30, 2)), shift,
+                                                np.full(30, 0.6)))
+                jacobians[(i, j)] = (g_i, g_j)
+    information = {f: np.diag([1e4, 1e4, 10.0, 10.0]) for f in range(n)}
+    errors, motions = solve_pose_errors(observations, jacobians, information, held=held)
+    for f in range(n):
+        if f in held:
+            assert np.all(errors[f] == 0.0)
+        else:
+            np.testing.assert_allclose(errors[f], truth[f], atol=1e-4)
+    for key, motion in motions.items():
+        np.testing.assert_allclose(motion, rigid[key], atol=1e-3)
+    windowed, _ = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)],
+                                   information, held=held)
+    for f in range(n):
+        np.testing.assert_allclose(windowed[f], errors[f], atol=1e-12)

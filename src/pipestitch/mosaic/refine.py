@@ -24,7 +24,7 @@ Written by hand because no library fuses these two kinds of evidence; the pieces
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -190,9 +190,10 @@ class _PairRows:
 
 def _pair_rows(observations: Sequence[PatchShifts],
                jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-               col: Mapping[int, int]) -> list[_PairRows]:
+               col: Mapping[int, int], held: Collection[int] = ()) -> list[_PairRows]:
     """Rows of every pair with patches between two solved frames (the pairs' nuisance
-    unknowns after the frames' 4 each)."""
+    unknowns after the frames' 4 each). A ``held`` frame's Jacobian is zero: its error
+    is observed by nothing, so its prior alone sets it, to exactly 0."""
     obs = [o for o in observations if len(o.nodes) and o.i in col and o.j in col]
     n_pose, four = 4 * len(col), np.arange(4)
     out = []
@@ -200,7 +201,9 @@ def _pair_rows(observations: Sequence[PatchShifts],
         unknowns = np.concatenate([[n_pose + 2 * k, n_pose + 2 * k + 1],
                                    col[o.j] + four, col[o.i] + four])
         sigma = np.repeat(SHIFT_SIGMA_PX / np.sqrt(o.response.astype(np.float64)), 2)
-        out.append(_PairRows(o.i, o.j, unknowns, *jacobians[(o.i, o.j)],
+        g_i, g_j = (np.zeros_like(g) if f in held else g
+                    for f, g in zip((o.i, o.j), jacobians[(o.i, o.j)], strict=True))
+        out.append(_PairRows(o.i, o.j, unknowns, g_i, g_j,
                              o.shift.reshape(-1).astype(np.float64), sigma))
     return out
 
@@ -248,8 +251,9 @@ def _normal_equations(pairs: Sequence[_PairRows], weights: Sequence[np.ndarray],
 def solve_pose_errors(observations: Sequence[PatchShifts],
                       jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
                       information: Mapping[int, np.ndarray | None], *,
-                      iterations: int = 4) -> tuple[dict[int, np.ndarray],
-                                                    dict[tuple[int, int], np.ndarray]]:
+                      iterations: int = 4,
+                      held: Collection[int] = ()) -> tuple[dict[int, np.ndarray],
+                                                           dict[tuple[int, int], np.ndarray]]:
     """Pose error of every frame and the rigid motion of every pair once it is removed.
 
     Parameters
@@ -263,6 +267,9 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
         Frame -> the ring's 4 x 4 information matrix (or None).
     iterations : int
         Huber reweighting rounds (threshold 2 sigma).
+    held : collection of int
+        Frames whose poses are taken as right (error 0): their pairs with the other
+        frames still measure those, and the pairs' rigid motions.
 
     Returns
     -------
@@ -282,7 +289,7 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     frames = sorted(information)
     col = {f: 4 * k for k, f in enumerate(frames)}
     n_pose = 4 * len(frames)
-    pairs = _pair_rows(observations, jacobians, col)
+    pairs = _pair_rows(observations, jacobians, col, held)
     n_unknown = n_pose + 2 * len(pairs)
     # the priors and a ridge of 1e-9 on every unknown
     fixed = (_prior_normal(information, frames, n_unknown)
@@ -342,8 +349,9 @@ def solve_in_windows(observations: Sequence[PatchShifts],
                      jacobians_of: Callable[[PatchShifts], tuple[np.ndarray, np.ndarray]],
                      information: Mapping[int, np.ndarray | None], *,
                      window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
-                     iterations: int = 4) -> tuple[dict[int, np.ndarray],
-                                                   dict[tuple[int, int], np.ndarray]]:
+                     iterations: int = 4,
+                     held: Collection[int] = ()) -> tuple[dict[int, np.ndarray],
+                                                          dict[tuple[int, int], np.ndarray]]:
     """:func:`solve_pose_errors` over overlapping windows of frames (bounded memory).
 
     The working memory is that of one window however long the run is.
@@ -384,7 +392,7 @@ def solve_in_windows(observations: Sequence[PatchShifts],
             if (o.i, o.j) not in jac:
                 jac[(o.i, o.j)] = jacobians_of(o)
         e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
-                                 iterations=iterations)
+                                 iterations=iterations, held=held)
         errors.update((f, e[f]) for f in frames[core_lo:core_hi])
         motions.update((k, v) for k, v in m.items() if core_lo <= span[k][1] < core_hi)
     return errors, motions

@@ -19,7 +19,7 @@ or are not connected to the run by registration or the odometer are reported and
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Protocol
@@ -283,8 +283,8 @@ class _Candidate:
 
     contrast: np.ndarray
     valid: np.ndarray
-    image: np.ndarray
-    spectrum: np.ndarray
+    image: np.ndarray | None      # registration image and its spectrum (None: the
+    spectrum: np.ndarray | None   # frame's links are known, only patches are measured)
     flat: FlatInput | None   # None: a pass whose flat field data are not kept
 
 
@@ -315,14 +315,27 @@ class _Pass1:
 
 
 def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view: FrameView,
-                      grid: WallGrid, timer: StageTimer, *, flat: bool) -> _Candidate:
+                      grid: WallGrid, timer: StageTimer, *, flat: bool,
+                      linked: bool = True) -> _Candidate:
+    """A view of a frame unwrapped for registration: its contrast, and unless the
+    frame's links are known (``linked`` False) its registration image."""
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
         contrast = strip_contrast(strip)
-        image = registration_image(contrast, strip.weight)
-        return _Candidate(contrast, strip.weight > 0, image, spectrum(image),
+        image = registration_image(contrast, strip.weight) if linked else None
+        return _Candidate(contrast, strip.weight > 0, image,
+                          None if image is None else spectrum(image),
                           unwrapper.flat(index, grey, strip, maps) if flat else None)
+
+
+def _link_patches(link: Link, prev: _Candidate, cand: _Candidate, own: WallGrid,
+                  timer: StageTimer) -> PatchShifts:
+    """The local patch shifts of ``link``'s two strips about its rigid motion."""
+    with timer("refine"):
+        return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
+                            (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px_axial),
+                            link.i, link.j)
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: WallGrid,
@@ -357,7 +370,8 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
 
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: WallGrid, timer: StageTimer, show_progress: bool,
-              skipped: dict[int, str], *, patches: bool, flat: bool) -> _Pass1:
+              skipped: dict[int, str], *, patches: bool, flat: bool,
+              seed: Sequence[Link] = ()) -> _Pass1:
     """Pass 1: own-window strips, links to the next frames, and the flat field's data
     (ring levels and overlap ratios) of the frames
     :func:`pipestitch.mosaic.blend.profile_step` samples.
@@ -368,6 +382,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     round can still reverse the choice). With ``patches`` the local patch shifts of
     every link are measured too (for the photometric pose refinement); without
     ``flat``, no flat field data (a round followed by another, which gathers its own).
+    ``seed``: links found before ``views``' first frame, for the motion prior of a pass
+    over part of the run.
     """
     def work(i: int) -> _Registered:
         try:
@@ -377,12 +393,6 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
         options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
         return _Registered(i, [_unwrap_candidate(unwrapper, i, grey, v, own, timer, flat=flat)
                                for v in options])
-
-    def patch_job(link: Link, prev: _Candidate, cand: _Candidate) -> PatchShifts:
-        with timer("refine"):
-            return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
-                                (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px_axial),
-                                link.i, link.j)
 
     def flat_job(cand: _Candidate, found: list[tuple[Link, _Candidate]]
                  ) -> tuple[np.ndarray, list[PairRatios]]:
@@ -395,6 +405,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                             for ln, prev in found]
 
     out = _Pass1()
+    history = list(seed)   # the links the motion prior reads: seed, then this pass's
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
     # the flat field's data of the frames it will take, not all (a
@@ -414,7 +425,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 skipped[reg.index] = reg.error
                 continue
             with timer("register"):
-                found = [_links_to(recent, c, own, reg.index, out.links, dataset.odometry_mm)
+                found = [_links_to(recent, c, own, reg.index, history, dataset.odometry_mm)
                          for c in reg.candidates]
             best = _better_hypothesis(found) if len(found) > 1 else None
             if best is not None:
@@ -425,8 +436,9 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             sampled = len(out.done) % level_step == 0
             for link, prev in found[best or 0]:
                 out.links.append(link)
+                history.append(link)
                 if patches:
-                    pending.append(pool.submit(patch_job, link, prev, cand))
+                    pending.append(pool.submit(_link_patches, link, prev, cand, own, timer))
             if sampled and flat:
                 flats.append(pool.submit(flat_job, cand, found[best or 0]))
             while len(pending) > 2 * max(1, workers):
@@ -441,12 +453,16 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     return out
 
 
-def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraModel,
-                  own: WallGrid) -> tuple[dict[int, FrameView], list[Link]]:
+def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
+                  links: Sequence[Link], camera: CameraModel, own: WallGrid,
+                  redo: Collection[int] | None = None,
+                  ) -> tuple[dict[int, FrameView], list[Link]]:
     """Views with poses corrected by the photometric refinement, and corrected links.
 
     A link with patches is replaced by the pair's rigid motion from the refinement
-    (free of the warp the old poses left in the strips); the others are kept.
+    (free of the warp the old poses left in the strips); the others are kept. With
+    ``redo``, only those frames' poses are corrected: the other frames the patches
+    reach are held where they are.
     """
     def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
         # float32: a window's links' Jacobians are held for its solve
@@ -455,14 +471,17 @@ def _refine_views(views: dict[int, FrameView], pass1: _Pass1, camera: CameraMode
                 node_jacobian(camera, views[o.j].pose, views[o.j].section, own,
                               o.nodes).astype(np.float32))
 
-    errors, motions = solve_in_windows(pass1.patches, jacobians,
-                                       {i: v.information for i, v in views.items()})
+    solved = views if redo is None else {f: views[f] for o in patches for f in (o.i, o.j)}
+    held = () if redo is None else set(solved) - set(redo)
+    errors, motions = solve_in_windows(patches, jacobians,
+                                       {i: v.information for i, v in solved.items()},
+                                       held=held)
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px_axial),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
              if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
-             for ln in pass1.links]
-    out = {}
-    for i, v in views.items():
+             for ln in links]
+    out = dict(views)
+    for i, v in views.items() if redo is None else ((f, views[f]) for f in redo):
         e = errors.get(i, np.zeros(4))
         if not np.all(np.isfinite(e)):
             e = np.zeros(4)   # keep the ring's pose rather than lose the frame
@@ -520,33 +539,45 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     """Registration passes with photometric refinement between them.
 
     Early rounds on ``grids[0]``, the last (whose links place the frames) on
-    ``grids[1]``. One more round follows on ``grids[1]`` when the last one moved some
-    frame's tilt by more than ``LINEAR_TILT_DEG`` (the refinement is linearised about
-    the poses it starts from: an oval pipe's frames, whose tilt the ring leaves at 0,
-    come out a few hundredths of a degree off per degree of correction) or found frames
-    oval that it registered as circles (their strips had the wrong section). Each pass's
-    patch shifts are released once the refinement has used them, and only the last
-    pass's flat field data are kept, reduced to the flat field at once (earlier rounds
-    do not gather them; the last planned round does, and an extra one replaces them).
+    ``grids[1]``. The refinement is linearised about the poses it starts from: a frame
+    whose tilt it corrects by a degree comes out a few hundredths of a degree off (an
+    oval pipe's frames, whose tilt the ring leaves at 0; frames near zero tilt, where
+    the ring measures it worst), and a frame it finds oval was registered as a circle.
+    So when the last round moved some frame's tilt by more than ``LINEAR_TILT_DEG`` or
+    found frames oval, the frames it moved by more than ``REDO_TILT_DEG`` (and the new
+    ovals) are unwrapped again and their links' patches measured again about the
+    refined links (:func:`_repatch`), and those frames alone are refined once more,
+    their neighbours held: a full round's accuracy for the frames that need it, at the
+    cost of those frames. Each pass's patch shifts are released once the refinement
+    has used them, and only the last pass's flat field data are kept, reduced to the
+    flat field at once (earlier rounds do not gather them).
     """
     camera, switched = unwrapper.camera, {}
-    total, k = max(1, rounds), 0
-    while k < total:
+    before = views
+    for k in range(max(1, rounds)):
         own = grids[0] if k < rounds - 1 else grids[1]
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
                           patches=rounds > 0, flat=k >= rounds - 1)
         switched.update(pass1.switched)
         links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
+        before = views
         if pass1.patches:
-            before = views
             with timer("refine"):
-                views, links = _refine_views(views, pass1, camera, own)
+                views, links = _refine_views(views, pass1.patches, links, camera, own)
                 views = {i: _refit_section(v) for i, v in views.items()}
-            if k == rounds - 1 and _another_round(before, views):
-                total += 1
         del pass1   # its patches: before the next pass gathers its own
-        k += 1
+    redo = _frames_to_redo(before, views)
+    if redo:
+        # and the frames that still have a mirror hypothesis: a full round would let
+        # registration choose again between their two
+        redo = sorted({*redo, *(i for i in done if views[i].alternative is not None)})
+        views, links, patches = _register_again(dataset, views, unwrapper, grids[1], timer,
+                                                skipped, links, done, redo, switched)
+        with timer("refine"):
+            views, links = _refine_views(views, patches, links, camera, grids[1], redo)
+            views = {i: _refit_section(v) if i in redo else v for i, v in views.items()}
+        del patches
     # The ring points served the section refits: the stitch and the outputs do not
     # read them (~6 kB a frame, 24 MB at 4000 pairs).
     views = {i: _without_ring(v) for i, v in views.items()}
@@ -556,18 +587,121 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
 
 
 LINEAR_TILT_DEG = 1.0   # a round that corrects a tilt by more is followed by another
+REDO_TILT_DEG = 0.25    # ... for the frames it corrected by more than this
 
 
-def _another_round(before: Mapping[int, FrameView], after: Mapping[int, FrameView]) -> bool:
-    """Whether a refinement round left poses worth one more (see _registration_rounds)."""
+def _frames_to_redo(before: Mapping[int, FrameView], after: Mapping[int, FrameView]
+                    ) -> list[int]:
+    """The frames a refinement round left worth one more (see _registration_rounds):
+    none unless it moved some tilt by more than ``LINEAR_TILT_DEG`` or found a frame
+    oval; then those moved by more than ``REDO_TILT_DEG`` and the new ovals."""
+    moved, oval = {}, []
     for i, v in after.items():
         b = before.get(i)
         if b is None:
             continue
-        moved = max(abs(v.pose.alpha - b.pose.alpha), abs(v.pose.beta - b.pose.beta))
-        if np.rad2deg(moved) > LINEAR_TILT_DEG or (v.oval and not b.oval):
-            return True
-    return False
+        tilt = max(abs(v.pose.alpha - b.pose.alpha), abs(v.pose.beta - b.pose.beta))
+        moved[i] = float(np.rad2deg(tilt))
+        if v.oval and not b.oval:
+            oval.append(i)
+    if not oval and max(moved.values(), default=0.0) <= LINEAR_TILT_DEG:
+        return []
+    return sorted({i for i, m in moved.items() if m > REDO_TILT_DEG} | set(oval))
+
+
+def _segments(done: Sequence[int], frames: Collection[int], span: int) -> list[list[int]]:
+    """Runs of consecutive registered frames (``done``, in order) that hold each of
+    ``frames`` with ``span`` registered frames on each side."""
+    position = {f: k for k, f in enumerate(done)}
+    kept = sorted({k for f in frames if f in position
+                   for k in range(max(0, position[f] - span),
+                                  min(len(done), position[f] + span + 1))})
+    runs: list[list[int]] = []
+    for k in kept:
+        if runs and k == position[runs[-1][-1]] + 1:
+            runs[-1].append(done[k])
+        else:
+            runs.append([done[k]])
+    return runs
+
+
+def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
+                    own: WallGrid, timer: StageTimer, skipped: dict[int, str],
+                    links: list[Link], done: list[int], redo: Sequence[int],
+                    switched: dict[int, bool],
+                    ) -> tuple[dict[int, FrameView], list[Link], list[PatchShifts]]:
+    """The links of the ``redo`` frames measured again on strips from the current views.
+
+    A redone frame with a mirror hypothesis is registered as a full round would
+    (links, hypothesis choice, patch shifts: :func:`_register`) in a run of the run
+    that reaches ``LINK_SPAN`` registered frames beyond it, and the run's links
+    replace its old ones. For the other links of the redone frames only the patch
+    shifts are measured again, about the links the refinement left
+    (:func:`_repatch`): their rigid part is the refinement's already, and the
+    whole-strip correlation that would find it again is the costly part of a round.
+
+    Returns the views (hypotheses chosen now applied, ``switched`` updated), the links
+    and the patch shifts measured.
+    """
+    views, kept, patches, measured = dict(views), list(links), [], set()
+    choosing = [i for i in redo if views[i].alternative is not None]
+    for run in _segments(done, choosing, LINK_SPAN):
+        inside = set(run)
+        part = {i: views[i] for i in run}
+        found = _register(dataset, part, unwrapper, own, timer, False, skipped,
+                          patches=True, flat=False, seed=[ln for ln in links if ln.j <= run[0]])
+        views.update(part)
+        switched.update(found.switched)
+        kept = [ln for ln in kept if not (ln.i in inside and ln.j in inside)] + found.links
+        patches.extend(found.patches)
+        measured.update((ln.i, ln.j) for ln in found.links)
+    wanted = set(redo)
+    todo = [ln for ln in kept if (ln.i in wanted or ln.j in wanted)
+            and (ln.i, ln.j) not in measured]
+    patches.extend(_repatch(dataset, views, unwrapper, own, todo, timer))
+    return views, sorted(kept, key=lambda ln: (ln.j, ln.i)), patches
+
+
+def _repatch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrapper,
+             own: WallGrid, links: Sequence[Link], timer: StageTimer) -> list[PatchShifts]:
+    """The patch shifts of ``links``, measured again on strips unwrapped with ``views``
+    about the links' rigid motions.
+
+    The frames are read in order and each strip is held only until its last link is
+    measured; a frame that cannot be read now leaves its links without patches (the
+    stitch reports it).
+    """
+    ending: dict[int, list[Link]] = {}
+    last_use: dict[int, int] = {}
+    for ln in links:
+        ending.setdefault(ln.j, []).append(ln)
+        last_use[ln.i] = max(last_use.get(ln.i, ln.i), ln.j)
+
+    def work(i: int) -> tuple[int, _Candidate | None]:
+        try:
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+        except DatasetError:
+            return i, None
+        return i, _unwrap_candidate(unwrapper, i, grey, views[i], own, timer, flat=False,
+                                    linked=False)
+
+    frames = sorted({f for ln in links for f in (ln.i, ln.j)})
+    workers = unwrapper.settings.workers
+    strips: dict[int, _Candidate] = {}
+    out: list[PatchShifts] = []
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        pending: deque[Future[PatchShifts]] = deque()
+        for i, strip in ordered_map(work, frames, workers):
+            if strip is not None:
+                strips[i] = strip
+                pending.extend(pool.submit(_link_patches, ln, strips[ln.i], strip, own, timer)
+                               for ln in ending.get(i, []) if ln.i in strips)
+            for f in [f for f in strips if last_use.get(f, f) <= i]:
+                del strips[f]
+            while len(pending) > 2 * max(1, workers):
+                out.append(pending.popleft().result())
+        out.extend(f.result() for f in pending)
+    return out
 
 
 def _without_ring(view: FrameView) -> FrameView:

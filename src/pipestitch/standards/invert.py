@@ -89,11 +89,11 @@ def _detect(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
     if usable_cols.sum() < 5:
         return None
     img = image[:, usable_cols]
-    col_median = np.nanmedian(img, axis=0)
+    col_median = _nanmedian(img, axis=0)
     norm = img / np.where(col_median > 0, col_median, np.nan)
     rows_ok = np.isfinite(norm).mean(axis=1) >= 0.5
     profile = np.full(image.shape[0], np.nan)
-    profile[rows_ok] = np.nanmedian(norm[rows_ok], axis=1)
+    profile[rows_ok] = _nanmedian(norm[rows_ok], axis=1)
     sigma = max(1.0, SMOOTH_DEG / deg_per_px)
     weight = ndimage.gaussian_filter1d(rows_ok.astype(float), sigma, mode="wrap")
     smooth = ndimage.gaussian_filter1d(np.nan_to_num(profile), sigma, mode="wrap")
@@ -113,13 +113,27 @@ def _detect(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
     return best
 
 
+def _nanmedian(values: np.ndarray, axis: int) -> np.ndarray:
+    """``np.nanmedian(values, axis=axis)`` of a 2-D array, the same values, from one sort
+    (numpy's loops over the lines in Python when they hold NaN: ~4x slower here)."""
+    lines = np.sort(values if axis == 1 else values.T, axis=1)   # NaN last
+    if lines.shape[1] == 0:
+        return np.full(len(lines), np.nan, values.dtype)
+    n = np.count_nonzero(np.isfinite(lines), axis=1)
+    rows = np.arange(len(lines))
+    lo = lines[rows, np.maximum(n - 1, 0) // 2]
+    hi = lines[rows, n // 2 - (n == 0)]
+    # the mean of the two middle values, as np.median takes it (one for an odd count)
+    return np.where(n > 0, np.where(n % 2 == 1, lo, (lo + hi) / 2), np.nan)
+
+
 def _persistence(norm: np.ndarray, rows: np.ndarray, sign: float) -> float:
     """Share of columns where the band's median differs from the rest's by half the
     threshold in the band's direction."""
     inside = np.zeros(norm.shape[0], bool)
     inside[rows] = True
-    band = np.nanmedian(norm[inside], axis=0)
-    rest = np.nanmedian(norm[~inside], axis=0)
+    band = _nanmedian(norm[inside], axis=0)
+    rest = _nanmedian(norm[~inside], axis=0)
     ok = np.isfinite(band) & np.isfinite(rest)
     if not ok.any():
         return 0.0

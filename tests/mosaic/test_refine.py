@@ -67,9 +67,9 @@ def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
     errors are 0: the held frames come out at exactly 0, the free ones at their
     errors, and every pair's rigid motion as made; the windowed solve agrees."""
     rng = np.random.default_rng(3)
-    n = 6
+    n = 12
     truth = rng.normal(0, [2e-3, 2e-3, 0.05, 0.05], (n, 4))
-    held = {0, 2, 5}
+    held = {0, 2, 5, 6, 9}
     truth[sorted(held)] = 0.0
     observations, jacobians, rigid = [], {}, {}
     for i in range(n):
@@ -90,7 +90,10 @@ def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
             np.testing.assert_allclose(errors[f], truth[f], atol=1e-4)
     for key, motion in motions.items():
         np.testing.assert_allclose(motion, rigid[key], atol=1e-3)
+    # in overlapping windows of 5 frames (1 of margin): the same, to far below the errors
     windowed, _ = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)],
-                                   information, held=held)
+                                   information, held=held, window=5, margin=1)
     for f in range(n):
-        np.testing.assert_allclose(windowed[f], errors[f], atol=1e-12)
+        if f in held:
+            assert np.all(windowed[f] == 0.0)
+        np.testing.assert_allclose(windowed[f], errors[f], atol=1e-5)

@@ -41,6 +41,21 @@ def test_frames_are_redone_after_a_large_tilt_correction_or_new_ovals() -> None:
     assert _frames_to_redo(oval_before, moved(small, oval=(2,))) == []
 
 
+def test_runs_of_frames_to_register_again() -> None:
+    """Each frame with its span of registered frames on each side, overlapping runs
+    merged, gaps in the registered frames respected, unregistered frames ignored."""
+    from pipestitch.pipeline.stitching import _segments
+
+    done = [0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14]
+    assert _segments(done, [], 2) == []
+    assert _segments(done, [4], 2) == []                       # not registered
+    assert _segments(done, [0], 2) == [[0, 1, 2]]
+    assert _segments(done, [2], 2) == [[0, 1, 2, 3, 5]]          # 4 was not registered
+    assert _segments(done, [6, 8], 1) == [[5, 6, 7, 8, 9]]
+    assert _segments(done, [6, 12], 1) == [[5, 6, 7], [11, 12, 13]]
+    assert _segments(done, [14], 2) == [[12, 13, 14]]
+
+
 @pytest.fixture(scope="module")
 def eight_pairs(tmp_path_factory, simulate_small) -> Path:
     """A corroded half-size run of 8 pairs."""
@@ -89,17 +104,36 @@ def test_only_the_frames_redone_are_refined_again(eight_pairs: Path, monkeypatch
             assert view.pose == once.views[i].pose
     assert 0.04 < _tilt_deg(once.views[4].pose, views[4].pose) < 0.2     # 0.063 seen
     assert _tilt_deg(redone.views[4].pose, views[4].pose) < 0.03         # 0.021 seen
+    # the same links, once each; those of the redone frames measured again
+    pairs = [(ln.i, ln.j) for ln in redone.links]
+    assert len(set(pairs)) == len(pairs) == len(once.links)
+    assert set(pairs) == {(ln.i, ln.j) for ln in once.links}
+    assert any(a != b for a, b in zip(redone.links, once.links, strict=True)
+               if 4 in (a.i, a.j))
 
 
-def test_a_redone_frame_with_a_mirror_hypothesis_is_chosen_again(eight_pairs: Path) -> None:
+def test_a_redone_frame_with_a_mirror_hypothesis_is_chosen_again(eight_pairs: Path,
+                                                                 monkeypatch) -> None:
     """Frame 4 as above, with a second hypothesis 3 degrees off the other way: the frames
-    around it are registered again as in a full round, the hypothesis nearer the truth
-    is chosen, and its pose is refined as near the truth as without the choice."""
+    around it (2 registered frames on each side) are registered again as in a full
+    round, the hypothesis nearer the truth is chosen, and its pose is refined as near
+    the truth as without the choice."""
+    import pipestitch.pipeline.stitching as stitching
+
+    passes: list[list[int]] = []
+    register = stitching._register
+
+    def counted(dataset, views, *args, **kwargs):
+        passes.append(sorted(views))
+        return register(dataset, views, *args, **kwargs)
+
+    monkeypatch.setattr(stitching, "_register", counted)
     views, start = _frame_4_off(eight_pairs)
     far = replace(views[4].pose, alpha=views[4].pose.alpha + np.deg2rad(3.0))
     start[4] = replace(start[4], alternative=FrameView(far, views[4].section))
     result = build_mosaic(open_dataset(eight_pairs), start, MosaicSettings(),
                           show_progress=False)
+    assert passes == [list(range(8)), [2, 3, 4, 5, 6]]
     assert result.switched.get(4) is False
     assert _tilt_deg(result.views[4].pose, views[4].pose) < 0.03
 

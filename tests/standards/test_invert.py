@@ -6,8 +6,8 @@ import numpy as np
 
 
 def test_the_sorted_median_is_numpys_nanmedian() -> None:
-    """Along either axis, with NaN (a whole line of them too), ties, odd and even
-    counts, float32 and float64: the same values and dtype as ``np.nanmedian``."""
+    """Along either axis, with NaN (a whole line of them too), ties, infinities, odd
+    and even counts, float32 and float64: the same values and dtype as ``np.nanmedian``."""
     import warnings
 
     from pipestitch.standards.invert import _nanmedian
@@ -20,6 +20,7 @@ def test_the_sorted_median_is_numpys_nanmedian() -> None:
             if a.size:
                 a[0] = np.nan
                 a[:, 0] = np.round(a[:, 0] * 4) / 4
+                a[-1, -1] = np.inf
             for axis in (0, 1):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)

@@ -18,6 +18,7 @@ or are not connected to the run by registration or the odometer are reported and
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from collections.abc import Collection, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -316,14 +317,14 @@ class _Pass1:
 
 def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view: FrameView,
                       grid: WallGrid, timer: StageTimer, *, flat: bool,
-                      linked: bool = True) -> _Candidate:
-    """A view of a frame unwrapped for registration: its contrast, and unless the
-    frame's links are known (``linked`` False) its registration image."""
+                      for_links: bool = True) -> _Candidate:
+    """A view of a frame unwrapped for registration: its contrast, and with
+    ``for_links`` the registration image its links are found on."""
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
         contrast = strip_contrast(strip)
-        image = registration_image(contrast, strip.weight) if linked else None
+        image = registration_image(contrast, strip.weight) if for_links else None
         return _Candidate(contrast, strip.weight > 0, image,
                           None if image is None else spectrum(image),
                           unwrapper.flat(index, grey, strip, maps) if flat else None)
@@ -464,15 +465,20 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
     ``redo``, only those frames' poses are corrected: the other frames the patches
     reach are held where they are.
     """
-    def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
-        # float32: a window's links' Jacobians are held for its solve
-        return (node_jacobian(camera, views[o.i].pose, views[o.i].section, own,
-                              o.nodes + o.shift).astype(np.float32),
-                node_jacobian(camera, views[o.j].pose, views[o.j].section, own,
-                              o.nodes).astype(np.float32))
-
     solved = views if redo is None else {f: views[f] for o in patches for f in (o.i, o.j)}
-    held = () if redo is None else set(solved) - set(redo)
+    held = set() if redo is None else set(solved) - set(redo)
+
+    def jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
+        # float32: a window's links' Jacobians are held for its solve; a held frame's
+        # is zero in the solve whatever it is (refine.solve_pose_errors): not computed
+        if frame in held:
+            return np.zeros((len(nodes), 2, 4), np.float32)
+        view = views[frame]
+        return node_jacobian(camera, view.pose, view.section, own, nodes).astype(np.float32)
+
+    def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
+        return jacobian(o.i, o.nodes + o.shift), jacobian(o.j, o.nodes)
+
     errors, motions = solve_in_windows(patches, jacobians,
                                        {i: v.information for i, v in solved.items()},
                                        held=held)
@@ -544,13 +550,16 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     oval pipe's frames, whose tilt the ring leaves at 0; frames near zero tilt, where
     the ring measures it worst), and a frame it finds oval was registered as a circle.
     So when the last round moved some frame's tilt by more than ``LINEAR_TILT_DEG`` or
-    found frames oval, the frames it moved by more than ``REDO_TILT_DEG`` (and the new
-    ovals) are unwrapped again and their links' patches measured again about the
-    refined links (:func:`_repatch`), and those frames alone are refined once more,
-    their neighbours held: a full round's accuracy for the frames that need it, at the
-    cost of those frames. Each pass's patch shifts are released once the refinement
-    has used them, and only the last pass's flat field data are kept, reduced to the
-    flat field at once (earlier rounds do not gather them).
+    found frames oval, the frames it moved by more than ``REDO_TILT_DEG``, the new
+    ovals and the frames that still have a mirror hypothesis are registered again
+    (:func:`_register_again`: strips of them and of the neighbours they link to) and
+    refined once more, their neighbours held. The frames it moved less keep one
+    round's accuracy (0.01-0.03 degrees on a corroded run against 0.004-0.02 after a
+    whole second round, docs/benchmarks.md). Each pass's patch shifts are released
+    once the refinement has used them, and only the last planned round's flat field
+    data are kept, reduced to the flat field at once (earlier rounds do not gather
+    them; the frames registered again do not replace them, though they were measured
+    on strips from the poses before the correction).
     """
     camera, switched = unwrapper.camera, {}
     before = views
@@ -572,11 +581,13 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         # and the frames that still have a mirror hypothesis: a full round would let
         # registration choose again between their two
         redo = sorted({*redo, *(i for i in done if views[i].alternative is not None)})
+        release_free_memory()
         views, links, patches = _register_again(dataset, views, unwrapper, grids[1], timer,
                                                 skipped, links, done, redo, switched)
+        again = set(redo)
         with timer("refine"):
-            views, links = _refine_views(views, patches, links, camera, grids[1], redo)
-            views = {i: _refit_section(v) if i in redo else v for i, v in views.items()}
+            views, links = _refine_views(views, patches, links, camera, grids[1], again)
+            views = {i: _refit_section(v) if i in again else v for i, v in views.items()}
         del patches
     # The ring points served the section refits: the stitch and the outputs do not
     # read them (~6 kB a frame, 24 MB at 4000 pairs).
@@ -586,8 +597,8 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     return _Registration(views, links, done, switched, flat)
 
 
-LINEAR_TILT_DEG = 1.0   # a round that corrects a tilt by more is followed by another
-REDO_TILT_DEG = 0.25    # ... for the frames it corrected by more than this
+LINEAR_TILT_DEG = 1.0   # after a round that corrects a tilt by more, frames are redone:
+REDO_TILT_DEG = 0.25    # those it corrected by more than this
 
 
 def _frames_to_redo(before: Mapping[int, FrameView], after: Mapping[int, FrameView]
@@ -625,6 +636,9 @@ def _segments(done: Sequence[int], frames: Collection[int], span: int) -> list[l
     return runs
 
 
+SEED_LINKS = 8 * LINK_SPAN   # links before a run: more than predict_motion's 5 steps
+
+
 def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
                     own: WallGrid, timer: StageTimer, skipped: dict[int, str],
                     links: list[Link], done: list[int], redo: Sequence[int],
@@ -643,18 +657,24 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
     Returns the views (hypotheses chosen now applied, ``switched`` updated), the links
     and the patch shifts measured.
     """
-    views, kept, patches, measured = dict(views), list(links), [], set()
-    choosing = [i for i in redo if views[i].alternative is not None]
-    for run in _segments(done, choosing, LINK_SPAN):
-        inside = set(run)
+    views, patches, new = dict(views), [], []
+    runs = _segments(done, [i for i in redo if views[i].alternative is not None], LINK_SPAN)
+    run_of = {f: k for k, run in enumerate(runs) for f in run}
+    ends = [ln.j for ln in links]   # in order (as _register found them)
+    for run in runs:
         part = {i: views[i] for i in run}
+        # the motion prior reads the last few consecutive steps before the run
+        first = bisect.bisect_right(ends, run[0])
+        seed = links[max(0, first - SEED_LINKS):first]
         found = _register(dataset, part, unwrapper, own, timer, False, skipped,
-                          patches=True, flat=False, seed=[ln for ln in links if ln.j <= run[0]])
+                          patches=True, flat=False, seed=seed)
         views.update(part)
         switched.update(found.switched)
-        kept = [ln for ln in kept if not (ln.i in inside and ln.j in inside)] + found.links
+        new.extend(found.links)
         patches.extend(found.patches)
-        measured.update((ln.i, ln.j) for ln in found.links)
+    kept = [ln for ln in links
+            if not (ln.i in run_of and run_of[ln.i] == run_of.get(ln.j))] + new
+    measured = {(ln.i, ln.j) for ln in new}
     wanted = set(redo)
     todo = [ln for ln in kept if (ln.i in wanted or ln.j in wanted)
             and (ln.i, ln.j) not in measured]
@@ -683,7 +703,7 @@ def _repatch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwra
         except DatasetError:
             return i, None
         return i, _unwrap_candidate(unwrapper, i, grey, views[i], own, timer, flat=False,
-                                    linked=False)
+                                    for_links=False)
 
     frames = sorted({f for ln in links for f in (ln.i, ln.j)})
     workers = unwrapper.settings.workers

@@ -119,7 +119,7 @@ def _nanmedian(values: np.ndarray, axis: int) -> np.ndarray:
     lines = np.sort(values if axis == 1 else values.T, axis=1)   # NaN last
     if lines.shape[1] == 0:
         return np.full(len(lines), np.nan, values.dtype)
-    n = np.count_nonzero(np.isfinite(lines), axis=1)
+    n = np.count_nonzero(~np.isnan(lines), axis=1)   # infinities count, as numpy's
     rows = np.arange(len(lines))
     lo = lines[rows, np.maximum(n - 1, 0) // 2]
     hi = lines[rows, n // 2 - (n == 0)]

@@ -691,6 +691,8 @@ def _repatch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwra
     measured; a frame that cannot be read now leaves its links without patches (the
     stitch reports it).
     """
+    if not links:   # every redone frame's links were registered again in its run
+        return []
     ending: dict[int, list[Link]] = {}
     last_use: dict[int, int] = {}
     for ln in links:

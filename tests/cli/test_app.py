@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -467,3 +468,14 @@ def test_the_command_line_loads_no_stage_until_a_command_runs() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+def test_the_command_gives_blas_one_thread_unless_the_user_chose(monkeypatch) -> None:
+    from pipestitch.cli import BLAS_THREAD_VARIABLES, single_threaded_blas
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "4")
+    single_threaded_blas()
+    assert "OPENBLAS_NUM_THREADS" in BLAS_THREAD_VARIABLES
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    assert os.environ["MKL_NUM_THREADS"] == "4"   # the user's choice kept

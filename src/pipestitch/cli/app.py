@@ -282,6 +282,20 @@ def run(
 
     Example: pipestitch run data/test_piece --out out/test_piece
     """
+    from pipestitch.pipeline.warm_start import decode_ahead
+
+    with decode_ahead(dataset, video=video):   # while the stages load
+        summary = _run(dataset, out, mm_per_px, unwrap, workers, tolerance_pct, video,
+                       crown_deg, fine_registration, quiet)
+    _print_run(summary)
+    if summary.mosaic_failed:
+        console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")
+        raise typer.Exit(1)
+
+
+def _run(dataset: Path, out: Path, mm_per_px: float | None, unwrap: str, workers: int,
+         tolerance_pct: float, video: Path | None, crown_deg: float | None,
+         fine_registration: bool, quiet: bool) -> RunSummary:
     from pipestitch.pipeline.check import check_finite, check_workers
     from pipestitch.pipeline.run import run_dataset
     from pipestitch.pipeline.staging import check_out_folder
@@ -298,12 +312,8 @@ def run(
         raise typer.Exit(2) from None
     check_finite(crown_deg, "--crown-deg")
     check_out_folder(dataset, out)
-    summary = run_dataset(dataset, out, settings=settings, show_progress=not quiet,
-                          tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg)
-    _print_run(summary)
-    if summary.mosaic_failed:
-        console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")
-        raise typer.Exit(1)
+    return run_dataset(dataset, out, settings=settings, show_progress=not quiet,
+                       tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg)
 
 
 def _print_run(summary: RunSummary) -> None:

@@ -14,7 +14,6 @@ import csv
 import json
 import logging
 import math
-import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
+from pipestitch.io.frame_files import frame_files
 from pipestitch.io.images import read_image
 from pipestitch.io.mask import read_mask
 from pipestitch.io.probe_toml import read_probe_toml
@@ -44,8 +44,6 @@ __all__ = [
     "read_odometry",
 ]
 
-IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
-_FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
 ODOMETRY_FILE = "odometry.csv"
 TRUTH_POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "roll_deg")
 
@@ -119,18 +117,6 @@ def read_frame(path: Path, size: tuple[int, int]) -> np.ndarray:
     if img.ndim == 3 and img.shape[2] not in (3, 4):
         raise DatasetError(path, f"expected 1, 3 or 4 channels, got {img.shape[2]}")
     return img
-
-
-def _frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:
-    found: dict[str, dict[int, Path]] = {"laser": {}, "led": {}}
-    other = []
-    for path in sorted(frames_dir.iterdir()):
-        m = _FRAME_RE.match(path.name)
-        if m and m.group(3).lower() in IMAGE_EXTENSIONS:
-            found[m.group(1)][int(m.group(2))] = path
-        else:
-            other.append(path)
-    return found, other
 
 
 def _numbering_problems(kind: str, frames: dict[int, Path], frames_dir: Path) -> list[Problem]:
@@ -356,7 +342,7 @@ def open_dataset(root: str | Path, video: str | Path | None = None, *,
     frames_dir = root / "frames"
     if not frames_dir.is_dir():
         raise DatasetError(frames_dir, "frames/ folder not found")
-    found, _ = _frame_files(frames_dir)
+    found, _ = frame_files(frames_dir)
     problems = _numbering_problems("laser", found["laser"], frames_dir)
     if problems:
         raise DatasetError(frames_dir, problems[0].message)
@@ -404,7 +390,7 @@ def _check_frames(root: Path, config: ProbeConfig | None,
     if not frames_dir.is_dir():
         yield Problem(frames_dir, "frames/ folder not found")
         return
-    found, other = _frame_files(frames_dir)
+    found, other = frame_files(frames_dir)
     for path in other:
         yield Problem(path, "not a frame name (expected laser_NNNNN.png or led_NNNNN.png)",
                       "warning")
@@ -473,7 +459,7 @@ def count_frame_files(root: str | Path) -> int:
     frames_dir = Path(root) / "frames"
     if not frames_dir.is_dir():
         return 0
-    found, _ = _frame_files(frames_dir)
+    found, _ = frame_files(frames_dir)
     return len(found["laser"]) + len(found["led"])
 
 
@@ -499,7 +485,7 @@ def check_dataset(root: str | Path, *,
         problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_frames(root, config, progress))
     frames_dir = root / "frames"
-    lasers = _frame_files(frames_dir)[0]["laser"] if frames_dir.is_dir() else {}
+    lasers = frame_files(frames_dir)[0]["laser"] if frames_dir.is_dir() else {}
     # pairs as numbered (a gap in the numbering is reported with the frames)
     problems.extend(check_odometry_and_imu(root, max(lasers) + 1 if lasers else None))
     if config is not None:

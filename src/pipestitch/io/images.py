@@ -18,6 +18,7 @@ import numpy as np
 import tifffile
 
 from pipestitch.errors import DatasetError
+from pipestitch.io import ahead
 from pipestitch.io.atomic import atomic_write_bytes
 
 __all__ = ["MAX_PIXELS", "image_header", "read_image", "write_image"]
@@ -84,6 +85,22 @@ def read_image(path: str | Path, *, size: tuple[int, int] | None = None) -> np.n
         ``MAX_PIXELS`` pixels, or cannot be decoded.
     """
     path = Path(path)
+    decoded = ahead.take(path)   # decoded while the command started (io/ahead.py)
+    if decoded is not None:
+        declared, img = decoded
+        _check_declared(path, declared, size)
+    else:
+        img = _decoded(path, size)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise DatasetError(path, f"expected 8- or 16-bit pixels, got {img.dtype}")
+    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
+                                 f"{size[0]}x{size[1]}")
+    return img
+
+
+def _decoded(path: Path, size: tuple[int, int] | None) -> np.ndarray:
+    """The file's pixels, its declared size checked before decoding."""
     if not path.is_file():
         raise DatasetError(path, "file not found")
     data = np.fromfile(path, dtype=np.uint8)
@@ -99,11 +116,6 @@ def read_image(path: str | Path, *, size: tuple[int, int] | None = None) -> np.n
                            ) from None
     if img is None:
         raise DatasetError(path, "cannot decode image (corrupt or not an image)")
-    if img.dtype not in (np.uint8, np.uint16):
-        raise DatasetError(path, f"expected 8- or 16-bit pixels, got {img.dtype}")
-    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
-        raise DatasetError(path, f"image is {img.shape[1]}x{img.shape[0]}, probe.toml says "
-                                 f"{size[0]}x{size[1]}")
     return img
 
 

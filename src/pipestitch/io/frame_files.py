@@ -1,0 +1,32 @@
+"""The frame files of a dataset's frames/ folder, by their SPEC names.
+
+A module of its own, importing nothing heavy, so that a command can find a run's frames
+before it has loaded its stages (:mod:`pipestitch.pipeline.warm_start`).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+__all__ = ["IMAGE_EXTENSIONS", "frame_files"]
+
+IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
+_FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
+
+
+def frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:
+    """({"laser": {index: path}, "led": {...}}, the other files) of ``frames_dir``.
+
+    Of two files with one frame's name (``laser_00000.png`` and ``.tif``), the last in
+    name order is the frame.
+    """
+    found: dict[str, dict[int, Path]] = {"laser": {}, "led": {}}
+    other = []
+    for path in sorted(frames_dir.iterdir()):
+        m = _FRAME_RE.match(path.name)
+        if m and m.group(3).lower() in IMAGE_EXTENSIONS:
+            found[m.group(1)][int(m.group(2))] = path
+        else:
+            other.append(path)
+    return found, other

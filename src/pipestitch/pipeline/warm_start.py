@@ -1,0 +1,45 @@
+"""What a command does while it is still starting: decode the run's first frames.
+
+``pipestitch run`` spends its first ~0.6 s importing its stages (numba, scipy, the
+configuration models) on one core of a 2-core machine; the other core is idle. Started
+before those imports, :func:`decode_ahead` decodes the dataset's frames in the order the
+pose pass reads them (laser, then LED, pair by pair) on that core; the pose pass then
+takes them instead of decoding them (:mod:`pipestitch.io.ahead`: the same pixels and the
+same checks). Measured on 60 pairs at 1224 x 1024: ~40 frames are decoded by the time
+the imports end, which slow down by ~0.03 s (docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager, nullcontext
+from pathlib import Path
+
+from pipestitch.io.ahead import DecodeAhead
+from pipestitch.io.frame_files import frame_files
+
+__all__ = ["DECODE_AHEAD_BYTES", "decode_ahead"]
+
+# Decoded pixels the thread may produce: about what it decodes while the command starts
+# (~40 frames of 1224 x 1024 at 8 bits). They are held until the pose pass takes them, at
+# the start of the run, where its memory peaks: a larger budget kept the thread decoding
+# beside the pose pass (no faster: both cores are busy there) and raised that peak.
+DECODE_AHEAD_BYTES = 48 * 2**20
+
+
+def decode_ahead(dataset: str | Path, *, video: Path | None = None
+                 ) -> AbstractContextManager[object]:
+    """Decode ``dataset``'s first frames on a thread for the ``with`` block's pose pass.
+
+    Nothing is started for a video (``video``) or a dataset without a readable frames/
+    folder: the run then meets and reports what is wrong, as it would without this.
+    """
+    frames_dir = Path(dataset) / "frames"
+    if video is not None:
+        return nullcontext()
+    try:
+        found, _ = frame_files(frames_dir)
+    except OSError:
+        return nullcontext()
+    lasers, leds = found["laser"], found["led"]
+    order = [p for i in sorted(lasers) for p in (lasers[i], leds.get(i)) if p is not None]
+    return DecodeAhead(order, DECODE_AHEAD_BYTES)

@@ -1,0 +1,32 @@
+"""A run whose first frames were decoded ahead writes exactly what a run without does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipestitch.io import ahead
+from pipestitch.pipeline.run import run_dataset
+from pipestitch.pipeline.warm_start import decode_ahead
+
+
+def test_a_run_with_frames_decoded_ahead_writes_the_same_outputs(tmp_path: Path,
+                                                                  simulate_small,
+                                                                  monkeypatch) -> None:
+    ds = simulate_small(tmp_path / "ds", "--pairs", "6", "--seed", "2")
+    run_dataset(ds, tmp_path / "plain", show_progress=False)
+    taken = []
+    original = ahead.DecodeAhead.take
+
+    def counted(self, path):
+        got = original(self, path)
+        taken.append(got is not None)
+        return got
+
+    monkeypatch.setattr(ahead.DecodeAhead, "take", counted)
+    with decode_ahead(ds) as frames:
+        frames._thread.join(30)   # every frame decoded before the run reads one
+        run_dataset(ds, tmp_path / "ahead", show_progress=False)
+    assert sum(taken) == 12   # each of the 6 pairs' two frames taken once
+    for name in ("poses.csv", "profile.csv", "defects.csv", "mosaic.png"):
+        assert (tmp_path / "ahead" / name).read_bytes() == (tmp_path / "plain" / name
+                                                            ).read_bytes(), name

@@ -29,6 +29,7 @@ from itertools import pairwise
 import cv2
 import numpy as np
 
+from pipestitch.camera.frames import to_grey
 from pipestitch.mosaic._occluder_kernels import quantile_over_frames
 
 __all__ = ["FULL_SCALES", "full_scale", "noise_variance", "occluder_mask", "static_pixels"]
@@ -62,12 +63,15 @@ def _smooth(frame: np.ndarray, sigma: float) -> np.ndarray:
 def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
                   absolute: float = 0.08, margin_px: int | None = None,
                   workers: int = 1) -> np.ndarray:
-    """Boolean mask of occluded pixels from grey LED frames of one run.
+    """Boolean mask of occluded pixels from LED frames of one run.
 
     Parameters
     ----------
     frames : sequence of numpy.ndarray
-        Grey float frames (same shape), ideally 5-15 spread along the run.
+        Frames of one size as stored (8- or 16-bit or float, grey or BGR), ideally 5-15
+        spread along the run; each is made grey in [0, 1] by
+        :func:`pipestitch.camera.frames.to_grey` where it enters the working stack, so
+        the list holds no float copies.
     relative : float
         A pixel darker than this fraction of its neighbourhood (Gaussian of 1/40 of
         the image height) in nearly all frames is an occluder edge or body.
@@ -86,9 +90,9 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     """
     if not frames:
         raise ValueError("occluder_mask: no frames")
-    shape = np.shape(frames[0])
-    if any(np.shape(f) != shape for f in frames) or len(shape) != 2:
-        raise ValueError("occluder_mask: expected grey frames of one size")
+    shape = np.shape(frames[0])[:2]
+    if any(np.shape(f)[:2] != shape or np.ndim(f) not in (2, 3) for f in frames):
+        raise ValueError("occluder_mask: expected frames of one size")
     factor = max(1, round(shape[0] / MASK_ROWS))
     work = (shape[0] // factor, shape[1] // factor)
     stack = np.empty((len(frames), *work), np.float32)
@@ -97,9 +101,12 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
 
     def fill(k: int) -> None:   # each frame's rows of the stacks: no copy of the list
         if factor == 1:
-            stack[k] = frames[k]
+            row = stack[k]
+            grey = to_grey(frames[k], out=row)
+            if grey is not row:
+                row[...] = grey
         else:
-            whole = np.asarray(frames[k], np.float32)[:work[0] * factor, :work[1] * factor]
+            whole = to_grey(frames[k])[:work[0] * factor, :work[1] * factor]
             cv2.resize(whole, work[::-1], dst=stack[k], interpolation=cv2.INTER_AREA)
         np.divide(stack[k], np.maximum(_smooth(stack[k], sigma), 1e-6), out=ratios[k])
 

@@ -267,15 +267,16 @@ def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
 
     def read(i: int) -> np.ndarray | None:
         try:
-            return _read_grey(dataset, i, timer)
+            with timer("decode"):
+                return dataset.read_led(i)   # as stored: made grey in the mask's stack
         except DatasetError:
             return None   # reported when the frame itself is processed
 
-    greys = [g for g in ordered_map(read, picks, workers) if g is not None]
-    if not greys:
+    frames = [f for f in ordered_map(read, picks, workers) if f is not None]
+    if not frames:
         raise StageError("no LED frame could be read")
     with timer("occluders"):
-        return occluder_mask(greys, workers=workers)
+        return occluder_mask(frames, workers=workers)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from pipestitch.errors import DatasetError
 from pipestitch.io import ahead
 from pipestitch.io.ahead import DecodeAhead
 from pipestitch.io.images import read_image
+from pipestitch.pipeline import warm_start
 from pipestitch.pipeline.warm_start import decode_ahead
 
 
@@ -107,12 +108,16 @@ def test_files_asked_for_ahead_of_the_thread_are_not_decoded_by_it(tmp_path: Pat
         assert [p for p in paths if p in frames._done] == paths[:4] + paths[5:]
 
 
-def test_a_runs_frames_are_decoded_in_the_pose_pass_order(tmp_path: Path) -> None:
+def test_a_runs_frames_are_decoded_in_the_pose_pass_order(tmp_path: Path,
+                                                          monkeypatch) -> None:
+    made = []   # the run's allocator settings come before the thread allocates anything
+    monkeypatch.setattr(warm_start, "keep_buffers_in_heap", lambda: made.append(True))
     (tmp_path / "frames").mkdir()
     for name in ("laser_00000.png", "led_00000.png", "laser_00001.png", "led_00001.png",
                  "laser_00002.png", "notes.txt"):
         (tmp_path / "frames" / name).write_bytes(b"")
     frames = decode_ahead(tmp_path)
+    assert made and not frames._thread.is_alive()
     assert [p.name for p in frames._paths] == ["laser_00000.png", "led_00000.png",
                                                "laser_00001.png", "led_00001.png",
                                                "laser_00002.png"]

@@ -471,11 +471,22 @@ def test_the_command_line_loads_no_stage_until_a_command_runs() -> None:
 
 
 def test_the_command_gives_blas_one_thread_unless_the_user_chose(monkeypatch) -> None:
-    from pipestitch.cli import BLAS_THREAD_VARIABLES, single_threaded_blas
+    from pipestitch.cli import single_threaded_blas
 
-    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")   # recorded: restored after the test
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")
     monkeypatch.setenv("MKL_NUM_THREADS", "4")
     single_threaded_blas()
-    assert "OPENBLAS_NUM_THREADS" in BLAS_THREAD_VARIABLES
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
     assert os.environ["MKL_NUM_THREADS"] == "4"   # the user's choice kept
+
+
+def test_blas_threads_are_set_before_numpy_loads() -> None:
+    probe = ("import os, sys\n"
+             "import pipestitch.cli as cli\n"
+             "cli.single_threaded_blas()\n"
+             "print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'])\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         env=env, check=True).stdout.split()
+    assert out == ["False", "1"]   # the console script sets them before importing the app

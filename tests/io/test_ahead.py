@@ -123,3 +123,40 @@ def test_a_runs_frames_are_decoded_in_the_pose_pass_order(tmp_path: Path,
                                                "laser_00002.png"]
     assert not isinstance(decode_ahead(tmp_path, video=tmp_path / "run.mp4"), DecodeAhead)
     assert not isinstance(decode_ahead(tmp_path / "missing"), DecodeAhead)
+
+
+def test_what_read_image_would_refuse_unread_is_not_decoded_ahead(tmp_path: Path) -> None:
+    paths = _frames(tmp_path, 2)
+    big = tmp_path / "img_02.png"   # small file, 16-bit 3000 x 3000: 54 MB decoded
+    cv2.imwrite(str(big), np.zeros((3000, 3000, 3), np.uint16))
+    other = tmp_path / "img_03.png"   # another size than the run's first frame
+    cv2.imwrite(str(other), np.zeros((10, 10), np.uint8))
+    fifo = tmp_path / "img_04.png"
+    os.mkfifo(fifo)   # never opened: a reader would block on it
+    with DecodeAhead([paths[0], other, fifo, *paths[1:], big],
+                     budget_bytes=2**20) as frames:
+        frames._thread.join(10)
+        assert not frames.running
+        assert sorted(frames._done) == sorted(paths)   # the big one would pass the budget
+
+
+def test_a_block_that_raises_ends_the_thread_and_releases_the_frames(tmp_path: Path) -> None:
+    paths = _frames(tmp_path, 30)
+    with pytest.raises(RuntimeError), DecodeAhead(paths, budget_bytes=10**9) as frames:
+        raise RuntimeError("the run failed")
+    assert not frames.running and frames.decoded == 0
+    assert ahead.take(paths[0]) is None
+
+
+def test_frames_passed_over_are_dropped_once_the_thread_has_ended(tmp_path: Path) -> None:
+    paths = _frames(tmp_path, 40)
+    with DecodeAhead(paths, budget_bytes=10**9) as frames:
+        frames._thread.join(10)
+        assert frames.decoded == 40   # all decoded: the thread ended by itself
+        frames.take(paths[0])
+        assert frames.decoded == 39   # nothing behind the furthest file taken
+        frames.take(paths[30])
+        assert frames.decoded == 38 - (30 - ahead.KEPT_BEHIND - 1)
+        assert frames.take(paths[30 - ahead.KEPT_BEHIND - 1]) is None   # dropped
+        np.testing.assert_array_equal(frames.take(paths[31])[1],
+                                      cv2.imread(str(paths[31]), cv2.IMREAD_UNCHANGED))

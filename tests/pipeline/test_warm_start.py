@@ -25,6 +25,7 @@ def test_a_run_with_frames_decoded_ahead_writes_the_same_outputs(tmp_path: Path,
     monkeypatch.setattr(ahead.DecodeAhead, "take", counted)
     with decode_ahead(ds) as frames:
         frames._thread.join(30)   # every frame decoded before the run reads one
+        assert not frames.running
         run_dataset(ds, tmp_path / "ahead", show_progress=False)
     assert sum(taken) == 12   # each of the 6 pairs' two frames taken once
     for name in ("poses.csv", "profile.csv", "defects.csv", "mosaic.png"):

@@ -285,17 +285,19 @@ def run(
     from pipestitch.pipeline.warm_start import decode_ahead
 
     with decode_ahead(dataset, video=video):   # while the stages load
-        summary = _run(dataset, out, mm_per_px, unwrap, workers, tolerance_pct, video,
-                       crown_deg, fine_registration, quiet)
+        summary = _run(dataset, out, mm_per_px=mm_per_px, unwrap=unwrap, workers=workers,
+                       tolerance_pct=tolerance_pct, video=video, crown_deg=crown_deg,
+                       fine_registration=fine_registration, quiet=quiet)
     _print_run(summary)
     if summary.mosaic_failed:
         console.print(f"[bold red]error:[/] {escape(summary.no_mosaic)}")
         raise typer.Exit(1)
 
 
-def _run(dataset: Path, out: Path, mm_per_px: float | None, unwrap: str, workers: int,
+def _run(dataset: Path, out: Path, *, mm_per_px: float | None, unwrap: str, workers: int,
          tolerance_pct: float, video: Path | None, crown_deg: float | None,
          fine_registration: bool, quiet: bool) -> RunSummary:
+    """`run`'s options checked, then the run (the stages are imported here)."""
     from pipestitch.pipeline.check import check_finite, check_workers
     from pipestitch.pipeline.run import run_dataset
     from pipestitch.pipeline.staging import check_out_folder

@@ -19,6 +19,7 @@ decoded ahead outlives its use.
 from __future__ import annotations
 
 import os
+import stat
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -38,12 +39,34 @@ CAUGHT_UP_TIMES = 2
 KEPT_BEHIND = 16
 
 
-def _stamp(path: Path) -> tuple[int, int] | None:
+# Decoded bytes a pixel may take when a file's header does not say (a PNG's does): JPEG
+# up to four 16-bit components, anything else (TIFF) up to four 32-bit ones.
+BYTES_PER_PIXEL_BOUND = {"jpeg": 8, "other": 16}
+
+Stamp = tuple[int, int, int, int, int]
+
+
+def _stamp(path: Path) -> Stamp | None:
+    """What identifies a regular file's content here (device, inode, size, modification
+    and change times); None for anything else (a FIFO or a device is never read ahead)."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return st.st_size, st.st_mtime_ns
+    if not stat.S_ISREG(st.st_mode):
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
+
+
+def decoded_bytes_bound(head: bytes, declared: tuple[int, int]) -> int:
+    """Most bytes ``cv2.imdecode(..., IMREAD_UNCHANGED)`` makes of a file with header
+    ``head`` (its first bytes) declaring ``declared`` (width, height): exact for a PNG
+    (bit depth and colour type), a bound from ``BYTES_PER_PIXEL_BOUND`` otherwise."""
+    pixels = declared[0] * declared[1]
+    if head.startswith(b"\x89PNG") and len(head) >= 26:
+        channels = {0: 1, 2: 3, 3: 3, 4: 4, 6: 4}.get(head[25], 4)
+        return pixels * channels * (2 if head[24] == 16 else 1)
+    return pixels * BYTES_PER_PIXEL_BOUND["jpeg" if head[:2] == b"\xff\xd8" else "other"]
 
 
 class DecodeAhead:
@@ -55,17 +78,19 @@ class DecodeAhead:
     paths : sequence of pathlib.Path
         The files, in the order the reader will ask for them.
     budget_bytes : int
-        Most bytes of decoded pixels to produce.
+        Most bytes of decoded pixels to produce (a file that would pass it, judged from
+        its header before decoding, ends the work).
     """
 
     def __init__(self, paths: Sequence[Path], budget_bytes: int) -> None:
         self._paths = [Path(p) for p in paths]
         self._position = {p: k for k, p in enumerate(self._paths)}
         self._budget = budget_bytes
-        self._done: dict[Path, tuple[tuple[int, int], tuple[int, int], np.ndarray]] = {}
+        self._done: dict[Path, tuple[Stamp, tuple[int, int], np.ndarray]] = {}
         self._reached = 0           # files before this one were decoded or passed over
         self._skip: set[int] = set()   # asked for before the thread reached them
         self._caught_up = 0
+        self._taken = -1            # the furthest file taken
         self._stopped = threading.Event()
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._decode_all, name="decode-ahead",
@@ -75,7 +100,11 @@ class DecodeAhead:
         global _active
         with _registry_lock:
             _active = self
-        self._thread.start()
+        try:
+            self._thread.start()
+        except BaseException:   # e.g. Ctrl-C while the thread starts
+            self.stop()
+            raise
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
@@ -83,16 +112,26 @@ class DecodeAhead:
         self.stop()
 
     def stop(self) -> None:
-        """Stop decoding, wait for the thread, release what was not taken."""
+        """Stop decoding, wait for the thread (at most the file it is decoding; a Ctrl-C
+        meanwhile is raised once it has ended), release what was not taken."""
         global _active
         self._stopped.set()
-        if self._thread.is_alive():
-            self._thread.join()
-        with _registry_lock:
-            if _active is self:
-                _active = None
-        with self._lock:
-            self._done.clear()
+        interrupted: BaseException | None = None
+        try:
+            while self._thread.ident is not None:   # started (is_alive() can be wrong
+                try:                                # after an interrupted join)
+                    self._thread.join()
+                    break
+                except KeyboardInterrupt as exc:
+                    interrupted = exc
+        finally:
+            with _registry_lock:
+                if _active is self:
+                    _active = None
+            with self._lock:
+                self._done.clear()
+        if interrupted is not None:
+            raise interrupted
 
     @property
     def decoded(self) -> int:
@@ -100,51 +139,90 @@ class DecodeAhead:
         with self._lock:
             return len(self._done)
 
+    @property
+    def running(self) -> bool:
+        """Whether the thread still decodes."""
+        return self._thread.is_alive()
+
     def take(self, path: Path) -> tuple[tuple[int, int], np.ndarray] | None:
-        """(declared width and height, pixels) of ``path`` if it was decoded ahead and is
-        unchanged since; None otherwise (the caller reads the file itself)."""
+        """A file's pixels if they were decoded ahead.
+
+        Parameters
+        ----------
+        path : pathlib.Path
+            The file, as it was listed.
+
+        Returns
+        -------
+        tuple or None
+            (declared (width, height), pixels) when ``path`` was decoded ahead and is
+            unchanged since (each file is given out once); None otherwise: the caller
+            reads the file itself.
+        """
         k = self._position.get(path)
         if k is None:
             return None
         with self._lock:
             got = self._done.pop(path, None)
-            if got is None and k >= self._reached:
+            if got is not None:
+                self._taken = max(self._taken, k)
+            elif k >= self._reached:
                 self._skip.add(k)   # the reader decodes this one itself
                 if k < self._reached + CAUGHT_UP_FILES:
                     self._caught_up += 1
                     if self._caught_up >= CAUGHT_UP_TIMES:
                         self._stopped.set()
-            if self._stopped.is_set():   # nothing comes after: drop what was passed over
-                for old in [p for p in self._done if self._position[p] < k - KEPT_BEHIND]:
-                    del self._done[old]
+            self._drop_passed()
         if got is None:
             return None
         stamp, declared, pixels = got
         return (declared, pixels) if _stamp(path) == stamp else None
 
+    def _drop_passed(self) -> None:
+        """Once nothing more comes, drop what lies well behind the furthest file taken
+        (under the lock)."""
+        if self._stopped.is_set():
+            for old in [p for p in self._done if self._position[p] < self._taken - KEPT_BEHIND]:
+                del self._done[old]
+
     def _decode_all(self) -> None:
+        try:
+            self._decode_in_order()
+        finally:
+            self._stopped.set()
+            with self._lock:
+                self._drop_passed()
+
+    def _decode_in_order(self) -> None:
         from pipestitch.io.images import MAX_PIXELS, image_header
 
-        spent = 0
+        spent, size = 0, None
         for k, path in enumerate(self._paths):
-            if self._stopped.is_set() or spent >= self._budget:
+            if self._stopped.is_set():
                 return
             with self._lock:
                 if k in self._skip:
                     self._reached = k + 1
                     continue
             try:
-                stamp = _stamp(path)
-                data = np.fromfile(path, dtype=np.uint8)
+                pixels, stamp, declared = None, _stamp(path), None
+                data = np.fromfile(path, np.uint8) if stamp is not None else np.empty(0)
                 declared = image_header(data)
-                # only what read_image would decode: a known header within its limit
-                ok = declared is not None and declared[0] * declared[1] <= MAX_PIXELS
-                pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if ok else None
-            except (OSError, ValueError, cv2.error):
-                pixels = None   # read_image meets the problem and reports it
+                # only what read_image would decode: a known header within its limit,
+                # of the run's frame size
+                ok = (declared is not None and declared[0] * declared[1] <= MAX_PIXELS
+                      and declared == (size or declared))
+                if ok:
+                    size = declared
+                    if spent + decoded_bytes_bound(data[:33].tobytes(), declared) > self._budget:
+                        return
+                    pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+            except Exception:   # read_image meets the problem and reports it
+                pixels = None
             with self._lock:
                 self._reached = k + 1
-                if pixels is not None and stamp is not None and not self._stopped.is_set():
+                if (pixels is not None and not self._stopped.is_set()
+                        and k not in self._skip):
                     self._done[path] = (stamp, declared, pixels)
                     spent += pixels.nbytes
 
@@ -154,7 +232,17 @@ _active: DecodeAhead | None = None
 
 
 def take(path: Path) -> tuple[tuple[int, int], np.ndarray] | None:
-    """``path``'s pixels from the list being decoded ahead (see :meth:`DecodeAhead.take`);
-    None when nothing is decoded ahead or not this file."""
+    """A file's pixels from the list being decoded ahead.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file.
+
+    Returns
+    -------
+    tuple or None
+        See :meth:`DecodeAhead.take`; None also when nothing is being decoded ahead.
+    """
     ahead = _active
     return ahead.take(path) if ahead is not None else None

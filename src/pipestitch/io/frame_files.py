@@ -16,10 +16,19 @@ _FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
 
 
 def frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:
-    """({"laser": {index: path}, "led": {...}}, the other files) of ``frames_dir``.
+    """The laser and LED frame files of a frames/ folder, and its other files.
 
-    Of two files with one frame's name (``laser_00000.png`` and ``.tif``), the last in
-    name order is the frame.
+    Parameters
+    ----------
+    frames_dir : pathlib.Path
+        The folder (raises OSError when it cannot be listed).
+
+    Returns
+    -------
+    tuple
+        ({"laser": {index: path}, "led": {index: path}}, [other paths]). Of two files
+        with one frame's name (``laser_00000.png`` and ``.tif``), the last in name order
+        is the frame.
     """
     found: dict[str, dict[int, Path]] = {"laser": {}, "led": {}}
     other = []

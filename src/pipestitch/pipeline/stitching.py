@@ -268,7 +268,10 @@ def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
     def read(i: int) -> np.ndarray | None:
         try:
             with timer("decode"):
-                return dataset.read_led(i)   # as stored: made grey in the mask's stack
+                led = dataset.read_led(i)
+                # grey frames as stored (<= 2 bytes a pixel), made float in the mask's
+                # stack; colour ones grey now (16-bit BGRA would hold 8 bytes a pixel)
+                return led if led.ndim == 2 else to_grey(led)
         except DatasetError:
             return None   # reported when the frame itself is processed
 

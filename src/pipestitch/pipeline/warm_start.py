@@ -28,13 +28,25 @@ DECODE_AHEAD_BYTES = 48 * 2**20
 
 
 def decode_ahead(dataset: str | Path, *, video: Path | None = None
-                 ) -> AbstractContextManager[object]:
+                 ) -> AbstractContextManager[DecodeAhead | None]:
     """Decode ``dataset``'s first frames on a thread for the ``with`` block's pose pass.
 
     Makes the run's allocator settings
-    (:func:`pipestitch._runtime.memory.keep_buffers_in_heap`) first. Nothing is started
-    for a video (``video``) or a dataset without a readable frames/
-    folder: the run then meets and reports what is wrong, as it would without this.
+    (:func:`pipestitch._runtime.memory.keep_buffers_in_heap`) first.
+
+    Parameters
+    ----------
+    dataset : str or pathlib.Path
+        The dataset folder (SPEC layout).
+    video : pathlib.Path, optional
+        The run's video, when its frames come from one: nothing is decoded ahead.
+
+    Returns
+    -------
+    contextlib.AbstractContextManager
+        The :class:`pipestitch.io.ahead.DecodeAhead` to enter; a context doing nothing
+        (entered as None) for a video or a dataset without a readable frames/ folder:
+        the run then meets and reports what is wrong, as it would without this.
     """
     frames_dir = Path(dataset) / "frames"
     if video is not None:

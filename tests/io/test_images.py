@@ -13,7 +13,7 @@ import pytest
 import tifffile
 
 from pipestitch.errors import DatasetError
-from pipestitch.io.images import MAX_PIXELS, image_header, read_image
+from pipestitch.io.images import MAX_PIXELS, decoded_bytes_bound, image_header, read_image
 
 
 def bomb_png(path: Path, width: int, height: int, bit_depth: int = 8, colour: int = 0) -> Path:
@@ -100,3 +100,13 @@ def test_a_jpeg_declaring_a_huge_size_is_refused_from_its_header(tmp_path: Path)
         read_image(tmp_path / "bomb.jpg", size=(16, 16))
     with pytest.raises(DatasetError, match="more than"):
         read_image(tmp_path / "bomb.jpg")
+
+
+@pytest.mark.parametrize("shape, dtype", [((20, 30), np.uint8), ((20, 30), np.uint16),
+                                          ((20, 30, 3), np.uint8), ((20, 30, 4), np.uint16)])
+def test_decoded_bytes_of_a_png_from_its_header(tmp_path: Path, shape, dtype) -> None:
+    path = tmp_path / "f.png"
+    cv2.imwrite(str(path), np.ones(shape, dtype))
+    data = np.fromfile(path, np.uint8)
+    decoded = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    assert decoded_bytes_bound(data, image_header(data)) == decoded.nbytes

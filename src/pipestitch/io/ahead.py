@@ -7,13 +7,14 @@ a file's pixels from here (:func:`take`) instead of decoding it again, after the
 checks it makes on a file it decodes itself, so what it returns, and every error it
 raises, is the same either way. Only one list is decoded ahead at a time.
 
-A file is taken only when its size and modification time are still those it had when it
-was decoded. The thread stops at the end of the list, at ``budget_bytes`` of decoded
-pixels, when the reader has asked twice for the file it is decoding or one of the next few
-(the reader has caught up: from there on decoding ahead would only duplicate its work), or
-at :meth:`stop`; it never decodes a file the reader has already asked for. Once it has
-stopped, files well behind the reader are dropped, and all at :meth:`stop`, so nothing
-decoded ahead outlives its use.
+A file is taken only when it is still the regular file it was when it was decoded
+(device, inode, size, modification and change times). The thread stops at the end of
+the list, at ``budget_bytes`` of decoded pixels (judged from each file's header before
+it is decoded), when the reader has asked twice for the file it is decoding or one of
+the next few (the reader has caught up: from there on decoding ahead would only
+duplicate its work), or at :meth:`stop`; it never keeps a file the reader has already
+asked for. Once it has stopped, files well behind the furthest one taken are dropped,
+and all at :meth:`stop`, so nothing decoded ahead outlives its use.
 """
 
 from __future__ import annotations
@@ -32,16 +33,12 @@ __all__ = ["DecodeAhead", "take"]
 
 # The reader has caught up when it has asked this many times for a file this close ahead
 # of the thread (once could be a reader on another thread sampling the run); once the
-# thread has stopped, files this far behind a request are dropped (readers on a few
-# threads ask slightly out of order).
+# thread has stopped, files this far behind the furthest one taken are dropped (readers
+# on a few threads ask slightly out of order).
 CAUGHT_UP_FILES = 4
 CAUGHT_UP_TIMES = 2
 KEPT_BEHIND = 16
 
-
-# Decoded bytes a pixel may take when a file's header does not say (a PNG's does): JPEG
-# up to four 16-bit components, anything else (TIFF) up to four 32-bit ones.
-BYTES_PER_PIXEL_BOUND = {"jpeg": 8, "other": 16}
 
 Stamp = tuple[int, int, int, int, int]
 
@@ -56,17 +53,6 @@ def _stamp(path: Path) -> Stamp | None:
     if not stat.S_ISREG(st.st_mode):
         return None
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
-
-
-def decoded_bytes_bound(head: bytes, declared: tuple[int, int]) -> int:
-    """Most bytes ``cv2.imdecode(..., IMREAD_UNCHANGED)`` makes of a file with header
-    ``head`` (its first bytes) declaring ``declared`` (width, height): exact for a PNG
-    (bit depth and colour type), a bound from ``BYTES_PER_PIXEL_BOUND`` otherwise."""
-    pixels = declared[0] * declared[1]
-    if head.startswith(b"\x89PNG") and len(head) >= 26:
-        channels = {0: 1, 2: 3, 3: 3, 4: 4, 6: 4}.get(head[25], 4)
-        return pixels * channels * (2 if head[24] == 16 else 1)
-    return pixels * BYTES_PER_PIXEL_BOUND["jpeg" if head[:2] == b"\xff\xd8" else "other"]
 
 
 class DecodeAhead:
@@ -194,7 +180,7 @@ class DecodeAhead:
                 self._drop_passed()
 
     def _decode_in_order(self) -> None:
-        from pipestitch.io.images import MAX_PIXELS, image_header
+        from pipestitch.io.images import MAX_PIXELS, decoded_bytes_bound, image_header
 
         spent, size = 0, None
         for k, path in enumerate(self._paths):
@@ -204,8 +190,8 @@ class DecodeAhead:
                 if k in self._skip:
                     self._reached = k + 1
                     continue
+            pixels, stamp = None, _stamp(path)
             try:
-                pixels, stamp, declared = None, _stamp(path), None
                 data = np.fromfile(path, np.uint8) if stamp is not None else np.empty(0)
                 declared = image_header(data)
                 # only what read_image would decode: a known header within its limit,
@@ -214,7 +200,7 @@ class DecodeAhead:
                       and declared == (size or declared))
                 if ok:
                     size = declared
-                    if spent + decoded_bytes_bound(data[:33].tobytes(), declared) > self._budget:
+                    if spent + decoded_bytes_bound(data, declared) > self._budget:
                         return
                     pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
             except Exception:   # read_image meets the problem and reports it

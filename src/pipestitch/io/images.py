@@ -21,12 +21,18 @@ from pipestitch.errors import DatasetError
 from pipestitch.io import ahead
 from pipestitch.io.atomic import atomic_write_bytes
 
-__all__ = ["MAX_PIXELS", "image_header", "read_image", "write_image"]
+__all__ = ["MAX_PIXELS", "decoded_bytes_bound", "image_header", "read_image", "write_image"]
 
 MAX_PIXELS = 2**27   # 134 Mpx: 10x a 12 MP sensor; larger frames are refused unread
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}   # frame headers, not tables
 _PNG = b"\x89PNG\r\n\x1a\n"
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}   # IHDR colour type -> channels
+# IHDR colour type -> channels of OpenCV's IMREAD_UNCHANGED decoding (palette as BGR,
+# grey with alpha as BGRA)
+_PNG_DECODED_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 4, 6: 4}
+# Decoded bytes a pixel may take where the header does not say: a JPEG up to four 16-bit
+# components, anything else (TIFF) up to four 32-bit ones.
+_JPEG_BYTES_BOUND, _OTHER_BYTES_BOUND = 8, 16
 
 
 def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
@@ -65,6 +71,18 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
                     int.from_bytes(data[pos + 5:pos + 7], "big"))
         pos += 2 + length
     return None
+
+
+def decoded_bytes_bound(data: bytes | np.ndarray, declared: tuple[int, int]) -> int:
+    """Most bytes ``cv2.imdecode(data, IMREAD_UNCHANGED)`` makes of a file that declares
+    ``declared`` (width, height, :func:`image_header`): exact for a PNG (its bit depth and
+    colour type), a bound for other formats."""
+    head = bytes(data[:26]) if isinstance(data, bytes) else data[:26].tobytes()
+    pixels = declared[0] * declared[1]
+    if head.startswith(_PNG) and len(head) >= 26:
+        return (pixels * _PNG_DECODED_CHANNELS.get(head[25], 4)
+                * (2 if head[24] == 16 else 1))
+    return pixels * (_JPEG_BYTES_BOUND if head[:2] == b"\xff\xd8" else _OTHER_BYTES_BOUND)
 
 
 def read_image(path: str | Path, *, size: tuple[int, int] | None = None) -> np.ndarray:

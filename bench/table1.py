@@ -16,7 +16,9 @@ the *same* extracted ring points:
   ring, closed form + robust least squares with the frame's own scales, both
   hypotheses; probe.toml declares no body, as in the protocol), chosen over the poses
   as the command chooses (``resolve_frames``). The per-pose time is that of the fit
-  (``fit_pose``) on the same ring candidates the baseline gets. Its
+  (``fit_pose``) on the same ring candidates the baseline gets, in the state the command
+  fits in: the frames are written as PNG files first, and each is decoded
+  (``io.dataset.read_frame``) and its ring extracted right before its fit. Its
   compiled kernels are built (or loaded from numba's cache) by one warm-up call before
   the loop, timed and printed on its own, not in the per-pose times. The per-pose time
   also shows how much of it is the camera's pixel -> plane unprojection.
@@ -46,6 +48,8 @@ from scipy.optimize import differential_evolution
 
 from pipestitch.api import read_table
 from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, laser_ring
+from pipestitch.io.dataset import read_frame
+from pipestitch.io.images import write_image
 from pipestitch.pipeline.posing import PoseSettings, fit_frame, resolve_frames, ring_search_band
 from pipestitch.pose.fit import ConicModel, fit_pose, plane_points, pose_from_conic
 from pipestitch.pose.ring import detect_ring
@@ -131,7 +135,16 @@ def evaluate(name: str, n: int, n_base: int, size: str, noise_free: bool) -> dic
         scenario = replace(scenario, optics=Optics(full_well_e=1e12, read_noise=0.0,
                                                    speckle=0.0))
     run = build_run(scenario, seed=1, size=size, n_pairs=n)
-    cam, radius = run.camera, scenario.pipe_diameter_mm / 2
+    with tempfile.TemporaryDirectory() as tmp:
+        # the frames as a dataset holds them: PNG files, each decoded right before its
+        # ring is extracted, as `pipestitch pose` does (io.dataset.read_frame)
+        paths = [write_image(Path(tmp) / f"laser_{i:05d}.png", run.render_laser(i))
+                 for i in range(len(run.poses))]
+        return _evaluate_frames(run, paths, n_base)
+
+
+def _evaluate_frames(run, paths: list[Path], n_base: int) -> dict:
+    cam, radius = run.camera, run.scenario.pipe_diameter_mm / 2
     # the protocol's point probe: probe.toml declares no body (as the scenario writes it)
     settings = PoseSettings(cam, D, radius, None, ring_band_px=ring_search_band(cam, D, radius,
                                                                                 None))
@@ -140,7 +153,7 @@ def evaluate(name: str, n: int, n_base: int, size: str, noise_free: bool) -> dic
     out = {k: [] for k in ("ours", "ours_alt", "base", "truth", "mirror", "t_ours", "t_ring",
                            "t_base", "t_unproject", "feasible_mirror", "cpu_ours", "cpu_base")}
     for i, pose in enumerate(run.poses):
-        laser = run.render_laser(i)
+        laser = read_frame(paths[i], (cam.width, cam.height))
         t0 = time.perf_counter()
         det = detect_ring(laser, cam, band_px=band)
         t1, c1 = time.perf_counter(), time.process_time()

@@ -9,6 +9,8 @@ ahead), scored against the poses they were rendered at.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -60,6 +62,33 @@ def test_plane_scale_is_the_geometry_s() -> None:
     # the prior noise: NOISE_PER_LINE_SIGMA of the 1 px line, through that scale
     assert frame_noise_mm(det, WIDE, LaserPlane.of(d, None)) == pytest.approx(
         0.12 * expected, rel=0.01)
+
+
+class _Unprojecting:
+    """A camera known only by its ``unproject``: no compiled ray kernel."""
+
+    def __init__(self, camera) -> None:
+        self.camera = camera
+
+    def unproject(self, pixels: np.ndarray) -> np.ndarray:
+        return self.camera.unproject(pixels)
+
+
+def test_plane_scale_is_the_same_through_any_unprojection() -> None:
+    """The compiled path (the camera's ray kernel) and the ``unproject`` path measure the
+    same steps: equal to the last bit, on a ring seen through the simulator's lens."""
+    cam = default_camera("half")
+    pose = Pose(np.deg2rad(4.0), np.deg2rad(1.5), 3.0, -2.0)
+    det = detect_ring(_render(cam, 65.0, 16.0, 0.22, pose), cam)
+    plane = LaserPlane.of(16.0, None)
+    compiled = ring_scale_mm_per_px(det, cam, plane)
+    assert np.isfinite(compiled)
+    assert ring_scale_mm_per_px(det, _Unprojecting(cam), plane) == compiled
+    # fewer than three rays with a strongest candidate: no tangent, no scale
+    few = dataclasses.replace(det, pixels=det.pixels[:2], azimuth=det.azimuth[:2],
+                              rank=np.zeros(2, int), snr=det.snr[:2])
+    assert np.isnan(ring_scale_mm_per_px(few, cam, plane))
+    assert np.isnan(ring_scale_mm_per_px(few, _Unprojecting(cam), plane))
 
 
 def _render(camera, diameter_mm: float, plane_mm: float, line_mm: float,

@@ -653,6 +653,74 @@ def step_query(pixels: np.ndarray, stride: int) -> np.ndarray:
     return out
 
 
+# --- the pixel -> plane scale at the ring ------------------------------------------------
+
+RING_SCALE_POINTS = 24   # the scale is the median over this many of the ring's points
+
+
+@numba.njit(cache=True, error_model="numpy")
+def across_query(candidates: Candidates, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the ring's pixel -> plane scale is measured: (2M, 2) pixels and (M,) mask.
+
+    Up to ``n_points`` of the rays' strongest candidates (rank 0, in azimuth order;
+    every ``max(1, n // n_points)``-th), then each moved one pixel along the ring's
+    normal in the image (the tangent from its neighbouring strongest candidates). The
+    mask is False where the tangent has no length (no normal: the step is not taken).
+    Empty when fewer than three rays have a strongest candidate.
+    """
+    rank = candidates.rank
+    best = np.flatnonzero(rank == 0)
+    n = best.size
+    if n < 3:
+        return np.empty((0, 2)), np.empty(0, np.bool_)
+    pixels = candidates.pixels
+    every = max(1, n // n_points)
+    m = (n + every - 1) // every
+    out = np.empty((2 * m, 2))
+    valid = np.empty(m, np.bool_)
+    for i in range(m):
+        k = i * every
+        at, ahead, behind = best[k], best[(k + 1) % n], best[k - 1 if k > 0 else n - 1]
+        t_col = pixels[ahead, 0] - pixels[behind, 0]
+        t_row = pixels[ahead, 1] - pixels[behind, 1]
+        length = np.hypot(t_col, t_row)
+        valid[i] = length > 0
+        n_col, n_row = (t_row / length, -t_col / length) if valid[i] else (0.0, 0.0)
+        out[i, 0], out[i, 1] = pixels[at, 0], pixels[at, 1]
+        out[m + i, 0], out[m + i, 1] = pixels[at, 0] + n_col, pixels[at, 1] + n_row
+    return out, valid
+
+
+@numba.njit(cache=True, error_model="numpy")
+def median_step(rays: np.ndarray, valid: np.ndarray, plane: Plane) -> float:
+    """Median plane distance between the rays of :func:`across_query`'s pixels and of
+    their moved copies (mm), over the valid, finite steps; NaN when there is none."""
+    m = valid.size
+    uv, _ = rays_to_plane(rays, plane)
+    steps = np.empty(m)
+    count = 0
+    for i in range(m):
+        step = np.hypot(uv[m + i, 0] - uv[i, 0], uv[m + i, 1] - uv[i, 1])
+        if valid[i] and np.isfinite(step):
+            steps[count] = step
+            count += 1
+    if count == 0:
+        return np.nan
+    steps = np.sort(steps[:count])
+    mid = count // 2
+    return steps[mid] if count % 2 else 0.5 * (steps[mid - 1] + steps[mid])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def ring_scale(candidates: Candidates, camera: RayKernel, plane: Plane, n_points: int) -> float:
+    """:func:`across_query`, the camera's rays and :func:`median_step` in one entry
+    (cameras with a compiled unprojection)."""
+    query, valid = across_query(candidates, n_points)
+    if valid.size == 0:
+        return np.nan
+    return median_step(rays_of(camera, query), valid, plane)
+
+
 # --- pose <-> conic -------------------------------------------------------------------
 
 @numba.njit(cache=True, error_model="numpy")

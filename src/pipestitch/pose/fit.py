@@ -66,6 +66,8 @@ RESCALE_RMS = 2.0        # inliers' rms above this many sigmas: the noise was un
 RESCALE_ROUNDS = 3
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 KEPT_POINTS = 720     # a frame's ring inliers kept for later fits (RingPoints), at most
+FALLBACK_NOISE_MM = 0.05   # the point noise of a frame whose ring gives no scale
+_NO_SAMPLES = np.empty((0, 5))   # RANSAC's samples before a fit asks for them: none
 
 
 @dataclass(frozen=True, slots=True)
@@ -338,12 +340,14 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
     radius = np.nan if fit_radius else float(nominal_radius_mm)
+    candidates = _candidates(detection)
     try:
         if noise_mm is not None:
             noise = float(noise_mm)
-            out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+            out = _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
         else:
-            noise, out = _fit_scaled(detection, camera, plane, seed, min_coverage, radius)
+            noise, out = _fit_scaled(candidates, detection.line_sigma_px, camera, plane, seed,
+                                     min_coverage, radius)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=detection.coverage)
@@ -364,7 +368,7 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
 
 
 def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
-                         plane: LaserPlane, *, n_points: int = 24) -> float:
+                         plane: LaserPlane, *, n_points: int = _k.RING_SCALE_POINTS) -> float:
     """How far a one-pixel step across the ring moves on the laser plane (mm), median
     over up to ``n_points`` of the rays' strongest candidates.
 
@@ -372,39 +376,51 @@ def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
     neighbouring candidates, in azimuth order): the direction in which the detector
     localises the line. NaN when no candidate meets the plane.
     """
-    best = np.flatnonzero(detection.rank == 0)   # in azimuth order (detect_ring's)
-    n = best.size
-    if n < 3:
+    return _ring_scale(_candidates(detection), camera, plane, n_points)
+
+
+def _ring_scale(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlane,
+                n_points: int = _k.RING_SCALE_POINTS) -> float:
+    """:func:`ring_scale_mm_per_px` of the kernels' candidates: one compiled call for a
+    camera with a compiled unprojection (right after a ring extraction, the same steps
+    as numpy expressions cost ~0.1 ms of cold calls a frame, measured), else the
+    camera's ``unproject`` between two."""
+    on_plane = _kernel_plane(plane)
+    kernel = getattr(camera, "ray_kernel", None)
+    if kernel is not None:
+        return _k.ring_scale(candidates, kernel, on_plane, n_points)
+    query, valid = _k.across_query(candidates, n_points)
+    if valid.size == 0:
         return math.nan
-    k = np.arange(0, n, max(1, n // n_points))
-    pixels = detection.pixels
-    at = pixels[best[k]]
-    tangent = pixels[best[(k + 1) % n]] - pixels[best[k - 1]]
-    length = np.hypot(tangent[:, 0], tangent[:, 1])[:, None]
-    normal = np.divide(tangent[:, ::-1] * (1.0, -1.0), length, out=np.zeros_like(tangent),
-                       where=length > 0)
-    uv = _plane_coords(_as_points(np.concatenate([at, at + normal])), camera, plane)[0]
-    step = np.hypot(*(uv[len(at):] - uv[:len(at)]).T)[length[:, 0] > 0].tolist()
-    step = sorted(s for s in step if math.isfinite(s))   # a few dozen: sorted() is cheapest
-    if not step:
-        return math.nan
-    mid = len(step) // 2
-    return step[mid] if len(step) % 2 else 0.5 * (step[mid - 1] + step[mid])
+    return _k.median_step(_as_points(camera.unproject(query)), valid, on_plane)
+
+
+def _candidates(detection: RingDetection) -> _k.Candidates:
+    """A detection's ring candidates as the kernels take them."""
+    return _k.Candidates(_as_points(detection.pixels), _as_index(detection.azimuth),
+                         _as_index(detection.rank), int(detection.n_azimuths))
 
 
 def frame_noise_mm(detection: RingDetection, camera: CameraModel, plane: LaserPlane) -> float:
     """A frame's prior ring-point noise on the laser plane (mm): ``NOISE_PER_LINE_SIGMA``
     of the measured line width, through :func:`ring_scale_mm_per_px`."""
-    scale = ring_scale_mm_per_px(detection, camera, plane)
-    sigma_px = detection.line_sigma_px
+    return _frame_noise(_candidates(detection), detection.line_sigma_px, camera, plane)
+
+
+def _frame_noise(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
+                 plane: LaserPlane) -> float:
+    """:func:`frame_noise_mm` of the kernels' candidates and the line's sigma (px)."""
+    scale = _ring_scale(candidates, camera, plane)
     if not (math.isfinite(scale) and math.isfinite(sigma_px)):
         return math.nan
     return NOISE_PER_LINE_SIGMA * sigma_px * scale
 
 
-def _fit_scaled(detection: RingDetection, camera: CameraModel, plane: LaserPlane, seed: int,
-                min_coverage: float, radius: float) -> tuple[float, KernelFit]:
-    """(noise, the fit) with the noise taken from the frame.
+def _fit_scaled(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
+                plane: LaserPlane, seed: int, min_coverage: float,
+                radius: float) -> tuple[float, KernelFit]:
+    """(noise, the fit) with the noise taken from the frame (its candidates and the
+    line's measured sigma, px).
 
     Starts from :func:`frame_noise_mm`; a fit with too few inliers is tried once more
     with a three times wider gate, and while the inliers' rms exceeds
@@ -412,24 +428,35 @@ def _fit_scaled(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     than its line width says) the fit is repeated with the noise set from that rms
     (1.3 x: the gate truncates the scatter).
     """
-    noise = frame_noise_mm(detection, camera, plane)
-    if not math.isfinite(noise):   # no candidate meets the plane: nothing to fit
-        noise = 0.05
-        return noise, _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
-    out = _fit_kernel(detection, camera, plane, noise, seed, min_coverage, radius)
+    noise, from_frame, out = _fit_at_frame_noise(candidates, sigma_px, camera, plane, seed,
+                                                 min_coverage, radius)
+    if not from_frame:   # no candidate meets the plane: nothing to fit
+        return noise, out
     if out.status in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
-        wider = _fit_kernel(detection, camera, plane, 3.0 * noise, seed, min_coverage, radius)
+        wider = _fit_kernel(candidates, camera, plane, 3.0 * noise, seed, min_coverage, radius)
         if wider.status == _k.FOUND:
             noise, out = 3.0 * noise, wider
     for _ in range(RESCALE_ROUNDS):
         if out.status != _k.FOUND or out.rms_mm <= RESCALE_RMS * noise:
             break
         scale = 1.3 * out.rms_mm
-        wider = _fit_kernel(detection, camera, plane, scale, seed, min_coverage, radius)
+        wider = _fit_kernel(candidates, camera, plane, scale, seed, min_coverage, radius)
         if wider.status != _k.FOUND:
             break
         noise, out = scale, wider
     return noise, out
+
+
+def _fit_at_frame_noise(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
+                        plane: LaserPlane, seed: int, min_coverage: float,
+                        radius: float) -> tuple[float, bool, KernelFit]:
+    """(noise, whether it came from the frame, the fit at it): the noise is
+    :func:`frame_noise_mm`'s, or ``FALLBACK_NOISE_MM`` where the frame gives none."""
+    noise = _frame_noise(candidates, sigma_px, camera, plane)
+    from_frame = math.isfinite(noise)
+    noise = noise if from_frame else FALLBACK_NOISE_MM
+    return noise, from_frame, _fit_kernel(candidates, camera, plane, noise, seed, min_coverage,
+                                          radius)
 
 
 @functools.lru_cache(maxsize=64)
@@ -465,7 +492,7 @@ class KernelFit(NamedTuple):
         return float(self.summary[0, _k.SUMMARY_RMS]) if self.status == _k.FOUND else math.nan
 
 
-def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane,
+def _fit_kernel(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlane,
                 noise_mm: float, seed: int, min_coverage: float, radius: float) -> KernelFit:
     """The fit kernel's result for a frame (:class:`KernelFit`).
 
@@ -487,9 +514,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
     curve, so this needs no nonlinear fit. ``radius`` NaN fits the radius, else holds
     it. Refinement: :func:`_hypotheses`.
     """
-    candidates = _k.Candidates(_as_points(detection.pixels), _as_index(detection.azimuth),
-                               _as_index(detection.rank), int(detection.n_azimuths))
-    settings = _fit_settings(noise_mm, min_coverage, radius, detection.n_azimuths)
+    settings = _fit_settings(noise_mm, min_coverage, radius, candidates.n_azimuths)
     on_plane = _kernel_plane(plane)
     kernel = getattr(camera, "ray_kernel", None)
 
@@ -502,7 +527,7 @@ def _fit_kernel(detection: RingDetection, camera: CameraModel, plane: LaserPlane
         rays = _as_points(camera.unproject(query))
         return found, _k.fit_frame(rays, stride, candidates, on_plane, settings, uniforms)
 
-    found, out = run(np.empty((0, 5)))
+    found, out = run(_NO_SAMPLES)
     if out[0] == _k.NEEDS_SAMPLES:
         found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
     return KernelFit(found, *out)

@@ -34,6 +34,7 @@ from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
+from pipestitch.mosaic.noise import ContrastNoise, patch_noise, patch_table
 from pipestitch.mosaic.register import phase_shift
 
 __all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows", "solve_in_windows",
@@ -73,7 +74,7 @@ class PatchShifts:
 
 def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
                  second_valid: np.ndarray, motion_px: tuple[float, float], i: int,
-                 j: int) -> PatchShifts:
+                 j: int, first_noise: ContrastNoise | None = None) -> PatchShifts:
     """Local shifts of textured patches of ``second`` (frame j) against ``first`` (frame i).
 
     Parameters
@@ -84,6 +85,9 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
         Boolean validity of their nodes.
     motion_px : (float, float)
         Rigid motion (rows, cols) from i to j: strip_j(n) ~ strip_i(n + motion).
+    first_noise : ContrastNoise, optional
+        The noise fields of ``first`` (:func:`pipestitch.mosaic.noise.contrast_noise`):
+        each patch's shift is then corrected for its noise (:mod:`pipestitch.mosaic.noise`).
 
     Patches of ``PATCH_PX`` every ``PATCH_STEP_PX``, or every ``1 / PATCHES_AROUND``
     of the rows when that is wider.
@@ -92,6 +96,7 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
     step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
     dr, dc = round(motion_px[0]), round(motion_px[1])
     win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
+    table = None if first_noise is None else patch_table(first_noise, win)
     nodes, shifts, responses = [], [], []
     for c in range(0, n_cols - PATCH_PX + 1, step):
         c1 = c + dc
@@ -107,7 +112,9 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
             a = first[rows_i, c1:c1 + PATCH_PX]
             if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
                 continue
-            sx, sy, resp = phase_shift(a, b, win, iterations=2)
+            noise = (None if table is None
+                     else patch_noise(table, first_noise.step, int(rows_i[0]), c1))
+            sx, sy, resp = phase_shift(a, b, win, iterations=3, noise=noise)
             if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
                 continue
             # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.

@@ -34,8 +34,8 @@ from pipestitch.mosaic._unwrap_kernels import (
     upsample_maps,
 )
 
-__all__ = ["Strip", "UnwrapMaps", "default_mm_per_px",
-           "local_contrast", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
+__all__ = ["Strip", "UnwrapMaps", "default_mm_per_px", "local_contrast",
+           "local_contrast_and_mean", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
            "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
@@ -220,10 +220,18 @@ def local_contrast(values: np.ndarray, sigma_px: float = 6.0) -> tuple[np.ndarra
 
     Removes illumination and exposure, keeps texture. Invalid nodes give 0.
     """
+    contrast, support, _ = local_contrast_and_mean(values, sigma_px)
+    return contrast, support
+
+
+def local_contrast_and_mean(values: np.ndarray, sigma_px: float = 6.0
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`local_contrast` and the local mean it divides by (float32 each)."""
     filled, valid = fill_invalid(np.asarray(values, np.float32))
     support = cv2.GaussianBlur(valid, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
     local = cv2.GaussianBlur(filled, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
-    return contrast_of(filled, valid, support, local), support
+    contrast = contrast_of(filled, valid, support, local)   # makes ``local`` the mean
+    return contrast, support, local
 
 
 def strip_window_mm(camera: CameraModel, radius_mm: float, mm_per_px: float, *,

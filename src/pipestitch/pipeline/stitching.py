@@ -56,6 +56,7 @@ from pipestitch.mosaic.flat_field import (
     radial_levels,
     unclipped_weight,
 )
+from pipestitch.mosaic.noise import ContrastNoise, NoiseModel, contrast_noise, estimate_noise
 from pipestitch.mosaic.occluders import occluder_mask
 from pipestitch.mosaic.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
 from pipestitch.mosaic.register import (
@@ -66,12 +67,12 @@ from pipestitch.mosaic.register import (
     registration_image,
     solve_positions,
     spectrum,
-    strip_contrast,
 )
 from pipestitch.mosaic.unwrap import (
     Strip,
     UnwrapMaps,
     default_mm_per_px,
+    local_contrast_and_mean,
     polar_unwrap_maps,
     seen_window_mm,
     strip_window_mm,
@@ -213,6 +214,7 @@ class _Unwrapper:
     occluded: np.ndarray
     centre: tuple[float, float]     # optical centre (px): the flat field's rings
     edges: np.ndarray               # ring edges (px), mosaic/flat_field.py
+    noise: NoiseModel | None = None  # the LED frames' noise (mosaic/noise.py)
     # each frame's clipping level, found on its first unwrap that needs it (a full scan)
     levels: dict[int, float | None] = field(default_factory=dict)
 
@@ -250,6 +252,26 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
         return to_grey(led, out=out)
+
+
+NOISE_FRAMES = 3   # LED frames, spread over the run, the noise model is measured on
+
+
+def _led_noise(dataset: Dataset, frames: Sequence[int], timer: StageTimer) -> NoiseModel | None:
+    """The LED frames' noise model (:func:`pipestitch.mosaic.noise.estimate_noise`) from up
+    to ``NOISE_FRAMES`` readable frames spread over ``frames``; None without one."""
+    if not frames:
+        return None
+    picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, NOISE_FRAMES)
+                    .round().astype(int)})
+    greys = []
+    for i in picks:
+        try:
+            greys.append(_read_grey(dataset, i, timer))
+        except DatasetError:
+            continue   # reported when the frame itself is processed
+    with timer("register"):
+        return estimate_noise(greys)
 
 
 def led_frames(dataset: Dataset) -> list[int]:
@@ -291,6 +313,7 @@ class _Candidate:
     image: np.ndarray | None      # registration image and its spectrum (None: the
     spectrum: np.ndarray | None   # frame's links are known, only patches are measured)
     flat: FlatInput | None   # None: a pass whose flat field data are not kept
+    noise: ContrastNoise | None = None   # of ``contrast``, for the patch shifts
 
 
 @dataclass(frozen=True)
@@ -327,11 +350,13 @@ def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view:
     with timer("unwrap"):
         strip, maps = unwrapper.strip(grey, view, grid)
     with timer("register"):
-        contrast = strip_contrast(strip)
+        contrast, _, mean = local_contrast_and_mean(strip.values)
         image = registration_image(contrast, strip.weight) if for_links else None
+        noise = (None if unwrapper.noise is None
+                 else contrast_noise(maps.map_x, maps.map_y, mean, unwrapper.noise))
         return _Candidate(contrast, strip.weight > 0, image,
                           None if image is None else spectrum(image),
-                          unwrapper.flat(index, grey, strip, maps) if flat else None)
+                          unwrapper.flat(index, grey, strip, maps) if flat else None, noise)
 
 
 def _link_patches(link: Link, prev: _Candidate, cand: _Candidate, own: WallGrid,
@@ -340,7 +365,7 @@ def _link_patches(link: Link, prev: _Candidate, cand: _Candidate, own: WallGrid,
     with timer("refine"):
         return patch_shifts(prev.contrast, prev.valid, cand.contrast, cand.valid,
                             (link.droll_deg / own.deg_per_px, link.dz_mm / own.mm_per_px_axial),
-                            link.i, link.j)
+                            link.i, link.j, prev.noise)
 
 
 def _links_to(recent: Sequence[tuple[int, _Candidate]], cand: _Candidate, grid: WallGrid,
@@ -947,7 +972,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     coarse = WallGrid.window(radius, mm * settings.register_coarsening,
                               *windows[settings.register_coarsening], fft_sizes=True)
     unwrapper = _Unwrapper(camera, settings, radius, occluded, optical_centre_px(camera),
-                           radial_edges(camera))
+                           radial_edges(camera), _led_noise(dataset, sorted(usable), timer))
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     views, links = reg.views, reg.links

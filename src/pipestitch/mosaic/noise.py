@@ -1,0 +1,237 @@
+"""Sensor noise of the LED frames, and what it does to the patch shifts of a feature-poor wall.
+
+A strip is the frame resampled (bilinear) onto the wall grid, so neighbouring strip
+nodes that draw on the same frame pixels share their noise: where the wall is seen at
+less than a pixel per node the noise of the local contrast is correlated between
+neighbours, more so towards the far end of the strip. A Lucas-Kanade step takes the
+template's gradient g (central differences) and the residual ``moved - template``;
+the template's noise n is then in both, and E[g_n(p) n(p)] = (C(p, p+e) - C(p-e, p)) / 2
+(C: the noise covariance of neighbouring nodes along axis e) is not zero where C
+changes along the strip. That term biases every patch shift the same way; on a wall
+whose texture is as weak as the noise (brushed aluminium at 1224 x 1024) it is the
+0.07 % axial scale shortfall of the mosaic (docs/benchmarks.md, "The patch shifts
+against exact ground truth"). The noise also inflates the Hessian by Var(g_n), which
+shortens every step. Both are known from the frame's noise and the unwrap's geometry,
+so they are subtracted (:func:`patch_table`, :func:`patch_noise`, used by
+:func:`pipestitch.mosaic.register.phase_shift`); on a textured wall they are a small
+part of the gradients' own sums and change nothing.
+
+* :func:`estimate_noise`: the frames' noise variance against signal level (shot and
+  read noise, the quantisation), from the frames themselves: in 16 x 16 blocks, the
+  variance of a high-pass that cancels any linear shading, and per signal level a low
+  quantile of the blocks (the flattest blocks of the wall are noise alone), corrected
+  by the quantile of a chi-square with the blocks' effective degrees of freedom.
+* :func:`contrast_noise`: per strip, on every ``step``-th node, D = E[g_n n] and
+  Var(g_n) / 2 of the local contrast along each axis, phase-averaged: bilinear
+  interpolation of white noise correlates two samples u pixels apart by R(u) = the
+  cubic B-spline (the linear kernel's autocorrelation), per axis of the frame.
+
+Written by hand: neither OpenCV nor scikit-image models the noise of a remapped image.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.signal import correlate2d
+from scipy.stats import chi2
+
+__all__ = ["ContrastNoise", "NoiseModel", "PatchNoise", "contrast_noise", "estimate_noise",
+           "patch_noise", "patch_table"]
+
+# A second difference in both directions: zero on any linear shading (LED fall-off,
+# vignetting), sum of squares 36.
+HIGH_PASS = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+BLOCK_PX = 16          # blocks of the frame whose high-pass variance is one sample
+BLOCK_QUANTILE = 0.1   # of the blocks at one signal level: the flattest are noise alone
+LEVELS = 12            # signal levels the model is fitted over
+MIN_BLOCKS = 50        # blocks a level needs
+CLIP_MARGIN = 0.01     # blocks with a pixel this close to 0 or full scale are left out
+NODE_STEP = 4          # the noise fields are smooth: every 4th strip node
+
+
+def _quantile_factor() -> float:
+    """E-normalised ``BLOCK_QUANTILE`` of a block's high-pass variance for white noise:
+    a chi-square with the block's effective degrees of freedom (the high-pass correlates
+    neighbouring pixels: dof = pixels / sum of the squared autocorrelation)."""
+    rho = correlate2d(HIGH_PASS, HIGH_PASS) / float((HIGH_PASS ** 2).sum())
+    dof = BLOCK_PX ** 2 / float((rho ** 2).sum())
+    return float(chi2.ppf(BLOCK_QUANTILE, dof) / dof)
+
+
+QUANTILE_FACTOR = _quantile_factor()
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Noise variance of a frame pixel (grey, full scale 1) at signal level s:
+    ``offset + slope * s`` (read noise and quantisation; shot noise)."""
+
+    offset: float
+    slope: float
+
+    def variance(self, level: np.ndarray) -> np.ndarray:
+        """Variance at each signal ``level`` (never below 0)."""
+        return np.maximum(self.offset + self.slope * np.asarray(level, np.float64), 0.0)
+
+
+def estimate_noise(frames: Sequence[np.ndarray]) -> NoiseModel | None:
+    """The frames' noise model (grey float frames of full scale 1), or None when they
+    have too few unclipped blocks to fit one.
+
+    Parameters
+    ----------
+    frames : sequence of numpy.ndarray
+        Grey float32 frames (:func:`pipestitch.camera.frames.to_grey`).
+
+    Returns
+    -------
+    NoiseModel or None
+    """
+    levels, variances = [], []
+    for frame in frames:
+        level, variance = _block_stats(np.asarray(frame, np.float32))
+        levels.append(level)
+        variances.append(variance)
+    if not levels:
+        return None
+    level, variance = np.concatenate(levels), np.concatenate(variances)
+    if level.size < MIN_BLOCKS * 2:
+        return None
+    edges = np.unique(np.quantile(level, np.linspace(0.0, 1.0, LEVELS + 1)))
+    x, y = [], []
+    for lo, hi in itertools.pairwise(edges):
+        sel = (level >= lo) & (level < hi)
+        if np.count_nonzero(sel) >= MIN_BLOCKS:
+            x.append(float(np.median(level[sel])))
+            y.append(float(np.quantile(variance[sel], BLOCK_QUANTILE)) / QUANTILE_FACTOR)
+    if len(x) < 2:
+        return None
+    slope, offset = np.polyfit(x, y, 1)
+    if slope < 0:   # no shot noise to see (e.g. compressed frames): a constant
+        slope, offset = 0.0, float(np.median(y))
+    return NoiseModel(float(max(offset, 0.0)), float(slope))
+
+
+def _block_stats(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean level and high-pass noise variance of the frame's unclipped blocks."""
+    high = cv2.filter2D(frame, cv2.CV_32F, HIGH_PASS, borderType=cv2.BORDER_REFLECT)
+    rows, cols = (frame.shape[0] // BLOCK_PX) * BLOCK_PX, (frame.shape[1] // BLOCK_PX) * BLOCK_PX
+    shape = (rows // BLOCK_PX, BLOCK_PX, cols // BLOCK_PX, BLOCK_PX)
+    if rows < 3 * BLOCK_PX or cols < 3 * BLOCK_PX:
+        return np.empty(0), np.empty(0)
+    blocks = frame[:rows, :cols].reshape(shape)
+    power = (high[:rows, :cols].astype(np.float64) ** 2).reshape(shape).mean(axis=(1, 3))
+    low, high_level = blocks.min(axis=(1, 3)), blocks.max(axis=(1, 3))
+    keep = (low > CLIP_MARGIN) & (high_level < 1.0 - CLIP_MARGIN)
+    keep[0, :] = keep[-1, :] = keep[:, 0] = keep[:, -1] = False
+    return (blocks.mean(axis=(1, 3), dtype=np.float64)[keep],
+            power[keep] / float((HIGH_PASS ** 2).sum()))
+
+
+def _bspline(u: np.ndarray | float) -> np.ndarray:
+    """Correlation of linearly interpolated white noise between samples ``u`` pixels
+    apart, averaged over the sampling phase: the cubic B-spline."""
+    u = np.minimum(np.abs(np.asarray(u, np.float64)), 2.0)
+    far = 2.0 - u
+    return np.where(u <= 1.0, 2.0 / 3.0 - u * u * (1.0 - 0.5 * u), far * far * far / 6.0)
+
+
+@dataclass(frozen=True)
+class ContrastNoise:
+    """A strip's contrast-noise fields on every ``step``-th node.
+
+    ``fields`` (4, node rows, node columns), float32: E[g_n n] of the central-difference
+    gradient along the columns (z) and along the rows (theta), then the gradient noise's
+    variance along the columns and along the rows (the order of :class:`PatchNoise`).
+    """
+
+    step: int
+    fields: np.ndarray
+
+
+def contrast_noise(map_x: np.ndarray, map_y: np.ndarray, local_mean: np.ndarray,
+                   model: NoiseModel, step: int = NODE_STEP) -> ContrastNoise:
+    """The noise fields of a strip's local contrast (value / local mean - 1).
+
+    Parameters
+    ----------
+    map_x, map_y : numpy.ndarray
+        The strip's remap maps (frame column and row of each node).
+    local_mean : numpy.ndarray
+        The strip's local mean (the contrast's divisor).
+    model : NoiseModel
+        The frames' noise.
+    step : int
+        Fields on every ``step``-th node (they are smooth).
+
+    Returns
+    -------
+    ContrastNoise
+    """
+    mx = np.asarray(map_x)[::step, ::step].astype(np.float64)
+    my = np.asarray(map_y)[::step, ::step].astype(np.float64)
+    mean = np.maximum(np.asarray(local_mean)[::step, ::step].astype(np.float64), 1e-6)
+    relative = model.variance(mean) / (mean * mean)   # of value / mean, per node
+    variance = relative * _bspline(0.0) ** 2
+    d, g = [], []
+    for axis in (0, 1):
+        if mx.shape[axis] < 2:
+            d.append(np.zeros_like(mx))
+            g.append(np.zeros_like(mx))
+            continue
+        # frame pixels per strip node along this axis
+        dx = np.gradient(mx, axis=axis) / step
+        dy = np.gradient(my, axis=axis) / step
+        lag1 = relative * _bspline(dx) * _bspline(dy)
+        lag2 = relative * _bspline(2 * dx) * _bspline(2 * dy)
+        # E[g_n n] = (C(p, p+e) - C(p-e, p)) / 2: half the change of lag1 per node
+        d.append(0.5 * np.gradient(lag1, axis=axis) / step)
+        # Var((n(p+e) - n(p-e)) / 2) = (V + V - 2 C(p-e, p+e)) / 4
+        g.append(0.5 * (variance - lag2))
+    return ContrastNoise(step, np.stack([d[1], d[0], g[1], g[0]]).astype(np.float32))
+
+
+@dataclass(frozen=True)
+class PatchNoise:
+    """What the template's noise adds to a Lucas-Kanade patch's sums (window-weighted):
+    ``d_x``, ``d_y`` to the residual moments, ``h_x``, ``h_y`` to the Hessian's diagonal
+    (x: columns, y: rows)."""
+
+    d_x: float
+    d_y: float
+    h_x: float
+    h_y: float
+
+
+def patch_table(noise: ContrastNoise, window: np.ndarray) -> np.ndarray:
+    """Every patch's noise sums at once: (4, node rows, node columns), at [:, i, k] the
+    :class:`PatchNoise` of the patch under ``window`` whose first row and column are
+    those of node (i, k) (rows wrap; one separable correlation per field, so that a
+    patch costs a look-up). ``window`` must be separable (an outer product, as a
+    Hanning window is)."""
+    step, fields = noise.step, noise.fields
+    half = step // 2
+    weight = window[half::step, half::step].astype(np.float64) * (step * step)
+    u, s, vt = np.linalg.svd(weight)
+    if s.size > 1 and s[1] > 1e-6 * s[0]:
+        raise ValueError("patch_table: the window is not separable")
+    k_rows, k_cols = u[:, 0] * np.sqrt(s[0]), vt[0] * np.sqrt(s[0])
+    wrapped = np.concatenate([fields, fields[:, :weight.shape[0] - 1]], axis=1)
+    table = [cv2.sepFilter2D(f, -1, k_cols.astype(np.float32), k_rows.astype(np.float32),
+                             anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
+             for f in wrapped]
+    return np.stack(table)[:, :fields.shape[1]]
+
+
+def patch_noise(table: np.ndarray, step: int, row0: int, col0: int) -> PatchNoise:
+    """The noise sums of the template patch whose first strip row is ``row0`` (wrapping)
+    and first column ``col0``, from :func:`patch_table` (fields every ``step`` nodes)."""
+    half = step // 2
+    i = ((row0 + half) // step) % table.shape[1]
+    k = min((col0 + half) // step, table.shape[2] - 1)
+    return PatchNoise(*(float(v) for v in table[:, i, k]))

@@ -67,7 +67,6 @@ RESCALE_ROUNDS = 3
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 KEPT_POINTS = 720     # a frame's ring inliers kept for later fits (RingPoints), at most
 FALLBACK_NOISE_MM = 0.05   # the point noise of a frame whose ring gives no scale
-_NO_SAMPLES = np.empty((0, 5))   # RANSAC's samples before a fit asks for them: none
 
 
 @dataclass(frozen=True, slots=True)
@@ -428,10 +427,11 @@ def _fit_scaled(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
     than its line width says) the fit is repeated with the noise set from that rms
     (1.3 x: the gate truncates the scatter).
     """
-    noise, from_frame, out = _fit_at_frame_noise(candidates, sigma_px, camera, plane, seed,
-                                                 min_coverage, radius)
-    if not from_frame:   # no candidate meets the plane: nothing to fit
-        return noise, out
+    noise = _frame_noise(candidates, sigma_px, camera, plane)
+    if not math.isfinite(noise):   # no candidate meets the plane: nothing to fit
+        noise = FALLBACK_NOISE_MM
+        return noise, _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
+    out = _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
     if out.status in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
         wider = _fit_kernel(candidates, camera, plane, 3.0 * noise, seed, min_coverage, radius)
         if wider.status == _k.FOUND:
@@ -445,18 +445,6 @@ def _fit_scaled(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
             break
         noise, out = scale, wider
     return noise, out
-
-
-def _fit_at_frame_noise(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
-                        plane: LaserPlane, seed: int, min_coverage: float,
-                        radius: float) -> tuple[float, bool, KernelFit]:
-    """(noise, whether it came from the frame, the fit at it): the noise is
-    :func:`frame_noise_mm`'s, or ``FALLBACK_NOISE_MM`` where the frame gives none."""
-    noise = _frame_noise(candidates, sigma_px, camera, plane)
-    from_frame = math.isfinite(noise)
-    noise = noise if from_frame else FALLBACK_NOISE_MM
-    return noise, from_frame, _fit_kernel(candidates, camera, plane, noise, seed, min_coverage,
-                                          radius)
 
 
 @functools.lru_cache(maxsize=64)
@@ -527,7 +515,7 @@ def _fit_kernel(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlan
         rays = _as_points(camera.unproject(query))
         return found, _k.fit_frame(rays, stride, candidates, on_plane, settings, uniforms)
 
-    found, out = run(_NO_SAMPLES)
+    found, out = run(np.empty((0, 5)))
     if out[0] == _k.NEEDS_SAMPLES:
         found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
     return KernelFit(found, *out)

@@ -87,7 +87,7 @@ def child(*args: str) -> dict:
 # function): the pose stage, the registration passes and their refinement, the
 # stitch, the outputs.
 PASSES = (("pipestitch.pipeline.run", "", "estimate_poses"),
-          ("pipestitch.pipeline.stitching", "", "find_occluders"),
+          ("pipestitch.pipeline.stitching", "", "sample_led"),
           ("pipestitch.pipeline.stitching", "", "_register"),
           ("pipestitch.pipeline.stitching", "", "_refine_views"),
           ("pipestitch.pipeline.stitching", "", "_repatch"),

@@ -214,7 +214,7 @@ def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
     def no_search(*args, **kwargs):
         raise AssertionError("the declared mask was not used")
 
-    monkeypatch.setattr(stitching, "find_occluders", no_search)
+    monkeypatch.setattr(stitching, "sample_led", no_search)
     result = CliRunner().invoke(app, ["run", str(data), "--out", str(tmp_path / "out"),
                                       "--quiet"])
     assert result.exit_code == 0, result.output

@@ -19,7 +19,7 @@ from pipestitch.io.images import read_image
 from pipestitch.io.mask import read_mask, write_mask
 from pipestitch.pipeline.progress import StageTimer
 from pipestitch.pipeline.run import _occluders_ahead, run_dataset
-from pipestitch.pipeline.stitching import MosaicSettings, find_occluders, led_frames
+from pipestitch.pipeline.stitching import LedSample, MosaicSettings, find_occluders, led_frames
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 runner = CliRunner()
@@ -419,10 +419,11 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
         ahead = _occluders_ahead(pool, ds, settings, timer, False, None)
         assert ahead is not None
         assert _occluders_ahead(pool, ds, settings, timer, True, None) is None
-        mask = ahead.result()
+        mask, noise = ahead.result()
     assert led_frames(ds) == list(range(ds.n_pairs))
     own = find_occluders(ds, led_frames(ds), settings.reference_frames, timer, settings.workers)
     np.testing.assert_array_equal(mask, own)
+    assert noise is not None and noise.slope > 0   # shot noise, from the same frames
     assert 0 < mask.mean() < 0.9   # the image circle's outside and the arm, not the wall
 
     short = tmp_path / "short"
@@ -475,12 +476,12 @@ def test_a_run_whose_pose_pass_ends_early_does_not_wait_for_its_helper(
 
     def slow_mask(*args, **kwargs):
         time.sleep(1.0)
-        return np.zeros((1, 1), bool)
+        return LedSample(np.zeros((1, 1), bool), None)
 
     def stop(*args, **kwargs):
         raise RuntimeError("stopped")
 
-    monkeypatch.setattr(run_module, "find_occluders", slow_mask)
+    monkeypatch.setattr(run_module, "sample_led", slow_mask)
     if how == "stopped":
         monkeypatch.setattr(run_module, "estimate_poses", stop)
     else:

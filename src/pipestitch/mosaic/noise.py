@@ -27,18 +27,21 @@ part of the gradients' own sums and change nothing.
   cubic B-spline (the linear kernel's autocorrelation), per axis of the frame.
 
 Written by hand: neither OpenCV nor scikit-image models the noise of a remapped image.
+The fields' loop is compiled (:mod:`pipestitch.mosaic._noise_kernels`).
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.signal import correlate2d
 from scipy.stats import chi2
+
+from pipestitch.mosaic import _noise_kernels as _k
 
 __all__ = ["ContrastNoise", "NoiseModel", "PatchNoise", "contrast_noise", "estimate_noise",
            "patch_noise", "patch_table"]
@@ -79,14 +82,15 @@ class NoiseModel:
         return np.maximum(self.offset + self.slope * np.asarray(level, np.float64), 0.0)
 
 
-def estimate_noise(frames: Sequence[np.ndarray]) -> NoiseModel | None:
+def estimate_noise(frames: Iterable[np.ndarray]) -> NoiseModel | None:
     """The frames' noise model (grey float frames of full scale 1), or None when they
     have too few unclipped blocks to fit one.
 
     Parameters
     ----------
-    frames : sequence of numpy.ndarray
-        Grey float32 frames (:func:`pipestitch.camera.frames.to_grey`).
+    frames : iterable of numpy.ndarray
+        Grey float32 frames (:func:`pipestitch.camera.frames.to_grey`), each used once
+        (a generator holds one at a time).
 
     Returns
     -------
@@ -133,14 +137,6 @@ def _block_stats(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             power[keep] / float((HIGH_PASS ** 2).sum()))
 
 
-def _bspline(u: np.ndarray | float) -> np.ndarray:
-    """Correlation of linearly interpolated white noise between samples ``u`` pixels
-    apart, averaged over the sampling phase: the cubic B-spline."""
-    u = np.minimum(np.abs(np.asarray(u, np.float64)), 2.0)
-    far = 2.0 - u
-    return np.where(u <= 1.0, 2.0 / 3.0 - u * u * (1.0 - 0.5 * u), far * far * far / 6.0)
-
-
 @dataclass(frozen=True)
 class ContrastNoise:
     """A strip's contrast-noise fields on every ``step``-th node.
@@ -173,27 +169,11 @@ def contrast_noise(map_x: np.ndarray, map_y: np.ndarray, local_mean: np.ndarray,
     -------
     ContrastNoise
     """
-    mx = np.asarray(map_x)[::step, ::step].astype(np.float64)
-    my = np.asarray(map_y)[::step, ::step].astype(np.float64)
-    mean = np.maximum(np.asarray(local_mean)[::step, ::step].astype(np.float64), 1e-6)
-    relative = model.variance(mean) / (mean * mean)   # of value / mean, per node
-    variance = relative * _bspline(0.0) ** 2
-    d, g = [], []
-    for axis in (0, 1):
-        if mx.shape[axis] < 2:
-            d.append(np.zeros_like(mx))
-            g.append(np.zeros_like(mx))
-            continue
-        # frame pixels per strip node along this axis
-        dx = np.gradient(mx, axis=axis) / step
-        dy = np.gradient(my, axis=axis) / step
-        lag1 = relative * _bspline(dx) * _bspline(dy)
-        lag2 = relative * _bspline(2 * dx) * _bspline(2 * dy)
-        # E[g_n n] = (C(p, p+e) - C(p-e, p)) / 2: half the change of lag1 per node
-        d.append(0.5 * np.gradient(lag1, axis=axis) / step)
-        # Var((n(p+e) - n(p-e)) / 2) = (V + V - 2 C(p-e, p+e)) / 4
-        g.append(0.5 * (variance - lag2))
-    return ContrastNoise(step, np.stack([d[1], d[0], g[1], g[0]]).astype(np.float32))
+    fields = _k.contrast_fields(np.ascontiguousarray(map_x, np.float32),
+                                np.ascontiguousarray(map_y, np.float32),
+                                np.ascontiguousarray(local_mean, np.float32),
+                                float(model.offset), float(model.slope), int(step))
+    return ContrastNoise(step, fields)
 
 
 @dataclass(frozen=True)

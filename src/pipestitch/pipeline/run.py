@@ -52,11 +52,12 @@ from pipestitch.pipeline.stitched_output import (
 )
 from pipestitch.pipeline.stitching import (
     FrameView,
+    LedSample,
     MosaicResult,
     MosaicSettings,
     build_mosaic,
-    find_occluders,
     led_frames,
+    sample_led,
 )
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
@@ -317,10 +318,11 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
 
 def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: MosaicSettings,
                      timer: StageTimer, in_order: bool, declared: np.ndarray | None,
-                     ) -> Future[np.ndarray] | None:
-    """The occluder mask, found from the LED frames while the poses are fitted (it needs
-    no pose, and the pose pass's two workers leave it a share of the machine instead of a
-    stage of its own on one core afterwards).
+                     ) -> Future[LedSample] | None:
+    """The occluder mask and the LED frames' noise model (:func:`sample_led`), found from
+    the LED frames while the poses are fitted (they need no pose, and the pose pass's two
+    workers leave them a share of the machine instead of a stage of their own on one core
+    afterwards).
 
     None where there is nothing to find or the mosaic stage finds it itself: a mask
     named in probe.toml (``declared``, as read), no LED frames, or frames read
@@ -332,27 +334,28 @@ def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: Mosai
     frames = led_frames(dataset)
     if not frames:
         return None
-    return pool.submit(find_occluders, dataset, frames, settings.reference_frames, timer,
+    return pool.submit(sample_led, dataset, frames, settings.reference_frames, timer,
                        settings.workers)
 
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,
                       timer: StageTimer, show_progress: bool, out: Path,
-                      declared: np.ndarray | None, occluders: Future[np.ndarray] | None,
+                      declared: np.ndarray | None, occluders: Future[LedSample] | None,
                       ) -> tuple[MosaicResult | None, WrittenMosaic | None, str]:
     """The mosaic, streamed into OUT's pyramid, overview and defects as it is stitched;
     or None and why not (the poses are worth writing all the same). The occluder mask:
-    probe.toml's (``declared``), else the one being found (``occluders``,
-    :func:`_occluders_ahead`), else the mosaic stage's own."""
+    probe.toml's (``declared``), else the one being found with the frames' noise model
+    (``occluders``, :func:`_occluders_ahead`), else the mosaic stage's own."""
     if not views:
         return None, None, "no mosaic: no frame has a pose"
     if not dataset.has_led:
         return None, None, "the dataset has no LED frames: no mosaic"
     try:
-        occluded = declared if occluders is None else occluders.result()
+        occluded, noise = (declared, None) if occluders is None else occluders.result()
         with StreamedMosaic(out, timer) as sink:
             result = build_mosaic(dataset, views, settings, timer=timer,
-                                  show_progress=show_progress, sink=sink, occluded=occluded)
+                                  show_progress=show_progress, sink=sink,
+                                  occluded=occluded, noise=noise)
             return result, sink.finish(), ""
     except PipestitchError as exc:
         return None, None, f"no mosaic: {exc}"

@@ -23,7 +23,7 @@ from collections import deque
 from collections.abc import Collection, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -84,8 +84,8 @@ from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
 from pipestitch.pose.section import SectionFit, fit_section
 
-__all__ = ["UNWRAP_MODES", "FrameView", "MosaicResult", "MosaicSettings", "MosaicSink",
-           "build_mosaic", "find_occluders", "led_frames"]
+__all__ = ["UNWRAP_MODES", "FrameView", "LedSample", "MosaicResult", "MosaicSettings",
+           "MosaicSink", "build_mosaic", "find_occluders", "led_frames", "sample_led"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
 LINK_SPAN = 2          # each frame is registered to this many following frames
@@ -259,19 +259,26 @@ NOISE_FRAMES = 3   # LED frames, spread over the run, the noise model is measure
 
 def _led_noise(dataset: Dataset, frames: Sequence[int], timer: StageTimer) -> NoiseModel | None:
     """The LED frames' noise model (:func:`pipestitch.mosaic.noise.estimate_noise`) from up
-    to ``NOISE_FRAMES`` readable frames spread over ``frames``; None without one."""
+    to ``NOISE_FRAMES`` readable frames spread over ``frames``; None without one. For a run
+    whose occluder mask is not searched for (:func:`sample_led` measures it otherwise)."""
     if not frames:
         return None
-    picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, NOISE_FRAMES)
-                    .round().astype(int)})
     greys = []
-    for i in picks:
+    for i in _spread(frames, NOISE_FRAMES):
         try:
             greys.append(_read_grey(dataset, i, timer))
         except DatasetError:
             continue   # reported when the frame itself is processed
     with timer("register"):
         return estimate_noise(greys)
+
+
+def _spread(items: Sequence, count: int) -> list:
+    """Up to ``count`` of ``items``, evenly spread from the first to the last."""
+    if not items:
+        return []
+    return [items[k] for k in sorted(set(np.linspace(0, len(items) - 1, count)
+                                         .round().astype(int)))]
 
 
 def led_frames(dataset: Dataset) -> list[int]:
@@ -281,12 +288,19 @@ def led_frames(dataset: Dataset) -> list[int]:
     return [i for i in range(dataset.n_pairs) if i not in missing]
 
 
-def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
-                   timer: StageTimer, workers: int) -> np.ndarray:
-    """Occluder mask (True: never the wall) from up to ``count`` readable LED frames spread
-    over ``frames`` (:func:`pipestitch.mosaic.occluders.occluder_mask`)."""
-    picks = sorted({frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)})
+class LedSample(NamedTuple):
+    """What LED frames sampled along a run tell before any is unwrapped."""
 
+    occluded: np.ndarray       # the occluder mask (True: never the wall)
+    noise: NoiseModel | None   # the frames' noise model (None: too few blocks to fit one)
+
+
+def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: StageTimer,
+               workers: int, *, with_noise: bool = True) -> LedSample:
+    """Occluder mask (:func:`pipestitch.mosaic.occluders.occluder_mask`) from up to
+    ``count`` readable LED frames spread over ``frames``, and the frames' noise model
+    (:func:`pipestitch.mosaic.noise.estimate_noise`) from ``NOISE_FRAMES`` of the same
+    frames (None unless ``with_noise``): each frame is decoded once for both."""
     def read(i: int) -> np.ndarray | None:
         try:
             with timer("decode"):
@@ -297,11 +311,23 @@ def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
         except DatasetError:
             return None   # reported when the frame itself is processed
 
-    frames = [f for f in ordered_map(read, picks, workers) if f is not None]
-    if not frames:
+    leds = [f for f in ordered_map(read, _spread(frames, count), workers) if f is not None]
+    if not leds:
         raise StageError("no LED frame could be read")
     with timer("occluders"):
-        return occluder_mask(frames, workers=workers)
+        occluded = occluder_mask(leds, workers=workers)
+    if not with_noise:
+        return LedSample(occluded, None)
+    with timer("register"):   # one float frame at a time
+        noise = estimate_noise(to_grey(f) for f in _spread(leds, NOISE_FRAMES))
+    return LedSample(occluded, noise)
+
+
+def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
+                   timer: StageTimer, workers: int) -> np.ndarray:
+    """Occluder mask (True: never the wall) from up to ``count`` readable LED frames spread
+    over ``frames`` (:func:`sample_led` without the noise model)."""
+    return sample_led(dataset, frames, count, timer, workers, with_noise=False).occluded
 
 
 @dataclass(frozen=True)
@@ -900,7 +926,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                  settings: MosaicSettings, *, timer: StageTimer | None = None,
                  show_progress: bool = True, sink: MosaicSink | None = None,
                  positions: Positions | None = None,
-                 occluded: np.ndarray | None = None) -> MosaicResult:
+                 occluded: np.ndarray | None = None,
+                 noise: NoiseModel | None = None) -> MosaicResult:
     """Unwrap, register and stitch the frames that have a pose.
 
     Parameters
@@ -927,7 +954,11 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         The camera's occluded pixels (bool, the frames' shape; True: never the wall),
         when the caller has them already (``pipestitch run`` finds them while the poses
         are fitted). Default: probe.toml's mask, else found from the LED frames
-        (:func:`find_occluders` over :func:`led_frames`).
+        (:func:`sample_led` over :func:`led_frames`).
+    noise : NoiseModel, optional
+        The LED frames' noise model, when the caller has measured it with ``occluded``
+        (:func:`sample_led`). Default: measured here, from the occluders' sample, else
+        from a few of the posed frames.
 
     Returns
     -------
@@ -961,8 +992,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if occluded is None:
         occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
     if occluded is None:
-        occluded = find_occluders(dataset, led_frames(dataset), settings.reference_frames, timer,
-                                  settings.workers)
+        occluded, noise = sample_led(dataset, led_frames(dataset), settings.reference_frames,
+                                     timer, settings.workers)
     with timer("unwrap"):
         windows = _windows(camera, views, radius, mm, settings, occluded)
     window = windows[1]
@@ -972,7 +1003,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     coarse = WallGrid.window(radius, mm * settings.register_coarsening,
                               *windows[settings.register_coarsening], fft_sizes=True)
     unwrapper = _Unwrapper(camera, settings, radius, occluded, optical_centre_px(camera),
-                           radial_edges(camera), _led_noise(dataset, sorted(usable), timer))
+                           radial_edges(camera),
+                           noise or _led_noise(dataset, sorted(usable), timer))
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     views, links = reg.views, reg.links

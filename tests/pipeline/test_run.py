@@ -446,15 +446,16 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
 
 
 def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
-    """The run's modules load without matplotlib (its import is ~0.25 s of every start)
-    and without PyAV (only a video needs it); :func:`pipestitch.report.html.prepare_plots`,
-    which the run calls in a thread while the passes work, loads matplotlib and draws one
-    figure."""
+    """The run's modules load without matplotlib (its import is ~0.25 s of every start),
+    without PyAV (only a video needs it) and without scipy.stats and scipy.signal (~0.5 s
+    and 30 MB); :func:`pipestitch.report.html.prepare_plots`, which the run calls in a
+    thread while the passes work, loads matplotlib and draws one figure."""
     import subprocess
     import sys
 
     code = ("import sys, pipestitch.pipeline.run, pipestitch.pipeline.review; "
-            "print('matplotlib' in sys.modules or 'av' in sys.modules); "
+            "print(any(m in sys.modules for m in ('matplotlib', 'av', 'scipy.stats', "
+            "'scipy.signal'))); "
             "from pipestitch.report.html import prepare_plots; prepare_plots(); "
             "print('matplotlib.pyplot' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -33,6 +33,7 @@ at 2448 x 2048.
 
 Run: python bench/mosaic.py [--quick] [--keep DIR] [--only quality|throughput]
 [--sizes half full] [--scenarios chart83 corrosion aluminium] [--pairs N]
+[--quality-pairs N] [--pipe-mm D] [--slip-mm S] [--seeds N ...] [--modes ...]
 """
 
 from __future__ import annotations
@@ -166,26 +167,53 @@ class Variant:
     led_gain: float | None = None
     seed: int = 1
     modes: tuple[str, ...] = MODES
+    pairs: int | None = None       # the run's pairs (None: the scenario's)
+    pipe_mm: float | None = None   # the pipe's inner diameter (None: the scenario's)
+    slip_mm: float = 0.0           # the odometer reads this much short from mid-run on
 
     def dataset(self, root: Path, name: str, size: str, pairs: int | None) -> Path:
         """The scenario's dataset in ``root``, simulated on first use."""
-        gain = "" if self.led_gain is None else f"_gain{self.led_gain:g}"
-        seed = "" if self.seed == 1 else f"_seed{self.seed}"
-        dataset = root / f"{name}_{size}{gain}{seed}"
+        pairs = pairs or self.pairs
+        tags = (("" if self.led_gain is None else f"_gain{self.led_gain:g}")
+                + ("" if self.seed == 1 else f"_seed{self.seed}")
+                + ("" if pairs is None else f"_{pairs}pairs")
+                + ("" if self.pipe_mm is None else f"_pipe{self.pipe_mm:g}")
+                + ("" if not self.slip_mm else f"_slip{self.slip_mm:g}"))
+        dataset = root / f"{name}_{size}{tags}"
         scenario = SCENARIOS[name]
         if self.led_gain is not None:
             scenario = dataclasses.replace(
                 scenario, optics=dataclasses.replace(scenario.optics, led_gain=self.led_gain))
+        if self.pipe_mm is not None:
+            scenario = dataclasses.replace(scenario, pipe_diameter_mm=self.pipe_mm)
         if not (dataset / "probe.toml").exists():
             simulate_dataset(scenario, dataset, seed=self.seed, size=size, n_pairs=pairs,
                              show_progress=False)
+            if self.slip_mm:
+                slip_odometer(dataset, self.slip_mm)
         return dataset
+
+
+def slip_odometer(dataset: Path, slip_mm: float) -> None:
+    """A cable slip: the dataset's odometer reads ``slip_mm`` short from its middle frame
+    on (odometry.csv rewritten; the truth is not touched)."""
+    path = dataset / "odometry.csv"
+    if not path.exists():
+        raise ValueError(f"{dataset.name}: no odometer to slip")
+    odo = read_csv_columns(path, ("frame", "z_mm"))
+    frames = odo["frame"].astype(int)
+    z = odo["z_mm"] - np.where(frames >= np.median(frames), slip_mm, 0.0)
+    path.write_text("frame,z_mm\n" + "".join(f"{f},{v:.6f}\n" for f, v in zip(frames, z,
+                                                                                 strict=True)))
 
 
 def quality(root: Path, scenarios: list[str], size: str, pairs: int | None,
             variant: Variant = Variant()) -> dict[str, MosaicScore]:
     """Print the quality table of ``scenarios``; return ours' score per scenario."""
     gain = "" if variant.led_gain is None else f", LED frames exposed {variant.led_gain:g}x"
+    gain += "" if variant.pairs is None else f", {variant.pairs} pairs"
+    gain += "" if variant.pipe_mm is None else f", {variant.pipe_mm:g} mm pipe"
+    gain += "" if not variant.slip_mm else f", odometer {variant.slip_mm:g} mm short from mid-run"
     print(f"\nMosaic quality ({size} size{gain}, seed {variant.seed}; reference design: "
           "SSIM 0.3502 centralised, 0.3022 uncentred)")
     print("(tilt err: mean |alpha, beta error| of poses.csv; ours = refined with the LED "
@@ -313,6 +341,14 @@ def main() -> None:
                              "(default all; ours always)")
     parser.add_argument("--pairs", type=int, default=30,
                         help="pairs of the throughput dataset (default 30)")
+    parser.add_argument("--quality-pairs", type=int,
+                        help="pairs of the quality datasets (default: each scenario's)")
+    parser.add_argument("--pipe-mm", type=float,
+                        help="inner diameter of the quality datasets' pipe (default: each "
+                             "scenario's)")
+    parser.add_argument("--slip-mm", type=float, default=0.0,
+                        help="the quality datasets' odometer reads this much short from "
+                             "their middle frame on (a cable slip; default none)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="pipestitch-bench-") as tmp:
         root = args.keep or Path(tmp)
@@ -322,7 +358,9 @@ def main() -> None:
             throughput(root, ["half"], 4)
             return
         if args.only != "throughput":
-            variant = Variant(args.led_gain, modes=tuple(args.modes))
+            variant = Variant(args.led_gain, modes=tuple(args.modes),
+                              pairs=args.quality_pairs, pipe_mm=args.pipe_mm,
+                              slip_mm=args.slip_mm)
             if "half" in args.sizes:
                 over_seeds(root, args.scenarios, "half", args.seeds, variant)
             full = [name for name in args.full_scenarios if name in args.scenarios]

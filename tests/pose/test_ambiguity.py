@@ -156,3 +156,37 @@ def test_a_frame_without_a_finite_radius_does_not_silence_the_flags() -> None:
     bad = fits[5].hypotheses
     fits[5] = replace(fits[5], hypotheses=(replace(bad[0], radius_mm=float("nan")), bad[1]))
     assert_undecided(fits)
+
+
+def _pair_favouring(a: int, b: int) -> np.ndarray:
+    """Photometric costs of a pair whose comparison found combination (a, b) best."""
+    costs = np.full((2, 2), 30.0)
+    costs[a, b] = 0.0
+    return costs
+
+
+def test_photometric_comparisons_that_contradict_each_other_decide_nothing() -> None:
+    """Along a stretch of compared frames the best chain follows every comparison and
+    pays nothing; when one comparison must be overruled (it found both frames' mirrors
+    best, its neighbours the true poses), which one is wrong is not known: the stretch's
+    comparisons are dropped, and its frames are flagged unless other evidence decides
+    them. A stretch whose comparisons agree decides its frames."""
+    poses = track(12)
+    fits = [exact_fit(p) for p in poses]
+    true = [0 if is_true(f, 0, p) else 1 for f, p in zip(fits, poses, strict=True)]
+    agree = {k: _pair_favouring(true[k], true[k + 1]) for k in range(6, 11)}
+    choices = resolve_run(fits, np.zeros((12, 2)), pairwise=agree)
+    assert all(not c.ambiguous and c.chosen == t for c, t in zip(choices[6:], true[6:],
+                                                                 strict=True))
+    assert {c.reason for c in choices[6:]} == {"photometric"}
+
+    contradicting = {**agree, 8: _pair_favouring(1 - true[8], 1 - true[9])}
+    choices = resolve_run(fits, np.zeros((12, 2)), pairwise=contradicting)
+    assert all(c.ambiguous and c.reason == "undecided" for c in choices)
+
+    # the same stretch after frames that the comparisons of an earlier stretch decided
+    # (frames 4 -> 6 not compared): continuity carries that decision over it
+    first = {k: _pair_favouring(true[k], true[k + 1]) for k in range(4)}
+    choices = resolve_run(fits, np.zeros((12, 2)), pairwise={**first, **contradicting})
+    assert all(not c.ambiguous and c.chosen == t for c, t in zip(choices, true, strict=True))
+    assert {c.reason for c in choices[6:]} == {"continuity"}

@@ -6,8 +6,11 @@ frame's ring never decides. Evidence that does:
 * the **probe envelope**: the rigid body (probe.toml length and diameter) must fit
   inside the pipe; a hypothesis that puts it through the wall is penalised by how
   far, relative to the uncertainty of that check;
-* **photometric consistency** of consecutive LED frames (added by the unwrapping
-  stage as extra per-frame costs through ``unary``).
+* **photometric consistency** of consecutive LED frames (pair costs, ``pairwise``).
+  A stretch of compared frames whose comparisons contradict each other (the best
+  chain must overrule one of them) gives no evidence: a texture that fools the
+  comparison, or ring poses far enough off to warp a strip more than its mirror does,
+  would otherwise decide silently and wrongly (:func:`_contradicted`).
 
 **Temporal continuity** then carries a decision along the run: a min-sum (Viterbi)
 pass over a two-state chain whose transition cost is the pose change between
@@ -161,6 +164,53 @@ def _photo_evidence(photo: dict[int, np.ndarray], idx: list[int], k: int) -> flo
     return ev
 
 
+def _min_marginals(u: np.ndarray, steps: list[np.ndarray], photo: dict[int, np.ndarray],
+                   idx: list[int]) -> np.ndarray:
+    """(K, 2): the least total cost of the chain with frame idx[k] in each state
+    (min-sum forward and backward passes; transitions ``steps`` plus the photometric
+    costs of the pairs that have them)."""
+    trans = [t + photo.get(idx[k], np.zeros((2, 2))) for k, t in enumerate(steps)]
+    fwd = np.zeros((len(idx), 2))
+    fwd[0] = u[0]
+    for k, t in enumerate(trans, start=1):
+        fwd[k] = u[k] + np.min(fwd[k - 1][:, None] + t, axis=0)
+    bwd = np.zeros((len(idx), 2))
+    for k in range(len(idx) - 2, -1, -1):
+        bwd[k] = np.min(trans[k] + (u[k + 1] + bwd[k + 1])[None, :], axis=1)
+    return fwd + bwd
+
+
+def _contradicted(total: np.ndarray, photo: dict[int, np.ndarray], idx: list[int],
+                  min_margin: float) -> list[int]:
+    """The photometric pairs (keys of ``photo``) of every stretch of consecutive compared
+    frames in which the best chain pays ``min_margin`` or more for one pair's comparison.
+
+    Each pair's costs are a likelihood ratio that is 0 for the combination it finds
+    best; on a stretch of frames whose comparisons agree, the best chain follows them
+    all and pays nothing. Paying for one means two comparisons of the stretch disagree
+    (a wall whose texture fools the comparison, a ring pose far enough off to warp the
+    strip more than its mirror does): which one is wrong is not known, so the stretch's
+    comparisons are all dropped and its frames decided by the rest (the body, continuity)
+    or flagged.
+    """
+    best = np.argmin(total, axis=1)
+    stretches: list[list[int]] = []
+    for k, a in enumerate(idx[:-1]):
+        if a not in photo:
+            continue
+        if stretches and stretches[-1][-1] == idx[k - 1] and k > 0:
+            stretches[-1].append(a)
+        else:
+            stretches.append([a])
+    position = {a: k for k, a in enumerate(idx)}
+    out = []
+    for stretch in stretches:
+        paid = [photo[a][best[position[a]], best[position[a] + 1]] for a in stretch]
+        if max(paid) >= min_margin:
+            out.extend(stretch)
+    return out
+
+
 def _reason(u: np.ndarray, photo_evidence: float, min_margin: float) -> str:
     if abs(u[0] - u[1]) >= min_margin:
         return "envelope"
@@ -234,17 +284,16 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
     # such a frame carries no evidence for the chain and is flagged.
     impossible = np.min(u, axis=1) >= infeasible_cost
     u[impossible] = 0.0
-    photo = pairwise or {}
-    trans = [_transition(fits[a], fits[b], b - a, ang, off) + photo.get(a, np.zeros((2, 2)))
-             for a, b in pairwise_indices(idx)]
-    fwd = np.zeros((len(idx), 2))
-    fwd[0] = u[0]
-    for k, t in enumerate(trans, start=1):
-        fwd[k] = u[k] + np.min(fwd[k - 1][:, None] + t, axis=0)
-    bwd = np.zeros((len(idx), 2))
-    for k in range(len(idx) - 2, -1, -1):
-        bwd[k] = np.min(trans[k] + (u[k + 1] + bwd[k + 1])[None, :], axis=1)
-    total = fwd + bwd
+    steps = [_transition(fits[a], fits[b], b - a, ang, off) for a, b in pairwise_indices(idx)]
+    photo = dict(pairwise or {})
+    total = _min_marginals(u, steps, photo, idx)
+    for _ in range(len(idx)):   # each round clears at least one stretch
+        contradicted = _contradicted(total, photo, idx, min_margin)
+        if not contradicted:
+            break
+        for a in contradicted:
+            del photo[a]
+        total = _min_marginals(u, steps, photo, idx)
     for k, i in enumerate(idx):
         margin = float(abs(total[k, 0] - total[k, 1]))
         chosen = int(np.argmin(total[k]))

@@ -198,7 +198,7 @@ def _contradicted(total: np.ndarray, photo: dict[int, np.ndarray], idx: list[int
     for k, a in enumerate(idx[:-1]):
         if a not in photo:
             continue
-        if stretches and stretches[-1][-1] == idx[k - 1] and k > 0:
+        if k > 0 and stretches and stretches[-1][-1] == idx[k - 1]:   # follows it
             stretches[-1].append(a)
         else:
             stretches.append([a])

@@ -197,6 +197,7 @@ def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:
 
 def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
         small_dataset: Path, tmp_path: Path, monkeypatch) -> None:
+    import pipestitch.pipeline.run as run_module
     import pipestitch.pipeline.stitching as stitching
 
     data = tmp_path / "ds"
@@ -214,7 +215,9 @@ def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
     def no_search(*args, **kwargs):
         raise AssertionError("the declared mask was not used")
 
+    # neither the mosaic stage nor the run's search beside the pose pass
     monkeypatch.setattr(stitching, "sample_led", no_search)
+    monkeypatch.setattr(run_module, "sample_led", no_search)
     result = CliRunner().invoke(app, ["run", str(data), "--out", str(tmp_path / "out"),
                                       "--quiet"])
     assert result.exit_code == 0, result.output

@@ -190,6 +190,19 @@ def test_pose_exit_1_when_no_frame_has_a_ring(small_dataset: Path, tmp_path: Pat
     assert result.exit_code == 1 and "no frame gave a pose" in result.output
 
 
+@pytest.mark.parametrize("command", ["pose", "run"])
+def test_a_dataset_of_unreadable_laser_frames_is_bad_input(small_dataset: Path, tmp_path: Path,
+                                                          command: str) -> None:
+    data = tmp_path / "junk"
+    shutil.copytree(small_dataset, data)
+    for p in (data / "frames").glob("laser_*.png"):
+        p.write_text("not an image")
+    result = runner.invoke(app, [command, str(data), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert "laser frames can be read" in result.output and "laser_00000.png" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:
     result = runner.invoke(app, ["simulate", "--out", str(small_dataset), "--quiet"])
     assert result.exit_code == 2 and "already holds frames" in result.output

@@ -8,6 +8,7 @@ import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -141,6 +142,29 @@ def test_run_reports_and_skips_corrupt_frames(dataset: Path, tmp_path: Path) -> 
     rows = (tmp_path / "out" / "poses.csv").read_text().splitlines()
     assert len(rows) == 7                      # every frame keeps its row
     assert "laser_00001.png" in rows[2]
+
+
+def test_a_black_led_frame_leaves_a_laser_only_pose_and_the_odometers_place(
+        dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    led = read_image(copy / "frames" / "led_00003.png")
+    cv2.imwrite(str(copy / "frames" / "led_00003.png"), np.zeros_like(led))   # LEDs off
+    result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    meta = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    assert meta["frames_placed"] == [0, 1, 2, 4, 5]   # a black strip is no wall
+    rows = list(csv.DictReader((tmp_path / "out" / "poses.csv").open()))
+    est = {name: np.array([float(r[name]) for r in rows]) for name in POSE}
+    truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
+    assert "led_00003.png" in rows[3]["warning"] and "black" in rows[3]["warning"]
+    # the laser frame alone still gives the pose (the ring is not divided by a black wall)
+    assert abs(est["alpha_deg"][3] - truth["alpha_deg"][3]) < 1.0
+    assert abs(est["beta_deg"][3] - truth["beta_deg"][3]) < 1.0
+    # placed by the odometer between its registered neighbours
+    assert est["z_mm"][2] < est["z_mm"][3] < est["z_mm"][4]
+    step = truth["z_mm"][3] - truth["z_mm"][2]
+    assert abs((est["z_mm"][3] - est["z_mm"][2]) - step) < 0.2 * abs(step)
 
 
 def test_run_without_led_frames_gives_poses_and_no_mosaic(dataset: Path, tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ May import nothing else of pipestitch: it is the bottom layer with ``geometry``.
 from __future__ import annotations
 
 from pipestitch.camera.base import CameraModel, pixel_grid
-from pipestitch.camera.frames import to_grey
+from pipestitch.camera.frames import blank_frame, to_grey
 from pipestitch.camera.ocam import OcamModel, fit_invpol
 from pipestitch.camera.opencv_fisheye import OpenCVFisheyeModel
 
@@ -18,6 +18,7 @@ __all__ = [
     "CameraModel",
     "OcamModel",
     "OpenCVFisheyeModel",
+    "blank_frame",
     "default_camera",
     "fit_invpol",
     "pixel_grid",

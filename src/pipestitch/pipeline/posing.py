@@ -25,7 +25,7 @@ from rich.markup import escape
 
 from pipestitch._runtime import scratch
 from pipestitch._runtime.threads import opencv_threads, ordered_map
-from pipestitch.camera import CameraModel
+from pipestitch.camera import CameraModel, blank_frame
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
@@ -70,6 +70,7 @@ class FramePose:
     warning: str = ""
     stored_ring: StoredRing | RingPoints | None = field(default=None, compare=False)
     body_infeasible: bool = False   # the declared body can hold neither hypothesis
+    unreadable: bool = False        # the laser frame could not be read at all
     # run's oval start replaced the ring's circle fit: that fit (without its ring points)
     # and its warning, for frames the LED refinement then never reaches
     circle_fallback: tuple[PoseFit, str] | None = field(default=None, compare=False)
@@ -192,13 +193,16 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
             laser = dataset.read_laser(index)
         except DatasetError as exc:
             return FramePose(index, PoseFit(False, exc.problem),
-                             f"{exc.path.name}: {exc.problem}")
+                             f"{exc.path.name}: {exc.problem}", unreadable=True)
         led, warning = None, ""
         if dataset.has_led:
             try:
                 led = dataset.read_led(index)
+                if blank := blank_frame(led):
+                    raise DatasetError(dataset.led_paths[index], blank)
             except DatasetError as exc:
                 # The laser frame alone still gives a pose, a little less exact.
+                led = None
                 warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
     try:
         with timer("ring + pose"):
@@ -255,7 +259,24 @@ def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int
     settings = PoseSettings.from_config(dataset.config, oval_start=oval_start)
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
-    return resolve_frames(frames, settings.body, rings, drop_rings=drop_rings)
+    return resolve_frames(check_readable(frames, dataset), settings.body, rings,
+                          drop_rings=drop_rings)
+
+
+def check_readable(frames: Iterable[FramePose], dataset: Dataset) -> Iterator[FramePose]:
+    """``frames`` as they come; a :class:`DatasetError` (bad input, exit 2) at the end when
+    not one of the dataset's laser frames could be read: a dataset of unreadable files
+    is not a run whose frames failed one by one."""
+    first: FramePose | None = None
+    readable = False
+    for frame in frames:
+        readable = readable or not frame.unreadable
+        first = first or frame
+        yield frame
+    if first is not None and not readable:
+        folder = dataset.laser_paths[first.index].parent
+        raise DatasetError(folder, f"not one of its {dataset.n_pairs} laser frames can be read "
+                                   f"(the first: {first.error})")
 
 
 def _fmt(value: float, digits: int = 6) -> str:

@@ -9,10 +9,11 @@ and kept in poses.csv with their error; they never stop the run.
 
 from __future__ import annotations
 
+import bisect
 import math
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -399,7 +400,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     if result is not None:
         choices = _apply_switches(choices, result.switched)
         frames = _with_refined(frames, choices, result.views)
-        z = _finite(result.positions.z_mm)
+        z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
+                           result.positions.odometer_scale)
         roll = _finite(result.positions.roll_deg)
     else:
         # Poses and the profile still; z from the odometer.
@@ -483,6 +485,30 @@ def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
 
 def _finite(values: np.ndarray) -> dict[int, float]:
     return {i: float(v) for i, v in enumerate(values) if np.isfinite(v)}
+
+
+def _with_odometer(z_mm: dict[int, float], odometry_mm: Mapping[int, float] | None,
+                   scale: float) -> dict[int, float]:
+    """``z_mm`` with the frames registration did not place (no pose, no usable LED
+    frame) put where the odometer says, relative to the placed frames on either side:
+    between two, in proportion to the odometer's readings (a slip between them is
+    shared); past the last or before the first, the nearest one plus the reading's
+    difference times the odometer's fitted ``scale``."""
+    odo = {i: v for i, v in (odometry_mm or {}).items() if math.isfinite(v)}
+    anchors = sorted(i for i in z_mm if i in odo)
+    if not anchors:
+        return z_mm
+    out = dict(z_mm)
+    for i in sorted(set(odo) - set(z_mm)):
+        k = bisect.bisect(anchors, i)
+        before, after = anchors[k - 1] if k else None, anchors[k] if k < len(anchors) else None
+        if before is not None and after is not None and odo[after] != odo[before]:
+            share = (odo[i] - odo[before]) / (odo[after] - odo[before])
+            out[i] = z_mm[before] + share * (z_mm[after] - z_mm[before])
+        else:
+            near = before if before is not None else after
+            out[i] = z_mm[near] + scale * (odo[i] - odo[near])
+    return out
 
 
 VIEWER = "viewer.html"

@@ -31,7 +31,7 @@ from pipestitch._runtime import scratch
 from pipestitch._runtime.memory import release_free_memory
 from pipestitch._runtime.threads import ordered_map
 from pipestitch.camera import CameraModel
-from pipestitch.camera.frames import to_grey
+from pipestitch.camera.frames import blank_frame, to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import Dataset
@@ -249,6 +249,8 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
     (:mod:`pipestitch._runtime.scratch`), for a caller done with it before its next frame."""
     with timer("decode"):
         led = dataset.read_led(index)
+        if blank := blank_frame(led):   # the pose pass took the laser frame alone
+            raise DatasetError(dataset.led_paths[index], blank)
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
         return to_grey(led, out=out)
@@ -305,6 +307,8 @@ def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: Stage
         try:
             with timer("decode"):
                 led = dataset.read_led(i)
+                if blank_frame(led):
+                    return None   # shows nothing; reported when the frame is processed
                 # grey frames as stored (<= 2 bytes a pixel), made float in the mask's
                 # stack; colour ones grey now (16-bit BGRA would hold 8 bytes a pixel)
                 return led if led.ndim == 2 else to_grey(led)

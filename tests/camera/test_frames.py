@@ -1,0 +1,33 @@
+"""Camera frames as grey values, and frames that show no picture at all."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipestitch.camera import blank_frame
+
+
+@pytest.mark.parametrize("frame,word", [
+    (np.zeros((480, 640), np.uint8), "black"),
+    (np.full((480, 640, 3), 65535, np.uint16), "saturated"),
+    (np.full((480, 640), 0.5, np.float32), "flat"),
+    (np.full((480, 640), np.nan, np.float32), "no finite"),
+])
+def test_a_frame_without_a_picture_is_named_blank(frame: np.ndarray, word: str) -> None:
+    assert word in blank_frame(frame)
+
+
+def test_hot_pixels_and_one_count_of_noise_do_not_make_a_picture() -> None:
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 2, (480, 640)).astype(np.uint8)   # dark-frame noise, 0-1 DN
+    frame[::4, ::4][:4, :4] = 255                             # 16 of 19200 samples hot
+    assert "black" in blank_frame(frame)
+
+
+@pytest.mark.parametrize("dtype,full", [(np.uint8, 255), (np.uint16, 65535), (np.float32, 1.0)])
+def test_a_dim_textured_frame_is_a_picture(dtype: type, full: float) -> None:
+    # a wall 5 % of full scale bright (13-19 DN of 8 bits) with 50 % contrast
+    rng = np.random.default_rng(1)
+    wall = 0.05 * full * (1 + 0.5 * rng.random((480, 640)))
+    assert blank_frame(wall.astype(dtype)) == ""

@@ -425,7 +425,7 @@ def _check_truth(root: Path) -> Iterator[Problem]:
     wall_json = truth / "wall.json"
     if wall_json.is_file():
         try:
-            meta = json.loads(wall_json.read_text(encoding="utf-8"))
+            meta = json.loads(wall_json.read_text(encoding="utf-8-sig"))
             missing = {"mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm"} - set(meta)
             if missing:
                 yield Problem(wall_json, f"missing key(s) {', '.join(sorted(missing))}")

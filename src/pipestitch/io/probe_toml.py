@@ -49,9 +49,13 @@ def _describe(exc: ValidationError, *, sections: bool) -> str:
 
 def validated_toml(text: str, path: Path, model: type[M], *, sections: bool) -> M:
     """``text`` parsed as TOML and validated as ``model``; ConfigError names ``path``
-    and every problem (malformed TOML, unknown or missing keys, bad values)."""
+    and every problem (malformed TOML, unknown or missing keys, bad values).
+
+    A leading UTF-8 byte-order mark (what Notepad and spreadsheets write) is dropped:
+    TOML forbids it and tomllib would call the first line malformed.
+    """
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(path, f"malformed TOML: {exc}") from None
     try:

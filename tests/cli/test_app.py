@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import os
 import shutil
 import subprocess
@@ -201,6 +202,20 @@ def test_a_dataset_of_unreadable_laser_frames_is_bad_input(small_dataset: Path, 
     assert result.exit_code == 2, result.output
     assert "laser frames can be read" in result.output and "laser_00000.png" in result.output
     assert "Traceback" not in result.output
+
+
+def test_pose_takes_roll_from_imu_csv_and_refuses_a_bad_one(small_dataset: Path,
+                                                           tmp_path: Path) -> None:
+    data = tmp_path / "imu"
+    shutil.copytree(small_dataset, data)
+    (data / "imu.csv").write_text("frame,roll_deg\n0,12.5\n")   # frame 1 not measured
+    result = runner.invoke(app, ["pose", str(data), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    rows = list(csv.DictReader((tmp_path / "o" / "poses.csv").open()))
+    assert [r["roll_deg"] for r in rows[:2]] == ["12.500000", "nan"]
+    (data / "imu.csv").write_text("frame,roll_deg\n0,twelve\n")
+    result = runner.invoke(app, ["pose", str(data), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code == 2 and "imu.csv" in result.output and "twelve" in result.output
 
 
 def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:

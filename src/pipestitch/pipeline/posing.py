@@ -31,6 +31,7 @@ from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.io.imu import read_imu
 from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
@@ -351,8 +352,11 @@ class PoseSummary:
 
 def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
              workers: int = 2, video: Path | None = None) -> PoseSummary:
-    """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``."""
+    """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``: z from
+    the dataset's odometry.csv and roll from its imu.csv where they have the frame (no
+    registration here), else nan."""
     dataset = open_dataset(root, video=video)
+    imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
     try:
         with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
             # poses.csv reads no ring points: not kept (~11.5 kB a frame)
@@ -363,6 +367,6 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
-    path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm)
+    path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm, imu)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
                        sum(1 for c in choices if c.ambiguous), path)

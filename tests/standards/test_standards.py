@@ -147,6 +147,20 @@ def test_invert_on_a_long_mosaic_reads_a_bounded_sample_of_columns(monkeypatch) 
     assert peaks[1] < 1.2 * peaks[0]
 
 
+@pytest.mark.parametrize("amplitude", [0.2, 0.5])
+def test_a_smooth_swell_of_brightness_is_no_invert(amplitude: float) -> None:
+    # The LEDs light the wall the probe is nearer to more: a cosine around the pipe,
+    # persistent along the run and wider than any threshold, but with no edge.
+    img = _wall()
+    theta = np.arange(img.shape[0]) * 0.5
+    swell = 1 + amplitude * np.cos(np.deg2rad(theta - 40))
+    assert detect_invert(img * swell[:, None], 0.5) is None
+    inside = np.abs((theta - 200 + 180) % 360 - 180) < 30
+    img[inside] *= 0.6                                       # a real band beside it
+    band = detect_invert(img * (1 + 0.1 * np.cos(np.deg2rad(theta - 40)))[:, None], 0.5)
+    assert band is not None and abs(band.theta_deg - 200) < 2.0
+
+
 def test_no_band_no_invert() -> None:
     img = _wall()
     assert detect_invert(img, 0.5) is None

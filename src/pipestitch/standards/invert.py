@@ -4,9 +4,13 @@ line: a band of rows (theta) that is darker or brighter than the rest of the wal
 
 Hand-written because it is a few lines of robust statistics on the row profile; the
 band must be wide (>= 20 deg: narrower persistent strips are e.g. the laser-holder
-arm's shadow) and present along the run (>= 80 % of the columns), so holes, spots and
-texture do not make one. Returns None when there is no such band: the caller then
-falls back to another reference.
+arm's shadow), present along the run (>= 80 % of the columns), so holes, spots and
+texture do not make one, and bounded by an edge on both sides: across each of its
+edges the profile steps by at least half the band's contrast within a few degrees.
+A smooth swell of brightness around the circumference (the LEDs lighting the near
+wall more than the far one, an uneven coating) crosses any threshold too, but
+gradually, and is not a band. Returns None when there is no such band: the caller
+then falls back to another reference.
 """
 
 from __future__ import annotations
@@ -24,6 +28,12 @@ MIN_WIDTH_DEG = 20.0
 MAX_WIDTH_DEG = 200.0
 MIN_PERSISTENCE = 0.8      # share of columns in which the band shows
 SMOOTH_DEG = 3.0
+# Each edge of a band: the mean profile over EDGE_WINDOW_DEG just inside it against
+# just outside it, each window SMOOTH_DEG clear of the edge (the smoothing's blur), must
+# differ by EDGE_SHARE of the band's contrast. A sharp edge gives ~1; a cosine swell of
+# any amplitude ~0.3 (its slope over the windows' 11 deg against its mean excess).
+EDGE_WINDOW_DEG = 5.0
+EDGE_SHARE = 0.5
 # The band is a property of every column along the run: its statistics are taken over
 # at most this many evenly spaced columns (a 4000-pair overview has ~10^4), so the
 # working memory is bounded (~20 MB) however long the run is.
@@ -40,18 +50,18 @@ class InvertBand:
     persistence: float
 
 
-def _longest_run(mask: np.ndarray) -> tuple[int, int]:
-    """(start, length) of the longest circular run of True; (0, 0) if none."""
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, length) of every circular run of True, longest first."""
     if not mask.any():
-        return 0, 0
+        return []
     if mask.all():
-        return 0, mask.size
+        return [(0, mask.size)]
     shift = int(np.argmin(mask))            # a False row: runs do not wrap from here
     rolled = np.append(np.roll(mask, -shift), False)
     edges = np.flatnonzero(np.diff(np.concatenate(([0], rolled.astype(np.int8)))))
     starts, ends = edges[0::2], edges[1::2]
-    k = int(np.argmax(ends - starts))
-    return (int(starts[k]) + shift) % mask.size, int(ends[k] - starts[k])
+    order = np.argsort(starts - ends, kind="stable")
+    return [((int(starts[k]) + shift) % mask.size, int(ends[k] - starts[k])) for k in order]
 
 
 def detect_invert(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
@@ -101,16 +111,48 @@ def _detect(image: np.ndarray, deg_per_px: float) -> InvertBand | None:
     dev = profile - np.nanmedian(profile)
     best = None
     for sign in (-1.0, 1.0):
-        start, length = _longest_run(np.nan_to_num(sign * dev) > MIN_CONTRAST)
-        width = length * deg_per_px
-        if not MIN_WIDTH_DEG <= width <= MAX_WIDTH_DEG:
-            continue
-        rows = (start + np.arange(length)) % image.shape[0]
-        persistence = _persistence(norm, rows, sign)
-        if persistence >= MIN_PERSISTENCE and (best is None or width > best.width_deg):
-            centre = (start + (length - 1) / 2) * deg_per_px % 360.0
-            best = InvertBand(centre, width, float(np.nanmedian(dev[rows])), persistence)
+        for start, length in _runs(np.nan_to_num(sign * dev) > MIN_CONTRAST):
+            band = _band(norm, dev, sign, start, length, deg_per_px)
+            if band is not None and (best is None or band.width_deg > best.width_deg):
+                best = band
     return best
+
+
+def _band(norm: np.ndarray, dev: np.ndarray, sign: float, start: int, length: int,
+          deg_per_px: float) -> InvertBand | None:
+    """The run of rows ``start`` .. ``start + length`` as a band, or None when it is not
+    one (too narrow or wide, a gradual swell, not along the run)."""
+    width = length * deg_per_px
+    if not MIN_WIDTH_DEG <= width <= MAX_WIDTH_DEG:
+        return None
+    rows = (start + np.arange(length)) % dev.size
+    contrast = float(np.nanmedian(dev[rows]))
+    if min(_edge_steps(sign * dev, start, length, deg_per_px)) < EDGE_SHARE * abs(contrast):
+        return None   # a gradual swell
+    persistence = _persistence(norm, rows, sign)
+    if persistence < MIN_PERSISTENCE:
+        return None
+    centre = (start + (length - 1) / 2) * deg_per_px % 360.0
+    return InvertBand(centre, width, contrast, persistence)
+
+
+def _edge_steps(excess: np.ndarray, start: int, length: int,
+                deg_per_px: float) -> tuple[float, float]:
+    """How much higher ``excess`` (the band's direction up) is just inside the band's
+    first and last rows than just outside them (circular rows; NaN rows ignored)."""
+    n = excess.size
+    clear = int(np.ceil(SMOOTH_DEG / deg_per_px))
+    window = np.arange(max(1, round(EDGE_WINDOW_DEG / deg_per_px)))
+    first, last = start, start + length - 1
+
+    def mean(rows: np.ndarray) -> float:
+        values = excess[rows % n]
+        values = values[np.isfinite(values)]
+        return float(values.mean()) if values.size else np.nan
+
+    steps = (mean(first + clear + window) - mean(first - clear - 1 - window),
+             mean(last - clear - window) - mean(last + clear + 1 + window))
+    return tuple(s if np.isfinite(s) else -np.inf for s in steps)  # type: ignore[return-value]
 
 
 def _nanmedian(values: np.ndarray, axis: int) -> np.ndarray:

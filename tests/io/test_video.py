@@ -1,10 +1,12 @@
-"""Video input: lossless round trips, laser/LED pairing by content, dropped frames,
-timestamps, random access, bad input, and `run`/`pose --video` against the frames."""
+"""Video input: lossless round trips, laser/LED pairing by content, dropped and
+undecodable frames (the pairs keep their place in the recording), timestamps, random
+access, bad input, and `run`/`pose --video` against the frames."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
 import pytest
@@ -79,17 +81,76 @@ def test_brightness_classifies_laser_frames_without_a_threshold() -> None:
 
 
 def test_pairing_resyncs_after_dropped_frames_and_reports_them() -> None:
-    # LED-first video: (E L)(E L)(E -)(E L)(- L)(E L) -> frames 5 and 8 missing.
+    # LED-first video: (E L)(E L)(E -)(E L)(- L)(E L) -> frames 5 and 8 of the recording
+    # missing; the video's frames 0-9 are the recording's 0-4, 6, 7, 9-11.
     sequence = "ELELE" + "EL" + "L" + "EL"
     is_laser = np.array([c == "L" for c in sequence])
     pairs = pair_frames(is_laser)
     assert not pairs.laser_first
-    # Independently worked out: frame numbers of each pair's laser and LED frames.
-    assert pairs.laser.tolist() == [1, 3, 6, 7, 9]
-    assert pairs.led.tolist() == [0, 2, 5, -1, 8]
-    assert len(pairs.messages) == 2
-    assert "frame 4: LED frame without its laser frame" in pairs.messages[0]
-    assert "frame 7: laser frame without its LED frame" in pairs.messages[1]
+    # Independently worked out: frame numbers of each pair's laser and LED frames; pair 2
+    # (no laser frame) keeps its number, so pairs 3-5 keep theirs.
+    assert pairs.laser.tolist() == [1, 3, -1, 6, 7, 9]
+    assert pairs.led.tolist() == [0, 2, 4, 5, -1, 8]
+    assert pairs.messages == (
+        "frame 4: LED frame without its laser frame (dropped or undecodable); pair 2 has no "
+        "laser frame",
+        "frame 7: laser frame without its LED frame (dropped or undecodable); pair 4 has no "
+        "LED frame")
+
+
+def _recording(n_pairs: int, dropped: set[int], *, inside_s: float = 0.03,
+               pair_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """is_laser and timestamps of a laser-first recording (its frame 2i is pair i's laser
+    frame, taken at i * pair_s; the LED frame inside_s later) without frames ``dropped``."""
+    keep = [k for k in range(2 * n_pairs) if k not in dropped]
+    return (np.array([k % 2 == 0 for k in keep]),
+            np.array([(k // 2) * pair_s + (k % 2) * inside_s for k in keep]))
+
+
+@pytest.mark.parametrize("inside_s,pair_s", [(0.05, 0.1), (0.03, 0.5), (0.47, 0.5)])
+def test_pairs_keep_their_place_in_the_recording_whatever_the_spacing(inside_s: float,
+                                                                      pair_s: float) -> None:
+    # Evenly spaced frames, and a probe that takes its two frames 30 ms apart every 0.5 s
+    # (or 470 ms apart): the timestamps' uneven steps are not dropped frames.
+    # Dropped: pair 3 whole (frames 6, 7), pair 5's LED (11), pair 8's laser (16).
+    is_laser, time_s = _recording(10, {6, 7, 11, 16}, inside_s=inside_s, pair_s=pair_s)
+    pairs = pair_frames(is_laser, time_s)
+    assert pairs.laser_first
+    # Worked out from the recording: its frame k is the video's k, k - 2, k - 3, k - 4
+    # after each drop.
+    assert pairs.laser.tolist() == [0, 2, 4, -1, 6, 8, 9, 11, -1, 14]
+    assert pairs.led.tolist() == [1, 3, 5, -1, 7, -1, 10, 12, 13, 15]
+    assert len(pairs.messages) == 3
+    assert pairs.messages[0].startswith("frames 5-6: timestamp gap of ")
+    assert pairs.messages[0].endswith("2 frame(s) dropped; pair 3 has no frame")
+    assert pairs.messages[1] == (f"frame 8 ({5 * pair_s:.3f} s): laser frame without its LED "
+                                 "frame (dropped or undecodable); pair 5 has no LED frame")
+    assert pairs.messages[2].startswith("frame 13 (")
+    assert pairs.messages[2].endswith("LED frame without its laser frame (dropped or "
+                                      "undecodable); pair 8 has no laser frame")
+    # Without timestamps only the alternation shows where frames are missing: the whole
+    # pair cannot be seen, the single frames still keep the pairs after them in place.
+    alone = pair_frames(is_laser)
+    assert alone.laser.tolist() == [0, 2, 4, 6, 8, 9, 11, -1, 14]
+    assert alone.led.tolist() == [1, 3, 5, 7, -1, 10, 12, 13, 15]
+
+
+def test_a_video_that_starts_or_jumps_oddly_is_numbered_from_its_first_frame() -> None:
+    # The first frame is an LED frame of a laser-first video: pair 0 lost its laser frame.
+    is_laser, time_s = _recording(4, {0})
+    pairs = pair_frames(is_laser, time_s)
+    assert pairs.laser_first
+    assert pairs.laser.tolist() == [-1, 1, 3, 5] and pairs.led.tolist() == [0, 2, 4, 6]
+    assert pairs.messages == ("frame 0 (0.030 s): LED frame without its laser frame (dropped "
+                              "or undecodable); pair 0 has no laser frame",)
+    # A timestamp jump longer than the whole video (a clock reset, joined files) is not
+    # read as thousands of dropped pairs; it is reported.
+    is_laser, time_s = _recording(6, set())
+    time_s[6:] += 1000.0
+    pairs = pair_frames(is_laser, time_s)
+    assert pairs.laser.tolist() == [0, 2, 4, 6, 8, 10]
+    assert pairs.messages == ("frames 5-6: timestamp jump of 1000 s, longer than the video: "
+                              "not counted as dropped frames",)
 
 
 def test_dropped_frames_in_a_video_give_pairs_timestamps_and_gaps(tmp_path: Path) -> None:
@@ -99,16 +160,80 @@ def test_dropped_frames_in_a_video_give_pairs_timestamps_and_gaps(tmp_path: Path
                        frame_numbers=keep)
     root = _dataset_root(tmp_path, W, H)
     ds = open_dataset(root, video=path)
-    # Pairs 0, 1 (LED dropped), 2, 4, 5 of the original run (pair 3 lost whole).
-    assert ds.n_pairs == 5
-    assert ds.led_missing() == [1]
-    np.testing.assert_allclose(ds.timestamps_s, [0.0, 0.1, 0.2, 0.4, 0.5], atol=1e-3)
-    assert np.array_equal(ds.read_laser(3), frames[8])
-    assert np.array_equal(ds.read_led(4), frames[11])
+    # Pairs 0-5 of the original run: 1 without its LED frame, 3 lost whole (no pose, but
+    # its number stays taken, so odometry row 4 is still pair 4's).
+    assert ds.n_pairs == 6
+    assert ds.led_missing() == [1, 3]
+    present = [0, 1, 2, 4, 5]
+    np.testing.assert_allclose(ds.timestamps_s[present], [0.0, 0.1, 0.2, 0.4, 0.5], atol=1e-3)
+    assert np.array_equal(ds.read_laser(4), frames[8])
+    assert np.array_equal(ds.read_led(5), frames[11])
     with pytest.raises(DatasetError, match="pair 1: LED frame missing"):
         ds.read_led(1)
-    assert any("without its LED frame" in n for n in ds.notes)
-    assert any("timestamp gap" in n and "2 frame(s) dropped" in n for n in ds.notes)
+    with pytest.raises(DatasetError, match="frame missing from the video"):
+        ds.read_laser(3)
+    assert ds.notes == ["frame 2 (0.100 s): laser frame without its LED frame (dropped or "
+                        "undecodable); pair 1 has no LED frame",
+                        "frames 4-5: timestamp gap of 0.15 s, 2 frame(s) dropped; pair 3 has no "
+                        "frame"]
+
+
+def _damage(path: Path, out: Path, frames: set[int]) -> Path:
+    """A copy of the video whose ``frames`` (0-based) hold 20 bytes of their packet: the
+    decoder refuses them, as it does a frame damaged on the recorder's disk."""
+    with av.open(str(path)) as src, av.open(str(out), "w", format="avi") as dst:
+        s_in = src.streams.video[0]
+        s_out = dst.add_stream_from_template(s_in)
+        packets = (p for p in src.demux(s_in) if p.size)   # not the final flush packet
+        for k, packet in enumerate(packets):
+            if k in frames:
+                cut = av.Packet(bytes(packet)[:20])
+                cut.pts, cut.dts, cut.time_base = packet.pts, packet.dts, packet.time_base
+                cut.is_keyframe = True
+                packet = cut
+            packet.stream = s_out
+            dst.mux(packet)
+    return out
+
+
+@pytest.mark.parametrize("damaged,laser,led", [
+    # frame 4 is pair 2's laser frame, frame 5 its LED frame
+    (4, [0, 2, -1, 5, 7], [1, 3, 4, 6, 8]),
+    (5, [0, 2, 4, 5, 7], [1, 3, -1, 6, 8]),
+])
+def test_an_undecodable_frame_is_reported_and_the_pairs_after_it_keep_their_numbers(
+        tmp_path: Path, caplog, damaged: int, laser: list[int], led: list[int]) -> None:
+    frames = _interleaved(5)
+    path = _damage(write_video(tmp_path / "v.avi", frames, fps=20.0), tmp_path / "bad.avi",
+                   {damaged})
+    reader = VideoReader(path)
+    assert reader.n_frames == 9
+    where = f"between frames {damaged - 1} and {damaged}"
+    assert reader.index.undecodable == (
+        f"the frame at {damaged / 20:.3f} s ({where}) cannot be decoded (Invalid data found "
+        "when processing input); skipped",)
+    reader.close()
+    caplog.clear()
+    ds = open_dataset(_dataset_root(tmp_path, W, H), video=path)
+    assert [r.getMessage() for r in caplog.records if "cannot be decoded" in r.getMessage()
+            ] == [f"{path}: {reader.index.undecodable[0]}"]   # logged once, naming the frame
+    assert ds.n_pairs == 5
+    assert ds.pairs.laser.tolist() == laser and ds.pairs.led.tolist() == led
+    kind = "laser" if damaged % 2 == 0 else "LED"
+    assert len(ds.notes) == 1 and ds.notes[0].endswith(f"pair 2 has no {kind} frame")
+    for i in (0, 1, 3, 4):   # every other pair reads its own frames, at its own number
+        assert np.array_equal(ds.read_laser(i), frames[2 * i])
+        assert np.array_equal(ds.read_led(i), frames[2 * i + 1])
+    with pytest.raises(DatasetError, match="missing"):
+        ds.read_laser(2) if kind == "laser" else ds.read_led(2)
+    ds.close()
+
+
+def test_a_video_with_no_decodable_frame_is_bad_input(tmp_path: Path) -> None:
+    path = _damage(write_video(tmp_path / "v.avi", _interleaved(2)), tmp_path / "bad.avi",
+                   {0, 1, 2, 3})
+    with pytest.raises(DatasetError, match="no frame that can be decoded: Invalid data"):
+        VideoReader(path)
 
 
 def _dataset_root(tmp_path: Path, width: int, height: int) -> Path:
@@ -150,6 +275,36 @@ def simulated_video(tmp_path_factory, simulate_small) -> tuple[Path, Path]:
     ds = open_dataset(root)
     frames = (f for i in range(ds.n_pairs) for f in (ds.read_laser(i), ds.read_led(i)))
     return root, write_video(tmp / "run.avi", frames)
+
+
+def test_pose_from_a_video_with_a_damaged_frame_keeps_every_row_in_place(
+        tmp_path: Path, caplog, simulated_video) -> None:
+    """Pair 1's laser frame undecodable: poses.csv still has rows 0, 1, 2, row 1 says why
+    it has no pose, and row 2 is pair 2 (its odometry z, its own ring)."""
+    import csv
+
+    root, video = simulated_video
+    damaged = _damage(video, tmp_path / "damaged.avi", {2})
+    runner = CliRunner()
+    rows = {}
+    for name, extra in (("frames", []), ("video", ["--video", str(damaged)])):
+        result = runner.invoke(app, ["pose", str(root), "--out", str(tmp_path / name),
+                                     "--quiet", *extra])
+        assert result.exit_code == 0, result.output
+        with (tmp_path / name / "poses.csv").open(newline="") as handle:
+            rows[name] = list(csv.DictReader(handle))
+    assert "pair 1 has no laser frame" in result.output
+    assert any("between frames 1 and 2) cannot be decoded" in r.getMessage()
+               for r in caplog.records)
+    assert [r["frame"] for r in rows["video"]] == ["0", "1", "2"]
+    assert rows["video"][1]["alpha_deg"] == "nan"
+    assert "frame missing from the video" in rows["video"][1]["error"]
+    for i in (0, 2):
+        for column in ("z_mm", "radius_mm", "rms_px"):
+            assert rows["video"][i][column] == rows["frames"][i][column], (i, column)
+        # the mirror pair is the ring's; which one is chosen may use the neighbours
+        assert ({rows["video"][i]["alpha_deg"], rows["video"][i]["alt_alpha_deg"]}
+                == {rows["frames"][i]["alpha_deg"], rows["frames"][i]["alt_alpha_deg"]})
 
 
 def test_video_dataset_matches_the_frames_dataset(simulated_video) -> None:

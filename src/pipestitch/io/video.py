@@ -8,12 +8,20 @@ dropped, and then gives random access to any frame with a small bounded cache, s
 memory does not grow with the length of the video. :func:`write_video` turns frames
 into a lossless video (tests, benchmarks).
 
+A pair's number is its place in the recording, as the probe's odometer and IMU count
+it: frames missing from the video (dropped when it was written, or whose packet the
+decoder refuses) leave their pairs' numbers unused rather than renumbering the pairs
+after them. Where frames are missing is read from the alternation (two frames of a
+kind in a row) and the timestamps (a gap of whole pairs); every missing frame is
+reported.
+
 It does not know about probe.toml or datasets: ``io.dataset.open_dataset(root,
 video=...)`` wraps a reader in the Dataset interface.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
@@ -46,6 +54,8 @@ CACHE_FRAMES = 8
 # A frame this many frames ahead of the decoder is reached by decoding forward;
 # further (or behind), by seeking to the preceding keyframe.
 FORWARD_DECODE_LIMIT = 24
+# The frame number of a pair's frame that is not in the video (VideoPairs).
+MISSING = -1
 
 
 @dataclass(frozen=True)
@@ -57,15 +67,19 @@ class FrameIndex:
     brightness: np.ndarray  # (F,) float, see frame_brightness
     width: int
     height: int
+    # One line per frame the decoder refused (its packet is damaged): not in the index.
+    undecodable: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
 class VideoPairs:
-    """Frame pairs: ``laser[i]`` and ``led[i]`` are frame numbers (``led[i]`` may be -1)."""
+    """Frame pairs numbered by their place in the recording: ``laser[i]`` and ``led[i]``
+    are the frame numbers of pair i, ``MISSING`` (-1) where that frame is not in the video
+    (a pair may lack one frame, or both when whole pairs were dropped)."""
 
-    laser: np.ndarray  # (P,) int
-    led: np.ndarray  # (P,) int, -1 where the pair's LED frame was dropped
-    messages: tuple[str, ...]  # dropped frames and timestamp gaps, for the user
+    laser: np.ndarray  # (P,) int, -1 where the pair's laser frame is missing
+    led: np.ndarray  # (P,) int, -1 where the pair's LED frame is missing
+    messages: tuple[str, ...]  # one line per missing frame or gap, for the user
     laser_first: bool
 
 
@@ -123,59 +137,106 @@ def _otsu_exact(values: np.ndarray) -> float:
     return float((v[best] + v[best + 1]) / 2)
 
 
-def _scan(is_laser: np.ndarray, laser_first: bool) -> tuple[list[tuple[int, int]], list[str]]:
-    """Greedy pairing in one order; lone frames are reported and re-synced past."""
-    pairs: list[tuple[int, int]] = []
-    lone: list[str] = []
-    k, n = 0, len(is_laser)
-    while k < n:
-        first_ok = is_laser[k] == laser_first
-        if first_ok and k + 1 < n and is_laser[k + 1] != laser_first:
-            a, b = k, k + 1
-            pairs.append((a, b) if laser_first else (b, a))
-            k += 2
-            continue
-        if is_laser[k]:
-            pairs.append((k, -1))
-            lone.append(f"frame {k}: laser frame without its LED frame (dropped frame); "
-                        f"pair {len(pairs) - 1} has no LED frame")
-        else:
-            lone.append(f"frame {k}: LED frame without its laser frame (dropped frame); "
-                        f"skipped")
-        k += 1
-    return pairs, lone
+def _frame_period(is_laser: np.ndarray, time_s: np.ndarray) -> float | None:
+    """The frame period: half the median time from a frame to the next of its kind across
+    one frame of the other kind (a pair period), so uneven spacing within a pair (the
+    probe's few tens of ms between its two frames) does not matter. None without such
+    frames or usable timestamps."""
+    k = np.flatnonzero((is_laser[2:] == is_laser[:-2]) & (is_laser[1:-1] != is_laser[2:]))
+    spans = time_s[k + 2] - time_s[k]
+    spans = spans[np.isfinite(spans)]
+    period = float(np.median(spans)) / 2 if spans.size else 0.0
+    return period if period > 0 else None
+
+
+def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None
+                     ) -> tuple[np.ndarray, list[tuple[int, str]]]:
+    """How many frames are missing between each frame and the next, and notes.
+
+    Two frames of a kind in a row miss an odd number between them, alternating frames
+    an even number; of those counts, the one nearest what the timestamps say (the step
+    over the frame period, less one; ties to fewer, none without timestamps). A jump
+    longer than the whole video is a timestamp discontinuity, not lost frames.
+    """
+    same = (is_laser[1:] == is_laser[:-1]).astype(int)
+    period = None if time_s is None or time_s.size < 3 else _frame_period(is_laser, time_s)
+    if period is None:
+        return same, []
+    steps = np.diff(time_s)
+    estimate = steps / period - 1
+    jump = ~np.isfinite(estimate) | (estimate > is_laser.size)
+    estimate[jump] = 0.0
+    # the nearest count of the right parity: 2 * (nearest whole number to half the excess)
+    extra = 2 * np.maximum(0, np.ceil((estimate - same) / 2 - 0.5)).astype(int)
+    notes = [(int(k), f"frames {k}-{k + 1}: timestamp jump of {steps[k]:.4g} s, longer than "
+                      "the video: not counted as dropped frames")
+             for k in np.flatnonzero(jump & np.isfinite(steps))]
+    return same + extra, notes
 
 
 def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None) -> VideoPairs:
-    """Pair alternating laser/LED frames, re-synchronising after dropped frames.
+    """Pair alternating laser/LED frames, numbering each pair by its place in the recording.
 
-    The order within a pair (laser first or LED first) is the one that pairs more
-    frames. A laser frame whose LED frame is missing still makes a pair (with
-    ``led = -1``: a pose but no strip); an LED frame without its laser frame is
-    skipped. Both are reported in ``messages``, as are gaps in the timestamps longer
-    than 1.5 median frame intervals (whole pairs dropped without breaking the
-    alternation).
+    A frame's place is its index in the video plus the frames missing before it (see
+    :func:`_missing_between`: two frames of a kind in a row, timestamp gaps), so the
+    pairs after a dropped frame keep their numbers. The order within a pair (laser
+    first or LED first) is the one that completes more pairs (ties: laser first). A pair
+    lacking a frame has ``MISSING`` there: without its LED frame it still gives a pose
+    (no strip); without its laser frame, or with neither (whole pairs dropped), it gives
+    none, but keeps its number. Every such pair is reported in ``messages``, one line
+    naming the frame or the gap.
     """
     is_laser = np.asarray(is_laser, dtype=bool)
-    scans = [_scan(is_laser, order) for order in (True, False)]
-    complete = [sum(1 for _, b in pairs if b >= 0) for pairs, _ in scans]
-    best = 0 if complete[0] >= complete[1] else 1
-    pairs, messages = scans[best]
-    if time_s is not None and len(time_s) > 2:
-        messages = messages + _gap_messages(np.asarray(time_s, dtype=float))
-    laser = np.array([a for a, _ in pairs], dtype=int)
-    led = np.array([b for _, b in pairs], dtype=int)
-    return VideoPairs(laser, led, tuple(messages), best == 0)
+    if is_laser.size == 0:
+        return VideoPairs(np.zeros(0, dtype=int), np.zeros(0, dtype=int), (), True)
+    time_s = None if time_s is None else np.asarray(time_s, dtype=float)
+    missing, notes = _missing_between(is_laser, time_s)
+    place = np.concatenate([[0], np.cumsum(1 + missing)])
+    laser_parity = int(place[0] + (0 if is_laser[0] else 1)) % 2  # every laser frame's
+    best = None
+    for laser_first in (True, False):   # only more complete pairs beat laser first
+        pair = (place + (laser_parity + (0 if laser_first else 1)) % 2) // 2
+        complete = np.intersect1d(pair[is_laser], pair[~is_laser]).size
+        if best is None or complete > best[0]:
+            best = (complete, laser_first, pair)
+    _, laser_first, pair = best
+    laser = np.full(int(pair[-1]) + 1, MISSING, dtype=int)
+    led = laser.copy()
+    laser[pair[is_laser]] = np.flatnonzero(is_laser)
+    led[pair[~is_laser]] = np.flatnonzero(~is_laser)
+    notes += _pair_notes(laser, led, missing, time_s)
+    return VideoPairs(laser, led, tuple(m for _, m in sorted(notes, key=lambda n: n[0])),
+                      laser_first)
 
 
-def _gap_messages(time_s: np.ndarray) -> list[str]:
-    steps = np.diff(time_s)
-    typical = float(np.median(steps))
-    if typical <= 0:
-        return []
-    gaps = np.flatnonzero(steps > 1.5 * typical)
-    return [f"frames {k}-{k + 1}: timestamp gap of {steps[k]:.4g} s "
-            f"(about {round(steps[k] / typical) - 1} frame(s) dropped)" for k in gaps]
+def _pair_notes(laser: np.ndarray, led: np.ndarray, missing: np.ndarray,
+                time_s: np.ndarray | None) -> list[tuple[int, str]]:
+    """(frame, line) for every pair lacking a frame: the lone frame named, or the gap
+    where whole pairs are missing."""
+    def at(k: int) -> str:
+        return f"frame {k}" if time_s is None else f"frame {k} ({time_s[k]:.3f} s)"
+
+    notes = []
+    p, n_pairs = 0, laser.size
+    while p < n_pairs:
+        if laser[p] >= 0 and led[p] < 0:
+            notes.append((int(laser[p]), f"{at(laser[p])}: laser frame without its LED frame "
+                                         f"(dropped or undecodable); pair {p} has no LED frame"))
+        elif led[p] >= 0 and laser[p] < 0:
+            notes.append((int(led[p]), f"{at(led[p])}: LED frame without its laser frame "
+                                       f"(dropped or undecodable); pair {p} has no laser frame"))
+        elif laser[p] < 0 and led[p] < 0:
+            last = p
+            while last + 1 < n_pairs and laser[last + 1] < 0 and led[last + 1] < 0:
+                last += 1
+            k = int(max(laser[p - 1], led[p - 1]))   # pair 0 always holds the first frame
+            pairs = f"pair {p} has" if last == p else f"pairs {p}-{last} have"
+            step = "" if time_s is None else f"timestamp gap of {time_s[k + 1] - time_s[k]:.4g} s, "
+            notes.append((k, f"frames {k}-{k + 1}: {step}{missing[k]} frame(s) dropped; "
+                             f"{pairs} no frame"))
+            p = last
+        p += 1
+    return notes
 
 
 def _ndarray_format(pix_fmt: str) -> str:
@@ -194,6 +255,9 @@ class VideoReader:
     Opening indexes the video (decodes every frame once for its timestamp and
     brightness); :meth:`frame` then decodes forward from the current position or
     seeks to the preceding keyframe. Thread-safe (one decoder behind a lock).
+    A frame whose packet the decoder refuses is left out of the index (frame numbers
+    count the frames decoded) and reported: a warning when the video is opened, and
+    ``index.undecodable``.
 
     Parameters
     ----------
@@ -252,18 +316,30 @@ class VideoReader:
         container.streams.video[0].thread_type = "SLICE"
         return container
 
-    def _decode_all(self) -> Iterator[av.VideoFrame]:
+    def _decode_all(self, refused: list[tuple[int | None, str]] | None = None
+                    ) -> Iterator[av.VideoFrame]:
+        """The frames from the current position. A packet the decoder refuses (a damaged
+        frame) is skipped, its (pts, reason) added to ``refused``: one bad frame does not
+        make the video unreadable."""
         import av
 
         try:
-            yield from self._container.decode(self._stream)
+            for packet in self._container.demux(self._stream):
+                try:
+                    frames = packet.decode()
+                except av.FFmpegError as exc:
+                    if refused is not None:
+                        refused.append((packet.pts, exc.strerror or str(exc)))
+                    continue
+                yield from frames
         except av.FFmpegError as exc:
-            raise DatasetError(self.path, f"cannot decode the video: {exc}") from exc
+            raise DatasetError(self.path, f"cannot read the video: {exc}") from exc
 
     def _build_index(self, progress: Callable[[], None] | None) -> FrameIndex:
         pts, bright = [], []
+        refused: list[tuple[int | None, str]] = []
         size = None
-        for frame in self._decode_all():
+        for frame in self._decode_all(refused):
             image = frame.to_ndarray(format=self._format)
             size = size or (frame.width, frame.height)
             pts.append(frame.pts if frame.pts is not None else len(pts))
@@ -271,12 +347,16 @@ class VideoReader:
             if progress is not None:
                 progress()
         if not pts:
-            raise DatasetError(self.path, "the video has no frames")
+            why = f": {refused[0][1]}" if refused else ""
+            raise DatasetError(self.path, f"the video has no frame that can be decoded{why}")
         order = np.argsort(pts, kind="stable")
         pts_arr = np.asarray(pts, dtype=np.int64)[order]
-        base = self._stream.time_base or Fraction(1, 1)
-        return FrameIndex(pts_arr, pts_arr * float(base), np.asarray(bright)[order],
-                          size[0], size[1])
+        base = float(self._stream.time_base or Fraction(1, 1))
+        undecodable = tuple(_undecodable_line(pts_arr, base, p, reason) for p, reason in refused)
+        for line in undecodable:
+            logging.getLogger(__name__).warning("%s: %s", self.path, line)
+        return FrameIndex(pts_arr, pts_arr * base, np.asarray(bright)[order],
+                          size[0], size[1], undecodable)
 
     @property
     def n_frames(self) -> int:
@@ -314,8 +394,12 @@ class VideoReader:
         Raises
         ------
         DatasetError
-            If ``k`` is out of range or the frame cannot be decoded.
+            If ``k`` is out of range or the frame cannot be decoded; ``MISSING`` (a pair's
+            frame that is not in the video, :class:`VideoPairs`) is refused saying so.
         """
+        if k == MISSING:
+            raise DatasetError(self.path, "frame missing from the video (dropped or "
+                                          "undecodable: reported when the video was opened)")
         if not 0 <= k < self.n_frames:
             raise DatasetError(self.path, f"frame {k} out of range (0..{self.n_frames - 1})")
         with self._lock:
@@ -345,6 +429,18 @@ class VideoReader:
         with self._lock:
             self._container.close()
             self._cache.clear()
+
+
+def _undecodable_line(pts: np.ndarray, time_base: float, refused_pts: int | None,
+                      reason: str) -> str:
+    """The warning for a frame the decoder refused, placed among the decoded frames."""
+    if refused_pts is None:
+        return f"a frame without a timestamp cannot be decoded ({reason}); skipped"
+    after = int(np.searchsorted(pts, refused_pts))   # decoded frames before it
+    where = ("before frame 0" if after == 0 else f"after frame {after - 1}" if after == pts.size
+             else f"between frames {after - 1} and {after}")
+    return (f"the frame at {refused_pts * time_base:.3f} s ({where}) cannot be decoded "
+            f"({reason}); skipped")
 
 
 # Lossless codecs of the PyAV wheel, with a container that holds them. FFVHuff

@@ -220,7 +220,8 @@ def test_an_undecodable_frame_is_reported_and_the_pairs_after_it_keep_their_numb
     assert ds.n_pairs == 5
     assert ds.pairs.laser.tolist() == laser and ds.pairs.led.tolist() == led
     kind = "laser" if damaged % 2 == 0 else "LED"
-    assert len(ds.notes) == 1 and ds.notes[0].endswith(f"pair 2 has no {kind} frame")
+    assert ds.notes[0] == reader.index.undecodable[0]   # reported with the run's problems
+    assert len(ds.notes) == 2 and ds.notes[1].endswith(f"pair 2 has no {kind} frame")
     for i in (0, 1, 3, 4):   # every other pair reads its own frames, at its own number
         assert np.array_equal(ds.read_laser(i), frames[2 * i])
         assert np.array_equal(ds.read_led(i), frames[2 * i + 1])
@@ -372,3 +373,68 @@ def test_a_video_declaring_more_pixels_than_the_budget_is_not_decoded(tmp_path: 
     monkeypatch.setattr(images, "MAX_PIXELS", width * height - 1)   # one pixel short
     with pytest.raises(DatasetError, match=r"declares .* pixels a frame.*not decoded"):
         VideoReader(path)
+
+
+def test_an_undecodable_frame_reaches_the_notes_and_a_pair_without_laser_has_no_time(
+        tmp_path: Path, caplog) -> None:
+    """The decoder's refusal is the first of the dataset's notes (what run and pose list
+    as "video: ..." problems), logged once; the pair that lost its laser frame has no
+    timestamp rather than another frame's."""
+    frames = _interleaved(5)
+    path = _damage(write_video(tmp_path / "v.avi", frames, fps=20.0), tmp_path / "bad.avi",
+                   {4})   # pair 2's laser frame
+    caplog.clear()
+    ds = open_dataset(_dataset_root(tmp_path, W, H), video=path)
+    assert len(ds.notes) == 2
+    assert ds.notes[0] == ("the frame at 0.200 s (between frames 3 and 4) cannot be decoded "
+                           "(Invalid data found when processing input); skipped")
+    assert ds.notes[1].endswith("pair 2 has no laser frame")
+    assert sum("cannot be decoded" in r.getMessage() for r in caplog.records) == 1
+    # laser frames at 0.05 s a frame: pairs 0, 1, 3, 4 at 0, 0.1, 0.3, 0.4 s
+    assert np.isnan(ds.timestamps_s[2])
+    np.testing.assert_allclose(ds.timestamps_s[[0, 1, 3, 4]], [0.0, 0.1, 0.3, 0.4], atol=1e-9)
+    ds.close()
+
+
+def test_pairs_lost_whole_have_no_timestamp(tmp_path: Path) -> None:
+    frames = _interleaved(6)
+    keep = [k for k in range(12) if k not in (6, 7)]   # pair 3 lost whole
+    path = write_video(tmp_path / "v.avi", [frames[k] for k in keep], fps=20.0,
+                       frame_numbers=keep)
+    ds = open_dataset(_dataset_root(tmp_path, W, H), video=path)
+    assert ds.pairs.laser.tolist() == [0, 2, 4, -1, 6, 8]
+    assert np.isnan(ds.timestamps_s[3])   # not the time of the video's last frame (0.55 s)
+    np.testing.assert_allclose(ds.timestamps_s[[0, 1, 2, 4, 5]], [0.0, 0.1, 0.2, 0.4, 0.5],
+                               atol=1e-9)
+    ds.close()
+
+
+def test_check_a_video_whose_first_pair_lost_its_laser_frame(tmp_path: Path) -> None:
+    """Pair 0 without its laser frame (the video starts on an LED frame): check reads
+    the first frame there is for the frame size, as run does not need pair 0's laser."""
+    frames = _interleaved(4)
+    keep = list(range(1, 8))
+    video = write_video(tmp_path / "v.avi", [frames[k] for k in keep], fps=20.0,
+                        frame_numbers=keep)
+    root = _dataset_root(tmp_path, W, H)
+    ds = open_dataset(root, video=video)
+    assert ds.pairs.laser.tolist() == [-1, 1, 3, 5]
+    ds.close()
+    result = runner_check(root, video)
+    assert result.exit_code == 0, result.output
+    assert "pair 0 has no laser frame" in result.output and "warning" in result.output
+    wrong = _dataset_root(tmp_path / "w", W * 2, H)
+    result = runner_check(wrong, video)
+    assert result.exit_code == 2 and "probe.toml says" in result.output
+
+
+def test_check_lists_an_undecodable_frame(tmp_path: Path) -> None:
+    video = _damage(write_video(tmp_path / "v.avi", _interleaved(4), fps=20.0),
+                    tmp_path / "bad.avi", {3})
+    result = runner_check(_dataset_root(tmp_path, W, H), video)
+    assert result.exit_code == 0, result.output
+    assert "cannot be decoded" in result.output and "warning" in result.output
+
+
+def runner_check(root: Path, video: Path):
+    return CliRunner().invoke(app, ["check", str(root), "--video", str(video), "--quiet"])

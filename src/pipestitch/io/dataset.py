@@ -247,11 +247,13 @@ def _odometry_notes(odometry: dict[int, float], n_pairs: int | None) -> list[str
 class VideoDataset:
     """A dataset whose frames come from a video (same interface as :class:`Dataset`).
 
-    Pairs are formed by content (io.video): ``n_pairs`` counts the laser frames,
-    a pair whose LED frame was dropped reports it in ``led_missing()``, and
-    ``notes`` lists the dropped frames and timestamp gaps. ``timestamps_s[i]`` is the
-    time of pair i's laser frame. ``laser_paths[i]`` is a pseudo path naming the video
-    and the frame (for messages). Odometry frame numbers are pair numbers as read.
+    Pairs are formed by content and numbered by their place in the recording
+    (io.video): ``n_pairs`` counts those places, pairs whose frames are missing from the
+    video included (a pair without its LED frame is in ``led_missing()``; reading a
+    missing frame raises DatasetError). ``notes`` lists the frames the decoder refused,
+    then the missing frames and timestamp gaps. ``timestamps_s[i]`` is the time of pair
+    i's laser frame, NaN where it has none. ``laser_paths[i]`` is a pseudo path naming
+    the video and the frame (for messages). Odometry frame numbers are pair numbers.
     """
 
     def __init__(self, root: Path, config: ProbeConfig, reader: VideoReader,
@@ -266,8 +268,10 @@ class VideoDataset:
         self.pairs = pair_frames(is_laser, reader.index.time_s)
         if self.pairs.laser.size == 0:
             raise DatasetError(reader.path, "no laser frame found in the video")
-        self.notes = list(self.pairs.messages)
-        self.timestamps_s = reader.index.time_s[self.pairs.laser]
+        self.notes = [*reader.index.undecodable, *self.pairs.messages]
+        has_laser = self.pairs.laser >= 0
+        self.timestamps_s = np.full(self.pairs.laser.size, np.nan)
+        self.timestamps_s[has_laser] = reader.index.time_s[self.pairs.laser[has_laser]]
         self.odometry_mm = odometry_mm
         self.odometry_notes: list[str] = []
         self.laser_paths = [self._name(k) for k in self.pairs.laser]
@@ -278,7 +282,8 @@ class VideoDataset:
 
     @property
     def n_pairs(self) -> int:
-        """Number of frame pairs (laser frames)."""
+        """Number of frame pairs: the places in the recording, from the first frame of the
+        video to its last, those with a frame missing included."""
         return int(self.pairs.laser.size)
 
     @property
@@ -368,7 +373,7 @@ def _open_video(root: Path, config: ProbeConfig, video: Path,
                 progress: Callable[[], None] | None) -> VideoDataset:
     dataset = VideoDataset(root, config, VideoReader(video, progress=progress))
     _attach_odometry(dataset)
-    for note in dataset.notes:
+    for note in dataset.pairs.messages:   # the reader logged the undecodable frames
         logging.getLogger(__name__).warning("%s: %s", video, note)
     return dataset
 

@@ -15,6 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from pipestitch.errors import ConfigError, DatasetError, PipestitchError
 from pipestitch.io.dataset import (
     Problem,
+    VideoDataset,
     check_dataset,
     check_odometry_and_imu,
     count_frame_files,
@@ -33,21 +34,34 @@ def _problem(exc: PipestitchError, root: str | Path) -> Problem:
 def check_video(root: str | Path, video: str | Path) -> list[Problem]:
     """Validate a dataset whose frames come from ``video``: probe.toml, odometry.csv,
     imu.csv, the video itself (readable, frames of probe.toml's size, laser and LED
-    frames told apart); dropped frames, timestamp gaps and the odometry's warnings
-    (missing rows, z not monotonic) are warnings."""
+    frames told apart); undecodable and dropped frames, timestamp gaps and the
+    odometry's warnings (missing rows, z not monotonic) are warnings."""
     try:
-        with _unlogged("pipestitch.io.dataset"):   # its warnings are listed here instead
+        # their warnings (undecodable frames, pairing) are listed here instead
+        with _unlogged("pipestitch.io.dataset"), _unlogged("pipestitch.io.video"):
             dataset = open_dataset(root, video=video)
     except PipestitchError as exc:
         return [_problem(exc, root)]
     try:
-        dataset.read_laser(0)   # a video's frames all have one size: one read checks it
+        _read_first_frame(dataset)   # a video's frames all have one size: one read checks it
         return ([Problem(Path(video), note, "warning") for note in dataset.notes]
                 + check_odometry_and_imu(Path(root), dataset.n_pairs))
     except PipestitchError as exc:
         return [_problem(exc, root)]
     finally:
         dataset.close()
+
+
+def _read_first_frame(dataset: VideoDataset) -> None:
+    """Read the first frame the video has: pair 0 may lack its laser frame, which run
+    and pose accept."""
+    for i in range(dataset.n_pairs):
+        if dataset.pairs.laser[i] >= 0:
+            dataset.read_laser(i)
+            return
+        if dataset.pairs.led[i] >= 0:
+            dataset.read_led(i)
+            return
 
 
 @contextlib.contextmanager

@@ -156,3 +156,31 @@ def test_cli_import_export_round_trips(tmp_path, shared_data) -> None:
 def test_calibrate_help_has_an_example(command) -> None:
     result = CliRunner().invoke(app, ["calibrate", command, "--help"])
     assert result.exit_code == 0 and f"Example: pipestitch calibrate {command}" in result.output
+
+
+BOM = b"\xef\xbb\xbf"
+
+
+@pytest.mark.parametrize(("name", "write", "read", "model"), [
+    ("k.json", write_opencv_fisheye, read_opencv_fisheye, FISHEYE),
+    ("k.yaml", write_opencv_fisheye, read_opencv_fisheye, FISHEYE),
+    ("intrinsics.json", write_matlab_fisheye, read_matlab_fisheye, OCAM),
+    ("calib_results.txt", write_calib_results, read_calib_results, OCAM),
+])
+def test_calibration_files_saved_with_a_byte_order_mark_read_as_the_plain_ones(
+        tmp_path, name, write, read, model) -> None:
+    """Notepad and other Windows editors save UTF-8 with a byte-order mark; the file
+    reads as it did before it was saved."""
+    plain = write(tmp_path / name, model)
+    marked = tmp_path / "bom" / name
+    marked.parent.mkdir()
+    marked.write_bytes(BOM + plain.read_bytes())
+    assert read(marked) == read(plain)
+
+
+def test_a_calibration_file_that_is_not_utf8_is_named(tmp_path) -> None:
+    path = write_opencv_fisheye(tmp_path / "k.yaml", FISHEYE)
+    path.write_bytes(b"# Kalibrierung bei 20 \xb0C\n" + path.read_bytes())
+    with pytest.raises(ConfigError, match=r"k\.yaml.*cannot read as text") as info:
+        read_opencv_fisheye(path)
+    assert info.value.path == path

@@ -11,10 +11,11 @@ __all__ = ["parse_json_object", "read_config_text"]
 
 
 def read_config_text(path: str | Path) -> str:
-    """UTF-8 text of ``path``; :class:`ConfigError` if missing or unreadable."""
+    """UTF-8 text of ``path``, a leading byte-order mark (Notepad's UTF-8) left out;
+    :class:`ConfigError` naming the file if missing, unreadable or not UTF-8."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8", errors="strict")
+        return path.read_text(encoding="utf-8-sig", errors="strict")
     except FileNotFoundError as exc:
         raise ConfigError(path, "file not found") from exc
     except (UnicodeDecodeError, OSError) as exc:

@@ -521,3 +521,14 @@ def test_blas_threads_are_set_before_numpy_loads() -> None:
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          env=env, check=True).stdout.split()
     assert out == ["False", "1"]   # the console script sets them before importing the app
+
+
+def test_check_names_a_truth_wall_json_that_is_not_an_object(small_dataset: Path,
+                                                             tmp_path: Path) -> None:
+    data = tmp_path / "wall"
+    shutil.copytree(small_dataset, data)
+    (data / "truth" / "wall.json").write_text("5\n")
+    result = runner.invoke(app, ["check", str(data), "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert "wall.json: expected a JSON object" in result.output
+    assert "Traceback" not in result.output

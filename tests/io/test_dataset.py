@@ -307,3 +307,18 @@ def test_imu_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
     (tmp_path / "imu.csv").write_bytes(b"\xef\xbb\xbfframe,roll_deg\n0,1.5\n2,-3\n")
     assert read_imu(tmp_path) == {0: 1.5, 2: -3.0}
     assert check_dataset(tmp_path) == []
+
+
+@pytest.mark.parametrize(("text", "got"), [
+    ("5", "a number"), ("[1]", "an array"), ('"mm_per_px_axial"', "a string"),
+    ("null", "null"), ("true", "true"),
+])
+def test_truth_wall_json_not_an_object_is_a_problem_naming_it(tmp_path: Path, text: str,
+                                                              got: str) -> None:
+    _tiny_dataset(tmp_path)
+    (tmp_path / "truth").mkdir()
+    (tmp_path / "truth" / "wall.json").write_text(text)
+    problems = [p for p in check_dataset(tmp_path) if p.severity == "error"]
+    assert len(problems) == 1 and problems[0].path == tmp_path / "truth" / "wall.json"
+    assert problems[0].message == ("expected a JSON object (mm_per_px_axial, deg_per_px, "
+                                   f"z0_mm, radius_mm), got {got}")

@@ -429,13 +429,34 @@ def _check_truth(root: Path) -> Iterator[Problem]:
                 yield Problem(truth / name, exc.problem)
     wall_json = truth / "wall.json"
     if wall_json.is_file():
-        try:
-            meta = json.loads(wall_json.read_text(encoding="utf-8-sig"))
-            missing = {"mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm"} - set(meta)
-            if missing:
-                yield Problem(wall_json, f"missing key(s) {', '.join(sorted(missing))}")
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            yield Problem(wall_json, f"malformed JSON: {exc}")
+        yield from _check_wall_json(wall_json)
+
+
+WALL_JSON_KEYS = ("mm_per_px_axial", "deg_per_px", "z0_mm", "radius_mm")
+
+
+def _check_wall_json(path: Path) -> Iterator[Problem]:
+    """truth/wall.json: a JSON object holding the wall grid's keys."""
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8-sig"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        yield Problem(path, f"malformed JSON: {exc}")
+        return
+    if not isinstance(meta, dict):
+        yield Problem(path, f"expected a JSON object ({', '.join(WALL_JSON_KEYS)}), "
+                            f"got {_json_kind(meta)}")
+        return
+    missing = set(WALL_JSON_KEYS) - set(meta)
+    if missing:
+        yield Problem(path, f"missing key(s) {', '.join(sorted(missing))}")
+
+
+def _json_kind(value: object) -> str:
+    """What a JSON value is, in JSON's words (for messages)."""
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
+    kinds = ((str, "a string"), (list, "an array"), ((int, float), "a number"))
+    return next(name for kind, name in kinds if isinstance(value, kind))
 
 
 def check_odometry_and_imu(root: Path, n_pairs: int | None) -> list[Problem]:

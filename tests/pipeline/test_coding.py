@@ -273,3 +273,23 @@ def test_the_run_s_overview_in_memory_codes_and_reviews_as_the_file_does(
     assert in_memory.reference == from_file.reference
     assert in_memory.observations == from_file.observations
     assert render_review_page(out, overview=overview) == page
+
+
+def test_observations_csv_saved_by_a_spreadsheet_keeps_its_header(tmp_path: Path) -> None:
+    """Excel's "CSV UTF-8" begins with a byte-order mark and ends lines with CRLF: the
+    header is still read as the columns (the user's row is kept, the mark with it, so
+    the spreadsheet reopens the file as UTF-8) and exported."""
+    _mosaic_with_a_hole(tmp_path)
+    user = "1.23456,BDB,,,,,Jürgen's note,,,,mine\r\n"
+    (tmp_path / "observations.csv").write_bytes(
+        b"\xef\xbb\xbf" + (OBS_HEADER + "\r\n" + user).encode("utf-8"))
+    result = runner.invoke(app, ["measure", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    data = (tmp_path / "observations.csv").read_bytes()
+    assert data.startswith(b"\xef\xbb\xbf" + OBS_HEADER.encode() + b"\r\n")
+    assert user.encode("utf-8") in data and b"auto:D1" in data
+    result = runner.invoke(app, ["export", str(tmp_path), "--format", "json"])
+    assert result.exit_code == 0, result.output
+    exported = json.loads((tmp_path / "observations.json").read_text(encoding="utf-8"))
+    assert [o["code"] for o in exported["observations"]] == ["BAC", "BDB"]
+    assert exported["observations"][1]["remark"] == "Jürgen's note"

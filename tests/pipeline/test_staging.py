@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 import pipestitch.pipeline.run as run_module
@@ -77,8 +79,8 @@ def test_a_failed_run_leaves_the_previous_run_as_it_was(dataset: Path, previous:
     before = _snapshot(previous)
     bad = tmp_path / "bad"
     shutil.copytree(dataset, bad)
-    toml = (bad / "probe.toml").read_text().replace("width = 1224", "width = 1000")
-    (bad / "probe.toml").write_text(toml)   # no frame matches: no pose, no mosaic
+    for laser in (bad / "frames").glob("laser_*.png"):   # no ring: no pose, no mosaic
+        cv2.imwrite(str(laser), np.zeros_like(cv2.imread(str(laser), cv2.IMREAD_UNCHANGED)))
     summary = run_dataset(bad, previous, show_progress=False)
     assert summary.mosaic_failed
     assert _snapshot(previous) == before

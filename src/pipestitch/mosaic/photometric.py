@@ -20,11 +20,11 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection, WallGrid
+from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
 
-__all__ = ["StripPair", "contrast_strips", "pair_costs"]
+__all__ = ["StripPair", "contrast_strip", "contrast_strips", "pair_costs", "strip_misfit"]
 
 STRIP_ROWS = 584    # nodes around the pipe in a comparison strip
 BLOCK_PX = 8        # residuals are treated as independent per 8 x 8 block
@@ -65,13 +65,24 @@ def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,
     times faster; ~0.03 px from the exact maps at most, far below what a mirror pose
     warps the strip by).
     """
-    strips = []
-    for h in fit.hypotheses:
-        r = h.radius_mm
-        pitch = mm_per_px or 2 * np.pi * r / STRIP_ROWS
-        grid = WallGrid.window(r, pitch, 0.6 * r, 1.8 * r)
-        strips.append(_contrast(unwrap(led, camera, h.pose, PipeSection(r), grid, step=4)))
-    return StripPair(tuple(strips))
+    return StripPair(tuple(contrast_strip(led, camera, h.pose, PipeSection(h.radius_mm),
+                                          mm_per_px) for h in fit.hypotheses))
+
+
+def contrast_strip(led: np.ndarray, camera: CameraModel, pose: Pose, section: PipeSection,
+                   mm_per_px: float | None = None) -> np.ndarray:
+    """The local contrast of ``led`` (grey float) unwrapped with one pose and section over
+    :func:`contrast_strips`' comparison window (NaN = no data)."""
+    r = section.mean_radius_mm
+    grid = WallGrid.window(r, mm_per_px or 2 * np.pi * r / STRIP_ROWS, 0.6 * r, 1.8 * r)
+    return _contrast(unwrap(led, camera, pose, section, grid, step=4))
+
+
+def strip_misfit(a: np.ndarray, b: np.ndarray) -> float:
+    """How badly one global shift explains strip ``b`` against ``a`` (two
+    :func:`contrast_strip` of consecutive frames): 1 - their phase-correlation peak,
+    NaN without enough common data."""
+    return _misfit(a, b)[0]
 
 
 def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:

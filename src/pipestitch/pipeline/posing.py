@@ -40,7 +40,8 @@ from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
 from pipestitch.pose.section import oval_at_zero_tilt
 
-__all__ = ["POSE_COLUMNS", "FramePose", "PoseSettings", "estimate_poses", "fit_frame",
+__all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "FramePose", "PoseSettings",
+           "estimate_poses", "fit_frame",
            "report_frame_messages", "resolve_frames", "ring_search_band",
            "run_pose", "write_poses_csv"]
 
@@ -89,6 +90,11 @@ BODY_WARNING = ("the declared probe body cannot hold this pose (it would cross t
 OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; `pipestitch run` "
                      "measures it from the LED frames)")
 
+OVAL_POSE_NOTE = ("the LED frames agree best with {share:.0%} of the tilt the rings read in a "
+                  "round pipe: the pipe looks oval, and the ring alone cannot tell its ovality "
+                  "from tilt (probe.toml declares no body); `pipestitch run` measures the tilt")
+OVAL_POSE_WARNING = "tilt likely the oval pipe's ovality (see the run's note)"
+
 # Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
 # README) makes even the true hypothesis disagree photometrically with its
 # neighbour, so the comparison would be evidence about noise, not about the mirror.
@@ -128,6 +134,7 @@ class PoseSettings:
     plane_normal: np.ndarray | None = None   # laser-plane normal (probe.toml; SPEC: +z)
     ring_band_px: tuple[float, float] | None = None   # where detect_ring searches
     oval_start: bool = False
+    oval_run: bool = False   # the run is an oval pipe (pipeline/tilt_or_oval.py): every frame
 
     @classmethod
     def from_config(cls, cfg: ProbeConfig, *, oval_start: bool = False) -> PoseSettings:
@@ -168,7 +175,11 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
     warning, infeasible, fallback = "", False, None
-    if fit.ok and settings.body is not None:
+    if fit.ok and settings.oval_run:
+        fallback = (replace(fit, ring=None), OVAL_POSE_WARNING)
+        fit = oval_at_zero_tilt(fit, settings.camera)
+        warning = OVAL_TILT_WARNING
+    elif fit.ok and settings.body is not None:
         clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
                         for h in fit.hypotheses)
         if clearance < -INFEASIBLE_SIGMAS * max(clearance_sigma_mm(h, settings.body)
@@ -252,12 +263,12 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
                    timer: StageTimer | None = None, rings: RingStore | None = None,
-                   drop_rings: bool = False,
-                   oval_start: bool = False) -> tuple[list[FramePose], list[Choice]]:
+                   drop_rings: bool = False, oval_start: bool = False,
+                   settings: PoseSettings | None = None) -> tuple[list[FramePose], list[Choice]]:
     """Fit every frame and choose between the mirror hypotheses over the run (ring
     points into ``rings`` when given, or dropped: :func:`resolve_frames`;
-    ``oval_start``: see :class:`PoseSettings`)."""
-    settings = PoseSettings.from_config(dataset.config, oval_start=oval_start)
+    ``oval_start``: see :class:`PoseSettings`; ``settings``: instead of the dataset's)."""
+    settings = settings or PoseSettings.from_config(dataset.config, oval_start=oval_start)
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
     return resolve_frames(check_readable(frames, dataset), settings.body, rings,
@@ -355,17 +366,29 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``: z from
     the dataset's odometry.csv and roll from its imu.csv where they have the frame (no
     registration here), else nan."""
+    # tilt_or_oval fits frames with this module's fit_frame
+    from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
+
     dataset = open_dataset(root, video=video)
     imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
+    notes = []
     try:
         with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
             # poses.csv reads no ring points: not kept (~11.5 kB a frame)
             frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                              workers=workers, drop_rings=True)
+            found = tilt_or_oval(dataset, PoseSettings.from_config(dataset.config),
+                                 in_order=video is not None)
     finally:
         dataset.close()   # a video's decoder
+    if found is not None and found.oval:
+        # No LED refinement here to measure the tilt: the circle fits stay, flagged.
+        notes.append((-1, OVAL_POSE_NOTE.format(share=found.share)))
+        frames = [replace(f, warning="; ".join(m for m in (f.warning, OVAL_POSE_WARNING) if m))
+                  if f.fit.ok else f for f in frames]
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
+                          + notes
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm, imu)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),

@@ -35,7 +35,10 @@ from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
 from pipestitch.pipeline.posing import (
+    OVAL_POSE_WARNING,
+    OVAL_TILT_WARNING,
     FramePose,
+    PoseSettings,
     estimate_poses,
     report_frame_messages,
     write_poses_csv,
@@ -60,6 +63,7 @@ from pipestitch.pipeline.stitching import (
     led_frames,
     sample_led,
 )
+from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 from pipestitch.pose.ambiguity import Choice
 from pipestitch.pose.fit import Hypothesis, RingPoints
 from pipestitch.report.html import (
@@ -166,7 +170,11 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                 # circle: its ovality is measured but not significant (pose as refined)
                 model = "oval/refined-tilt" if view.oval else "circle/refined-tilt"
             hyps[choice.chosen] = h
-            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model))
+            # an oval started at tilt 0 has its tilt measured now: that warning is done
+            warning = (frame.warning.replace(f"; {OVAL_TILT_WARNING}", "")
+                       .replace(f"{OVAL_TILT_WARNING}; ", "").replace(OVAL_TILT_WARNING, ""))
+            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model),
+                            warning=warning)
         out.append(frame)
     return out
 
@@ -182,9 +190,10 @@ def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
         view = views.get(frame.index)
         if frame.circle_fallback is not None and not (view is not None and view.refined):
             fit, warning = frame.circle_fallback
-            frame = replace(frame, fit=fit, warning=warning, body_infeasible=True,
+            oval_run = warning == OVAL_POSE_WARNING   # no body: the run's oval decision
+            frame = replace(frame, fit=fit, warning=warning, body_infeasible=not oval_run,
                             circle_fallback=None)
-            choice = Choice(0, True, "infeasible", 0.0)
+            choice = Choice(0, True, "oval-run" if oval_run else "infeasible", 0.0)
         out_frames.append(frame)
         out_choices.append(choice)
     return out_frames, out_choices
@@ -379,7 +388,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         plots = ahead.submit(prepare_plots)   # after the mask, while the passes run
         frames, choices = estimate_poses(dataset, show_progress=show_progress,
                                          workers=settings.workers, timer=timer, rings=rings,
-                                         drop_rings=not refits, oval_start=refits)
+                                         drop_rings=not refits,
+                                         settings=_pose_settings(dataset, refits, timer,
+                                                                 in_order))
         if rings.problem:
             report_frame_messages([(-1, rings.problem)])
         views = _views(frames, choices)
@@ -481,6 +492,28 @@ def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
     except Exception as exc:  # e.g. a malformed row a user kept in observations.csv
         problems.append((-1, f"observations not coded: {exc}"))
         return None
+
+
+def _pose_settings(dataset: Dataset, refits: bool, timer: StageTimer,
+                   in_order: bool) -> PoseSettings:
+    """The pose pass's settings: frames the declared body cannot hold start as ovals
+    when the LED refinement follows (``refits``); without a body, every frame does when
+    the LED frames say the pipe is oval rather than the probe tilted (said once)."""
+    settings = PoseSettings.from_config(dataset.config, oval_start=refits)
+    if not refits or settings.body is not None:
+        return settings
+    with timer("ring + pose"):
+        found = tilt_or_oval(dataset, settings, in_order=in_order)
+    if found is None or not found.oval:
+        return settings
+    report_frame_messages([(-1, OVAL_RUN_NOTE.format(share=found.share, first=found.frames[0],
+                                                     last=found.frames[-1]))])
+    return replace(settings, oval_run=True)
+
+
+OVAL_RUN_NOTE = ("the LED frames of frames {first}-{last} agree best with {share:.0%} of the "
+                 "tilt the ring reads in a round pipe: the pipe is taken as oval, and each "
+                 "frame's tilt is measured from its LED frames (probe.toml declares no body)")
 
 
 def _finite(values: np.ndarray) -> dict[int, float]:

@@ -1,0 +1,89 @@
+"""A run without a declared probe body: tilted probe or oval pipe, told by the LED frames."""
+
+from __future__ import annotations
+
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipestitch.cli.app import app
+from pipestitch.io.dataset import open_dataset
+from pipestitch.pipeline.posing import PoseSettings
+from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
+
+runner = CliRunner()
+POSE = ("alpha_deg", "beta_deg", "dx_mm", "dy_mm")
+
+
+def _without_body(root: Path) -> Path:
+    toml = root / "probe.toml"
+    text = re.sub(r"\[probe\]\n(?:[a-z_]+ = [^\n]*\n)*", "", toml.read_text())
+    assert "[probe]" not in text
+    toml.write_text(text)
+    return root
+
+
+@pytest.fixture(scope="module")
+def oval(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    """A 5 % oval pipe (read as a round one, ~18 deg of tilt) with no body declared."""
+    return _without_body(simulate_small(tmp_path_factory.mktemp("oval") / "ds", "--scenario",
+                                        "oval", "--pairs", "8"))
+
+
+@pytest.fixture(scope="module")
+def round_pipe(tmp_path_factory: pytest.TempPathFactory, simulate_small) -> Path:
+    return _without_body(simulate_small(tmp_path_factory.mktemp("round") / "ds", "--pairs", "8",
+                                        "--seed", "3"))
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    return list(csv.DictReader(path.open()))
+
+
+def _errors(out: Path, dataset: Path) -> np.ndarray:
+    est, truth = _rows(out / "poses.csv"), _rows(dataset / "truth" / "poses.csv")
+    return np.array([[float(e[k]) - float(t[k]) for k in POSE] for e, t in zip(est, truth,
+                                                                                strict=True)])
+
+
+def test_the_led_frames_tell_an_oval_pipe_from_a_tilted_probe(oval: Path) -> None:
+    dataset = open_dataset(oval)
+    found = tilt_or_oval(dataset, PoseSettings.from_config(dataset.config))
+    assert found is not None and found.oval and found.share == 0.0
+    # the misfit grows with the share of the circle's tilt taken: that tilt is ovality
+    assert found.misfits[-1] > 2 * found.misfits[0]
+
+
+def test_run_measures_an_oval_pipe_without_a_body(oval: Path, tmp_path: Path) -> None:
+    result = runner.invoke(app, ["run", str(oval), "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "the pipe is taken as oval" in result.output
+    errors = _errors(tmp_path, oval)
+    assert np.max(np.abs(errors[:, :2])) < 0.3      # deg (the circle read: ~18)
+    assert np.max(np.abs(errors[:, 2:])) < 0.2      # mm
+    rows = _rows(tmp_path / "poses.csv")
+    assert all(r["model"] == "oval/refined-tilt" and abs(float(r["ovality"]) - 0.05) < 0.005
+               and r["warning"] == "" for r in rows)
+
+
+def test_pose_flags_the_circle_tilts_of_an_oval_pipe_without_a_body(oval: Path,
+                                                                     tmp_path: Path) -> None:
+    result = runner.invoke(app, ["pose", str(oval), "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "the pipe looks oval" in result.output
+    assert all("ovality" in r["warning"] for r in _rows(tmp_path / "poses.csv"))
+
+
+def test_a_round_pipe_without_a_body_keeps_its_tilt(round_pipe: Path, tmp_path: Path) -> None:
+    result = runner.invoke(app, ["run", str(round_pipe), "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    errors = _errors(tmp_path, round_pipe)
+    assert np.max(np.abs(errors[:, :2])) < 0.3
+    assert np.max(np.abs(errors[:, 2:])) < 0.2
+    # whichever start the run took, no ovality is read into a round pipe
+    ovality = [float(r["ovality"]) for r in _rows(tmp_path / "poses.csv")]
+    assert np.nanmax(ovality) < 0.002

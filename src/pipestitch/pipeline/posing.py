@@ -92,7 +92,7 @@ OVAL_TILT_WARNING = ("oval pipe: the ring alone cannot see the tilt (held at 0; 
 
 OVAL_POSE_NOTE = ("the LED frames agree best with {share:.0%} of the tilt the rings read in a "
                   "round pipe: the pipe looks oval, and the ring alone cannot tell its ovality "
-                  "from tilt (probe.toml declares no body); `pipestitch run` measures the tilt")
+                  "from tilt; `pipestitch run` measures the tilt")
 OVAL_POSE_WARNING = "tilt likely the oval pipe's ovality (see the run's note)"
 
 # Below this tilt the ring's own tilt error (tenths of a degree up to ~1°, see the
@@ -366,19 +366,19 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``: z from
     the dataset's odometry.csv and roll from its imu.csv where they have the frame (no
     registration here), else nan."""
-    # tilt_or_oval fits frames with this module's fit_frame
+    # tilt_or_oval reads this module's FramePose
+    from pipestitch.pipeline.ring_store import RingStore
     from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 
     dataset = open_dataset(root, video=video)
     imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
     notes = []
     try:
-        with opencv_threads(1 if workers > 1 else 0):   # see _runtime/threads.py
-            # poses.csv reads no ring points: not kept (~11.5 kB a frame)
+        # the ring points, read again only by the tilt-or-oval test, wait in a file
+        with opencv_threads(1 if workers > 1 else 0), RingStore() as rings:  # _runtime/threads
             frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                             workers=workers, drop_rings=True)
-            found = tilt_or_oval(dataset, PoseSettings.from_config(dataset.config),
-                                 in_order=video is not None)
+                                             workers=workers, rings=rings)
+            found = tilt_or_oval(dataset, frames, dataset.config.camera_model())
     finally:
         dataset.close()   # a video's decoder
     if found is not None and found.oval:

@@ -13,7 +13,7 @@ import bisect
 import math
 import shutil
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -386,11 +386,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
         plots = ahead.submit(prepare_plots)   # after the mask, while the passes run
-        frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                         workers=settings.workers, timer=timer, rings=rings,
-                                         drop_rings=not refits,
-                                         settings=_pose_settings(dataset, refits, timer,
-                                                                 in_order))
+        frames, choices = _poses(dataset, refits, show_progress, settings.workers, timer,
+                                 rings)
         if rings.problem:
             report_frame_messages([(-1, rings.problem)])
         views = _views(frames, choices)
@@ -494,26 +491,35 @@ def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
         return None
 
 
-def _pose_settings(dataset: Dataset, refits: bool, timer: StageTimer,
-                   in_order: bool) -> PoseSettings:
-    """The pose pass's settings: frames the declared body cannot hold start as ovals
-    when the LED refinement follows (``refits``); without a body, every frame does when
-    the LED frames say the pipe is oval rather than the probe tilted (said once)."""
+def _poses(dataset: Dataset, refits: bool, show_progress: bool, workers: int,
+           timer: StageTimer, rings: RingStore) -> tuple[list[FramePose], list[Choice]]:
+    """The pose pass. Frames the declared body cannot hold start as ovals when the LED
+    refinement follows (``refits``); when the LED frames say the pipe is oval rather
+    than the probe tilted (:func:`tilt_or_oval`, said once), every frame is fitted
+    again that way."""
     settings = PoseSettings.from_config(dataset.config, oval_start=refits)
-    if not refits or settings.body is not None:
-        return settings
+    frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers,
+                                     timer=timer, rings=rings, drop_rings=not refits,
+                                     settings=settings)
+    if not refits:
+        return frames, choices
     with timer("ring + pose"):
-        found = tilt_or_oval(dataset, settings, in_order=in_order)
+        found = tilt_or_oval(dataset, frames, settings.camera)
     if found is None or not found.oval:
-        return settings
-    report_frame_messages([(-1, OVAL_RUN_NOTE.format(share=found.share, first=found.frames[0],
-                                                     last=found.frames[-1]))])
-    return replace(settings, oval_run=True)
+        return frames, choices
+    report_frame_messages([(-1, OVAL_RUN_NOTE.format(share=found.share,
+                                                     frames=_frame_list(found.frames)))])
+    return estimate_poses(dataset, show_progress=show_progress, workers=workers, timer=timer,
+                          rings=rings, settings=replace(settings, oval_run=True))
 
 
-OVAL_RUN_NOTE = ("the LED frames of frames {first}-{last} agree best with {share:.0%} of the "
-                 "tilt the ring reads in a round pipe: the pipe is taken as oval, and each "
-                 "frame's tilt is measured from its LED frames (probe.toml declares no body)")
+OVAL_RUN_NOTE = ("the LED frames of frames {frames} agree best with {share:.0%} of the tilt "
+                 "their rings read in a round pipe: the pipe is taken as oval, and each "
+                 "frame's tilt is measured from its LED frames")
+
+
+def _frame_list(frames: Sequence[int]) -> str:
+    return ", ".join(f"{i:05d}" for i in frames)
 
 
 def _finite(values: np.ndarray) -> dict[int, float]:

@@ -1,20 +1,24 @@
-"""Tilted probe or oval pipe: which one a run without a declared probe body shows.
+"""Tilted probe or oval pipe: which one a run shows when its rings cannot say.
 
 One ring cannot tell a tilted probe in a round pipe from a less tilted one in an oval
-pipe (:mod:`pipestitch.pose.section`): 5 % ovality read as a circle is ~18° of tilt.
-With a probe body declared, a circle pose the body cannot hold says "oval" frame by
-frame (:mod:`pipestitch.pipeline.posing`); without one, nothing in the ring does. The
-LED frames do: unwrapped with the true tilt and section, consecutive frames show the
-same wall up to one shift, with a wrong tilt the strip is warped and no shift explains
-it (:mod:`pipestitch.mosaic.photometric`).
+pipe (:mod:`pipestitch.pose.section`): 5 % ovality read as a circle is ~18° of tilt,
+0.6 % ~6°. A declared probe body says "oval" for a frame whose circle pose it cannot
+hold (:mod:`pipestitch.pipeline.posing`); a run without a body, or with one small
+enough to hold the circle poses, has nothing in its rings that does. The LED frames
+do: unwrapped with the true tilt and section, consecutive frames show the same wall up
+to one shift, with a wrong tilt the strip is warped and no shift explains it
+(:mod:`pipestitch.mosaic.photometric`).
 
-So a few consecutive frames from the middle of the run are fitted as circles, and for
-each the tilt is scaled by a share from 0 (no tilt: the ring's ellipse is all
-ovality) to 1 (the circle's tilt: no ovality), the section fitted to the ring with
-that tilt held (:func:`pipestitch.pose.section.fit_section`), in either mirror. The
-share whose strips agree best between consecutive frames says which: well below 1,
-the run is an oval pipe, and every frame starts as an oval with the tilt held at 0
-for the photometric refinement to measure (as a body-infeasible frame does).
+So, once the pose pass has fitted every frame as a circle, up to five pairs of
+consecutive frames whose circle tilt is well above the ring's own tilt error (a tilt
+within that error says nothing about its cause) are taken from the middle of the
+run, and each frame's tilt is scaled by a share, 0 (no tilt: the ring's ellipse is all
+ovality), 1/2 or 1 (the circle fit itself), with the section fitted to the ring at that
+tilt (:func:`pipestitch.pose.section.fit_section`), in either mirror. Where a share
+below 1 agrees better between consecutive frames, pair after pair (a one-sided t-test
+over the pairs), the pipe is oval, and ``pipestitch run`` fits every frame again as an
+oval at tilt 0 for the photometric refinement to measure (as a body-infeasible frame
+starts); ``pipestitch pose`` flags its circle tilts.
 """
 
 from __future__ import annotations
@@ -23,34 +27,37 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import stdtrit
 
-from pipestitch.camera import blank_frame
+from pipestitch.camera import CameraModel, blank_frame
 from pipestitch.errors import DatasetError
-from pipestitch.geometry import Pose
+from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
 from pipestitch.mosaic.photometric import contrast_strip, strip_misfit
-from pipestitch.pipeline.posing import PoseSettings, fit_frame
-from pipestitch.pose.fit import Hypothesis, PoseFit
+from pipestitch.pipeline.posing import PHOTOMETRIC_MIN_TILT_DEG, FramePose
+from pipestitch.pose.fit import PoseFit
 from pipestitch.pose.ring import prepare_laser_frame
 from pipestitch.pose.section import fit_section
 
-__all__ = ["OVAL_SHARE", "SAMPLE_FRAMES", "SHARES", "TiltOrOval", "tilt_or_oval"]
+__all__ = ["OVAL_SHARE", "SAMPLE_PAIRS", "SHARES", "SIGNIFICANCE", "TiltOrOval", "tilt_or_oval"]
 
-SAMPLE_FRAMES = 6                      # consecutive frames from the middle of the run
-SHARES = np.linspace(0.0, 1.0, 5)      # of each frame's circle tilt, 0 .. 1 by 1/4
-# The run stays circles only where the circle's whole tilt agrees best. Starting a
-# round pipe as an oval costs little (the refinement measures the tilt from 0 and
-# keeps no ovality: on round pipes without a body, half size, the same tilt errors as
-# the circle start within 0.01 deg), reading an oval pipe as round costs its ovality
-# as tilt (5 %: 18 deg), so the doubt goes to the oval.
-OVAL_SHARE = 0.875
-MIN_TILT_DEG = 1.0   # circle tilts below this read an ovality under ~0.015 %: no question
+SAMPLE_PAIRS = 5                       # pairs of consecutive frames, nearest the run's middle
+SHARES = (0.0, 0.5, 1.0)   # of each frame's circle tilt
+# A run is taken as oval where a share below 1 agrees best, significantly (:func:`_oval`).
+# Starting a round pipe as an oval would cost little accuracy (the refinement measures the
+# tilt from 0 and keeps no ovality: on four round pipes, half size, the circle start's
+# tilt errors within 0.01 deg) but time (every frame is fitted again); reading an oval
+# pipe as round costs its ovality as tilt (5 %: 18 deg; 0.6 %: 6 deg).
+OVAL_SHARE = 1.0
+TILT_SIGMAS = 5.0   # a frame is asked only when its circle tilt is this many sigmas
+MIN_PAIRS = 3       # pairs of frames a decision for the oval needs
+SIGNIFICANCE = 0.01
 
 
 @dataclass(frozen=True)
 class TiltOrOval:
-    """What the sample said: ``oval`` (start every frame as an oval at tilt 0), the
-    best ``share`` of the circle tilt, the misfit per share, and the frames read."""
+    """What the sample said: ``oval`` (the pipe, not the probe's tilt), the best
+    ``share`` of the circle tilt, the mean misfit per share, and the frames read."""
 
     oval: bool
     share: float
@@ -58,75 +65,86 @@ class TiltOrOval:
     frames: tuple[int, ...]
 
 
-def tilt_or_oval(dataset: Dataset, settings: PoseSettings, *,
-                 in_order: bool = False) -> TiltOrOval | None:
-    """Decide tilt or oval for a run without a probe body (see the module docstring).
+def tilt_or_oval(dataset: Dataset, frames: Sequence[FramePose],
+                 camera: CameraModel) -> TiltOrOval | None:
+    """Tilt or oval, from the pose pass's circle fits (with their ring points) and the
+    LED frames of a sample of them (see the module docstring).
 
-    The sample is taken from the middle of the run, or from its start when the frames
-    are best read ``in_order`` (a video's one decoder). None when there is nothing to
-    decide or nothing to decide it on: a declared body, no LED frames, fewer than two
-    usable consecutive frames, or circle tilts too small for the question to matter.
+    None when there is nothing to decide it on: no LED frames, or fewer than two pairs
+    of consecutive frames whose circle tilt is clearly measured (a round pipe with a
+    probe that hardly tilts; frames already started as ovals).
     """
-    if settings.body is not None or not dataset.has_led or dataset.n_pairs < 2:
+    if not dataset.has_led:
         return None
-    first = 0 if in_order else max(0, dataset.n_pairs // 2 - SAMPLE_FRAMES // 2)
-    frames = range(first, min(dataset.n_pairs, first + SAMPLE_FRAMES))
-    fitted = [_sample(dataset, i, settings) for i in frames]
-    if not any(f is not None and _tilt_deg(f[1]) >= MIN_TILT_DEG for f in fitted):
+    asked = {f.index: f for f in frames if _clear_tilt(f)}
+    pairs = sorted((i for i in asked if i + 1 in asked),
+                   key=lambda i: abs(i + 0.5 - dataset.n_pairs / 2))[:SAMPLE_PAIRS]
+    samples = {i: _sample(dataset, asked[i]) for i in sorted({*pairs, *(i + 1 for i in pairs)})}
+    strips = {i: [_strips(s, share, camera) for share in SHARES]
+              for i, s in samples.items() if s is not None}
+    rows = []
+    for i in pairs:
+        if i in strips and i + 1 in strips:
+            rows.append([_pair_misfit(asked[i].fit, strips[i][n], asked[i + 1].fit,
+                                      strips[i + 1][n]) for n in range(len(SHARES))])
+    table = np.array([r for r in rows if np.all(np.isfinite(r))]).reshape(-1, len(SHARES))
+    if len(table) < 2:
         return None
-    # each frame's strips at every share, made once (a frame is in two pairs)
-    strips = [None if f is None else [_strips(f, share, settings) for share in SHARES]
-              for f in fitted]
-    totals = np.zeros(len(SHARES))
-    pairs = 0
-    for k in range(len(fitted) - 1):
-        before, after = fitted[k], fitted[k + 1]
-        if before is None or after is None:
-            continue
-        misfits = [_pair_misfit(before[1], strips[k][n], after[1], strips[k + 1][n])
-                   for n in range(len(SHARES))]
-        if np.all(np.isfinite(misfits)):
-            totals += misfits
-            pairs += 1
-    if pairs == 0:
-        return None
-    best = int(np.argmin(totals))
-    share = float(SHARES[best])
-    return TiltOrOval(share < OVAL_SHARE, share, tuple(float(t / pairs) for t in totals),
-                      tuple(frames))
+    mean = table.mean(axis=0)
+    best = int(np.argmin(mean))
+    return TiltOrOval(_oval(table, best), float(SHARES[best]), tuple(map(float, mean)),
+                      tuple(sorted(strips)))
 
 
-def _sample(dataset: Dataset, index: int, settings: PoseSettings
-            ) -> tuple[np.ndarray, PoseFit] | None:
-    """A frame's grey LED frame and circle fit (with its ring points), or None."""
+def _oval(table: np.ndarray, best: int) -> bool:
+    """Whether the pairs' misfits (rows; columns: SHARES) say oval: a share below 1 agrees
+    best on average, and each pair's gain from it over the circle's whole tilt is
+    significant at ``SIGNIFICANCE`` (one-sided t-test over the pairs: the pairs are the
+    replicates; on round pipes the gains scatter about zero, t = 0.7-2.2 over 5 pairs,
+    on oval ones t = 7-39)."""
+    if SHARES[best] >= OVAL_SHARE or len(table) < MIN_PAIRS:
+        return False
+    gains = table[:, -1] - table[:, best]
+    spread = float(np.std(gains, ddof=1))
+    t = float(np.mean(gains)) / max(spread / np.sqrt(len(gains)), 1e-12)
+    return bool(t > float(stdtrit(len(gains) - 1, 1 - SIGNIFICANCE)))
+
+
+def _clear_tilt(frame: FramePose) -> bool:
+    """The frame's circle fit has a tilt well above its error (and its ring points)."""
+    if not frame.fit.ok or frame.ring is None or not frame.fit.model.startswith("circle"):
+        return False
+    h = frame.fit.hypotheses[0]
+    sigma = np.hypot(h.std.get("alpha", np.nan), h.std.get("beta", np.nan))
+    tilt = np.rad2deg(h.pose.tilt)
+    return bool(tilt >= max(PHOTOMETRIC_MIN_TILT_DEG, TILT_SIGMAS * np.rad2deg(sigma)))
+
+
+def _sample(dataset: Dataset, frame: FramePose) -> tuple[np.ndarray, FramePose] | None:
+    """A frame's grey LED frame beside its pose, or None where it shows nothing."""
     try:
-        laser, led = dataset.read_laser(index), dataset.read_led(index)
+        led = dataset.read_led(frame.index)
     except DatasetError:
         return None   # reported when the frame itself is processed
-    if blank_frame(led):
-        return None
-    fit = fit_frame(index, laser, led, settings).fit
-    if not fit.ok or fit.ring is None:
-        return None
-    return prepare_laser_frame(led), fit
+    return None if blank_frame(led) else (prepare_laser_frame(led), frame)
 
 
-def _tilt_deg(fit: PoseFit) -> float:
-    return float(np.rad2deg(fit.hypotheses[0].pose.tilt))
-
-
-def _strips(sample: tuple[np.ndarray, PoseFit], share: float,
-            settings: PoseSettings) -> list[np.ndarray]:
+def _strips(sample: tuple[np.ndarray, FramePose], share: float,
+            camera: CameraModel) -> list[np.ndarray]:
     """The frame's comparison strips with ``share`` of each mirror's tilt (one strip at
     share 0, where the mirrors coincide)."""
-    led, fit = sample
-    hypotheses: Sequence[Hypothesis] = fit.hypotheses if share > 0 else fit.hypotheses[:1]
+    led, frame = sample
+    ring = frame.ring
+    hypotheses = frame.fit.hypotheses if share > 0 else frame.fit.hypotheses[:1]
     out = []
     for h in hypotheses:
+        if share == 1.0:   # the circle fit itself
+            out.append(contrast_strip(led, camera, h.pose, PipeSection(h.radius_mm)))
+            continue
         pose = Pose(share * h.pose.alpha, share * h.pose.beta, h.pose.dx_mm, h.pose.dy_mm)
-        section = fit_section(fit.ring.points_mm, pose, h.radius_mm,   # type: ignore[union-attr]
-                              noise_mm=fit.ring.noise_mm)             # type: ignore[union-attr]
-        out.append(contrast_strip(led, settings.camera, section.pose, section.section))
+        section = fit_section(ring.points_mm, pose, h.radius_mm,   # type: ignore[union-attr]
+                              noise_mm=ring.noise_mm)             # type: ignore[union-attr]
+        out.append(contrast_strip(led, camera, section.pose, section.section))
     return out
 
 

@@ -184,3 +184,11 @@ def test_a_calibration_file_that_is_not_utf8_is_named(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"k\.yaml.*cannot read as text") as info:
         read_opencv_fisheye(path)
     assert info.value.path == path
+
+
+@pytest.mark.parametrize("text", ["image_width: [800\n", "K: {rows: 3\n"])
+def test_malformed_opencv_yaml_is_a_config_error_naming_the_file(tmp_path, text: str) -> None:
+    bad = tmp_path / "cal.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError, match=r"cal.yaml.*malformed YAML"):
+        read_opencv_fisheye(bad)

@@ -77,8 +77,12 @@ def _read_yaml(text: str, path: Path) -> OpenCVFisheyeModel:
         text = "%YAML:1.0\n---\n" + text  # ROS camera_info files have no header
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as exc:
-        raise ConfigError(path, f"malformed YAML: {str(exc).strip().splitlines()[-1]}") from exc
+    except (cv2.error, SystemError) as exc:
+        # OpenCV's parser raises cv2.error, or for some syntax errors (an unclosed "[")
+        # a SystemError wrapping one
+        cause = exc.__cause__ or exc.__context__ or exc
+        lines = str(cause).strip().splitlines() or ["cannot parse"]
+        raise ConfigError(path, f"malformed YAML: {lines[-1]}") from exc
     k, d = _first(fs, _K_KEYS), _first(fs, _D_KEYS)
     missing = [name for name, v in (("camera_matrix (K)", k), ("distortion_coefficients (D)", d))
                if v is None]

@@ -11,6 +11,7 @@ from pipestitch.geometry import WallGrid
 from pipestitch.mosaic.register import (
     Link,
     MotionPrior,
+    measure_overlap_shift,
     measure_shift,
     odometer_noise_mm,
     registration_image,
@@ -57,6 +58,27 @@ def test_registration_with_a_motion_prior_on_strips_of_any_parity(shape: tuple[i
     # One Lucas-Kanade step from the whole-pixel peak: ~0.02 px measured, 0.05 px allowed.
     assert link.dz_mm == pytest.approx(3.73, abs=0.005)
     assert link.droll_deg == pytest.approx(droll, abs=0.05 * grid.deg_per_px)
+
+
+def test_a_large_step_is_measured_on_the_wall_both_strips_share(texture, shifted) -> None:
+    # A step of 72 % of the strip: whole, the strips' common wall lies in the faint ends
+    # of their tapers; cut to it (from the prior's expected step) it is all they compare.
+    grid = WallGrid(radius_mm=R, deg_per_px=360 / 720, mm_per_px_axial=0.1, z0_mm=0.0, n_cols=300)
+    wall = texture((720, 540), seed=3)
+    strips = [wall[:, :300], shifted(wall, 13.4, 217.3)[:, :300]]
+    contrasts = [strip_contrast(Strip(s, np.ones_like(s), np.ones_like(s))) for s in strips]
+    ones = np.ones_like(contrasts[0])
+    droll = 13.4 * grid.deg_per_px
+    prior = MotionPrior(21.73 + 0.8, droll - 0.5, 3.0, 5.0)   # an odometer 0.8 mm off
+    whole = [registration_image(c, ones) for c in contrasts]
+    assert measure_shift(*whole, grid, 0, 1, prior) is None   # no peak above MIN_RESPONSE
+    link = measure_overlap_shift(contrasts[0], ones, contrasts[1], ones, grid, 0, 1, prior)
+    assert link is not None and (link.i, link.j) == (0, 1)
+    # one Lucas-Kanade step on a quarter of the strip: 0.06 px measured (four textures)
+    assert link.dz_mm == pytest.approx(21.73, abs=0.1 * grid.mm_per_px_axial)
+    assert link.droll_deg == pytest.approx(droll, abs=0.1 * grid.deg_per_px)
+    far = MotionPrior(24.0, 0.0, 3.0, 5.0)   # less than a quarter of a strip in common
+    assert measure_overlap_shift(contrasts[0], ones, contrasts[1], ones, grid, 0, 1, far) is None
 
 
 def _link(i: int, j: int, dz: float, droll: float = 0.0) -> Link:

@@ -35,9 +35,21 @@ from pipestitch.mosaic._register_kernels import (
 from pipestitch.mosaic.noise import PatchNoise
 from pipestitch.mosaic.unwrap import Strip, local_contrast
 
-__all__ = ["Link", "MotionPrior", "Positions", "measure_shift", "odometer_noise_mm", "phase_shift",
-           "predict_motion", "registration_image", "solve_positions", "spectrum",
-           "strip_contrast"]
+__all__ = [
+    "Link",
+    "MotionPrior",
+    "Positions",
+    "measure_overlap_shift",
+    "measure_shift",
+    "odometer_noise_mm",
+    "phase_shift",
+    "predict_motion",
+    "registration_image",
+    "shared_taper",
+    "solve_positions",
+    "spectrum",
+    "strip_contrast",
+]
 
 MIN_RESPONSE = 0.04     # phase-correlation peaks below this are not trusted at all
 # A patch's noise is subtracted where at least this share of its gradient energy is
@@ -238,6 +250,55 @@ def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """Quality-weighted local contrast, tapered to 0 at both z ends (float32)."""
     taper = np.hanning(contrast.shape[1] + 2)[1:-1].astype(np.float32)
     return (contrast * np.clip(weight, 0, 1) * taper[None, :]).astype(np.float32)
+
+
+def shared_taper(n_cols: int, shift_px: float) -> float:
+    """Share of the :func:`registration_image` taper's energy that two strips ``n_cols``
+    wide, ``shift_px`` apart along z, have in common: sum h(x) h(x - s) / sum h(x)^2
+    (1 at no shift, 0 from a whole strip's width on)."""
+    taper = np.hanning(n_cols + 2)[1:-1]
+    s = int(round(abs(shift_px)))
+    if s >= n_cols:
+        return 0.0
+    return float(np.dot(taper[s:], taper[:n_cols - s]) / np.dot(taper, taper))
+
+
+def measure_overlap_shift(first: np.ndarray, first_weight: np.ndarray, second: np.ndarray,
+                          second_weight: np.ndarray, grid: WallGrid, i: int, j: int,
+                          prior: MotionPrior) -> Link | None:
+    """:func:`measure_shift` of two strips' local contrasts (``first``, ``second``, with
+    their quality weights) on the part of the wall the ``prior`` says they share: each
+    cut to it and tapered over it alone. For a large step, where the whole strips'
+    tapers leave the common wall only their faint ends. None when the prior expects no
+    common part of at least a quarter of a strip."""
+    link = _cut_shift(first, first_weight, second, second_weight, grid, i, j, prior)
+    if link is None or abs(link.dz_mm - prior.dz_mm) < grid.mm_per_px_axial:
+        return link
+    # cut again where the measured step puts the common wall (the prior may be mm off),
+    # so that the Lucas-Kanade polish starts within a pixel
+    again = MotionPrior(link.dz_mm, link.droll_deg, prior.dz_sigma_mm, prior.droll_sigma_deg)
+    return _cut_shift(first, first_weight, second, second_weight, grid, i, j, again) or link
+
+
+def _cut_shift(first: np.ndarray, first_weight: np.ndarray, second: np.ndarray,
+               second_weight: np.ndarray, grid: WallGrid, i: int, j: int,
+               prior: MotionPrior) -> Link | None:
+    """:func:`measure_overlap_shift`'s one measurement, cut where ``prior`` says."""
+    n_cols = first.shape[1]
+    s = int(round(prior.dz_mm / grid.mm_per_px_axial))
+    width = n_cols - abs(s)
+    if width < n_cols // 4:
+        return None
+    a, b = (slice(s, n_cols), slice(0, width)) if s >= 0 else (slice(0, width),
+                                                                 slice(-s, n_cols))
+    cut = MotionPrior(prior.dz_mm - s * grid.mm_per_px_axial, prior.droll_deg,
+                      prior.dz_sigma_mm, prior.droll_sigma_deg)
+    link = measure_shift(registration_image(first[:, a], first_weight[:, a]),
+                         registration_image(second[:, b], second_weight[:, b]), grid, i, j, cut)
+    if link is None:
+        return None
+    return Link(i, j, link.dz_mm + s * grid.mm_per_px_axial, link.droll_deg, link.response,
+                link.dz_sigma_mm, link.droll_sigma_deg)
 
 
 def measure_shift(first: np.ndarray, second: np.ndarray, grid: WallGrid, i: int,

@@ -529,3 +529,27 @@ def test_a_run_whose_pose_pass_ends_early_does_not_wait_for_its_helper(
         summary = ended[0]
         assert summary.no_mosaic.startswith("no mosaic: no frame has a pose")
         assert (summary.out / "report.html").is_file()
+
+
+def test_registration_decides_a_mirror_only_against_a_frame_whose_mirror_is_decided() -> None:
+    from pipestitch.mosaic.register import Link
+    from pipestitch.pipeline.run import _apply_switches
+    from pipestitch.pose.ambiguity import Choice
+
+    links = [Link(i, j, 5.0 * (j - i), 0.0, 0.5, 0.02, 0.02)
+             for i in range(6) for j in (i + 1, i + 2) if j < 6 and j != 4]   # none into 4
+    undecided = Choice(0, True, "undecided", 1.0)
+    switched = {1: True, 2: True, 3: False, 4: True, 5: False}
+    # every frame ambiguous: registration can only make them agree with each other
+    alone = _apply_switches([undecided] * 6, switched, links)
+    assert [(c.chosen, c.ambiguous, c.reason) for c in alone[1:]] == [
+        (1, True, "registration-relative"), (1, True, "registration-relative"),
+        (0, True, "registration-relative"), (1, True, "registration-relative"),
+        (0, True, "registration-relative")]
+    # frame 0's mirror decided by the body: the chain from it is decided, except frame
+    # 4, which no link reaches from an earlier frame; frame 5 links back to 3
+    anchored = _apply_switches([Choice(0, False, "envelope", 9.0)] + [undecided] * 5,
+                               switched, links)
+    assert [(c.ambiguous, c.reason) for c in anchored[1:]] == [
+        (False, "registration"), (False, "registration"), (False, "registration"),
+        (True, "registration-relative"), (False, "registration")]

@@ -31,6 +31,7 @@ from pipestitch.io.imu import read_imu
 from pipestitch.io.mask import read_mask
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
+from pipestitch.mosaic.register import Link
 from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
@@ -140,13 +141,36 @@ def _without_rings(frames: list[FramePose]) -> list[FramePose]:
             if f.ring is not None else f for f in frames]
 
 
-def _apply_switches(choices: list[Choice], switched: dict[int, bool]) -> list[Choice]:
-    """Choices after registration's photometric decision on the ambiguous frames."""
+RELATIVE_MIRROR = ("pose ambiguous: mirror chosen by registration against its neighbours only, "
+                   "whose own mirrors nothing decided (this stretch may be on its mirror as a "
+                   "whole)")
+
+
+def _apply_switches(choices: list[Choice], switched: dict[int, bool],
+                    links: Sequence[Link]) -> list[Choice]:
+    """Choices after registration's photometric decision on the ambiguous frames.
+
+    Registration compares a frame's two unwraps with the earlier frames it links to, as
+    they were chosen: a decision is only as absolute as they are. Two consecutive frames
+    on their wrong mirrors warp the wall alike, so a stretch of ambiguous frames
+    decided only against each other is one consistent choice of two, either of which
+    could be the truth. A decision counts (``registration``, not flagged) when the frame
+    links back to a frame whose mirror the pose step decided (body, photometric
+    comparison, continuity) or to one such decision in turn; otherwise the frame stays
+    flagged (``registration-relative``)."""
+    earlier: dict[int, set[int]] = {}
+    for ln in links:
+        earlier.setdefault(max(ln.i, ln.j), set()).add(min(ln.i, ln.j))
+    anchored = {k for k, c in enumerate(choices) if not c.ambiguous and c.chosen is not None}
+    for k in sorted(switched):
+        if earlier.get(k, set()) & anchored:
+            anchored.add(k)
     out = []
     for k, c in enumerate(choices):
         if k in switched and c.chosen is not None:
             chosen = 1 - c.chosen if switched[k] else c.chosen
-            c = Choice(chosen, False, "registration", c.margin)
+            c = (Choice(chosen, False, "registration", c.margin) if k in anchored
+                 else Choice(chosen, True, "registration-relative", c.margin))
         out.append(c)
     return out
 
@@ -276,7 +300,8 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
                      for i, j, src in result.positions.outliers]
         problems += [(k, "roll interpolated (not linked to the roll reference by registration)")
                      for k in result.positions.roll_guessed]
-    problems += [(c_i, "pose ambiguous (mirror hypothesis not ruled out)")
+    problems += [(c_i, RELATIVE_MIRROR if c.reason == "registration-relative"
+                  else "pose ambiguous (mirror hypothesis not ruled out)")
                  for c_i, c in enumerate(choices) if c.ambiguous]
     if result is not None:
         problems += [(i, f"not in the mosaic: {m}") for i, m in sorted(result.skipped.items())]
@@ -406,7 +431,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
             wait([plots])
     release_free_memory()
     if result is not None:
-        choices = _apply_switches(choices, result.switched)
+        choices = _apply_switches(choices, result.switched, result.links)
         frames = _with_refined(frames, choices, result.views)
         z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
                            result.positions.odometer_scale)

@@ -49,6 +49,26 @@ def test_a_static_occluder_of_any_brightness_is_masked(level: float) -> None:
     assert mask[wall].mean() < 0.01
 
 
+def test_a_wall_as_noisy_as_it_is_textured_is_not_static() -> None:
+    """Sensor noise as strong as the wall's texture: each pixel of the wall varies over
+    the frames little more than the noise does, but its neighbourhood's mean varies with
+    the texture (correlated over pixels) while the noise averages out: not static. The
+    fixed bar still is."""
+    rng = np.random.default_rng(5)
+    stack = []
+    for _ in range(11):
+        wall = cv2.GaussianBlur(rng.standard_normal((200, 240)), (0, 0), 3)
+        f = 0.33 + 0.05 * wall / wall.std()            # texture sd 0.05
+        f[:, 100:116] = 0.2                           # the fixed bar
+        stack.append(np.clip(f + rng.normal(0, 0.05, f.shape), 0, 1))   # noise sd 0.05
+    stack = np.array(stack, np.float32)
+    static = static_pixels(stack, np.median(stack, axis=0))
+    assert static[:, 104:112].mean() > 0.99
+    wall = np.ones(static.shape, bool)
+    wall[:, 96:120] = False
+    assert static[wall].mean() < 0.03   # 1.1 %; on each pixel's variance alone: 99 %
+
+
 def test_static_pixels_need_the_noise_not_a_constant() -> None:
     """The same static bar under 10x the noise is still static (the noise is measured),
     and a saturated wall is not taken for an occluder."""

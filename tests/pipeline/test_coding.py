@@ -94,6 +94,34 @@ def test_imu_reference_gives_the_true_clock_positions(dataset: Path, output: Pat
         assert d["clock_reference"] == "imu"
 
 
+def test_a_run_with_an_imu_gives_the_pipe_frames_roll_and_theta(dataset: Path,
+                                                                  tmp_path: Path) -> None:
+    """imu.csv is SPEC's reference for roll: poses.csv's roll_deg is then gamma against
+    gravity (not relative), and the mosaic's theta the pipe frame's, crown at 270."""
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    truth_poses = _rows(ds / "truth" / "poses.csv")
+    (ds / "imu.csv").write_text("frame,roll_deg\n" + "".join(
+        f"{r['frame']},{r['roll_deg']}\n" for r in truth_poses))
+    result = runner.invoke(app, ["run", str(ds), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    est = {r["frame"]: r["roll_deg"] for r in _rows(tmp_path / "out" / "poses.csv")}
+    errors = [float(est[r["frame"]]) - float(r["roll_deg"]) for r in truth_poses
+              if est[r["frame"]] != "nan"]
+    assert len(errors) >= len(truth_poses) - 2 and max(map(abs, errors)) < 0.3
+    meta = json.loads((tmp_path / "out" / "mosaic.json").read_text())
+    assert meta["theta_reference"].startswith("imu")
+    state = json.loads((tmp_path / "out" / "standards.json").read_text())
+    assert state["reference"]["source"] == "imu"
+    assert abs((state["reference"]["crown_theta_deg"] - 270 + 180) % 360 - 180) < 0.3
+    truth = [float(r["theta_deg"]) for r in _rows(ds / "truth" / "defects.csv")
+             if r["kind"] == "hole"]
+    for d in _rows(tmp_path / "out" / "defects.csv"):
+        if d["kind"] == "hole" and d["partial"] == "0":
+            near = min(abs((float(d["theta_deg"]) - t + 180) % 360 - 180) for t in truth)
+            assert near < 1.0   # deg: the mosaic's theta is the wall's
+
+
 def _gravity(out: Path, defect: dict[str, str]) -> float:
     crown = json.loads((out / "standards.json").read_text())["reference"]["crown_theta_deg"]
     return (float(defect["theta_deg"]) - crown + 270) % 360

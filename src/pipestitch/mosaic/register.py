@@ -347,6 +347,8 @@ class Positions:
     roll_guessed : list
         Placed frames not linked to the roll reference by registration (only by the
         odometer): their roll is interpolated, not measured.
+    roll_reference : str
+        "relative" (as above), or "imu" once the roll has been offset to an IMU's.
     """
 
     z_mm: np.ndarray
@@ -354,6 +356,7 @@ class Positions:
     odometer_scale: float
     outliers: list[tuple[int, int, str]]
     roll_guessed: list[int] = field(default_factory=list)
+    roll_reference: str = "relative"
 
 
 def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:

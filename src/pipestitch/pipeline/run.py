@@ -270,6 +270,10 @@ def _grid_json(g: WallGrid, radius_mm: float) -> dict[str, float | int]:
             "mm_per_px_circumferential": 2 * math.pi * radius_mm / g.n_rows}
 
 
+IMU_THETA = ("imu: theta of the pipe frame whose +y points down (imu.csv's roll, its offset "
+             "to registration's the circular mean over the frames); the crown at 270 deg")
+
+
 def _mosaic_json(result: MosaicResult, written: WrittenMosaic, dataset: Dataset,
                  settings: MosaicSettings) -> dict[str, object]:
     """mosaic.json: the scale of mosaic.png (SPEC) and of the full-resolution mosaic."""
@@ -277,7 +281,8 @@ def _mosaic_json(result: MosaicResult, written: WrittenMosaic, dataset: Dataset,
         **_grid_json(written.overview_grid, result.radius_mm), "radius_mm": result.radius_mm,
         "overview_factor": written.factor,
         "full_resolution": {"file": PYRAMID, **_grid_json(written.grid, result.radius_mm)},
-        "theta_reference": ("relative: theta 0 is the roll of the first frame of the largest "
+        "theta_reference": (IMU_THETA if result.positions.roll_reference == "imu" else
+                            "relative: theta 0 is the roll of the first frame of the largest "
                             "group linked by registration"),
         "roll_interpolated_frames": result.positions.roll_guessed,
         "z_reference": ("odometer (median offset), scale fitted"

@@ -35,6 +35,7 @@ from pipestitch.camera.frames import blank_frame, to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import Dataset
+from pipestitch.io.imu import read_imu
 from pipestitch.io.mask import read_mask
 from pipestitch.mosaic.blend import (
     Canvas,
@@ -86,6 +87,7 @@ from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
 from pipestitch.pose.section import SectionFit, fit_section
+from pipestitch.standards.roll_reference import imu_roll_offset
 
 __all__ = ["UNWRAP_MODES", "FrameView", "LedSample", "MosaicResult", "MosaicSettings",
            "MosaicSink", "build_mosaic", "find_occluders", "led_frames", "sample_led"]
@@ -920,6 +922,20 @@ def _check_positions(positions: Positions | None, n_frames: int) -> None:
                          f"per frame of the run), got {shapes[0]} and {shapes[1]}")
 
 
+def _roll_from_imu(positions: Positions, imu_roll_deg: Mapping[int, float] | None) -> Positions:
+    """``positions`` with the roll made the IMU's (SPEC's gamma against gravity) where the
+    dataset has an imu.csv: registration measures roll up to one offset, the IMU fixes it
+    (its circular mean over the frames both know), as the odometer fixes z. The mosaic's
+    theta is then the pipe frame's, crown at 270 deg."""
+    if not imu_roll_deg:
+        return positions
+    roll = {i: float(r) for i, r in enumerate(positions.roll_deg) if np.isfinite(r)}
+    found = imu_roll_offset(roll, imu_roll_deg)
+    if found is None:
+        return positions
+    return replace(positions, roll_deg=positions.roll_deg + found[0], roll_reference="imu")
+
+
 def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
              skipped: dict[int, str], timer: StageTimer) -> tuple[Positions, list[int]]:
     """The run's positions and the registered frames they place.
@@ -937,6 +953,7 @@ def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
         with timer("register"):
             positions = solve_positions(dataset.n_pairs, reg.links,
                                         odometry_mm=dataset.odometry_mm, placed=reg.done)
+            positions = _roll_from_imu(positions, read_imu(dataset.root))
         why = "not registered to the run (no common texture, no odometer)"
     else:
         positions, why = given, "no position given for the frame"

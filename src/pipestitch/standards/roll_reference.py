@@ -20,8 +20,8 @@ import numpy as np
 from pipestitch.geometry.clock import CROWN_THETA_GRAVITY_DEG, clock_hhmm, clock_hour
 
 __all__ = ["CROWN_THETA_GRAVITY_DEG", "REFERENCE_SOURCES", "RollReference", "clock_hhmm",
-           "clock_hour", "crown_from_imu", "crown_from_invert", "relative_reference",
-           "user_reference"]
+           "clock_hour", "crown_from_imu", "crown_from_invert", "imu_roll_offset",
+           "relative_reference", "user_reference"]
 
 REFERENCE_SOURCES = ("imu", "invert-detected", "user (--crown-deg)", "relative")
 
@@ -90,14 +90,27 @@ def crown_from_imu(mosaic_roll_deg: Mapping[int, float],
 
     Returns None when no frame has both.
     """
+    found = imu_roll_offset(mosaic_roll_deg, imu_roll_deg)
+    if found is None:
+        return None
+    c, spread, count = found
+    return RollReference((CROWN_THETA_GRAVITY_DEG - c) % 360.0, "imu",
+                         f"imu.csv roll over {count} frames (spread {spread:.2f} deg)")
+
+
+def imu_roll_offset(mosaic_roll_deg: Mapping[int, float], imu_roll_deg: Mapping[int, float]
+                    ) -> tuple[float, float, int] | None:
+    """The offset c (deg, in (-180, 180]) that turns the frames' relative roll into the
+    IMU's (gravity) roll, gamma = roll + c: the circular mean of ``imu - roll`` over the
+    frames both know; with its circular spread and the number of frames. None when no
+    frame has both."""
     common = sorted(k for k in mosaic_roll_deg if k in imu_roll_deg
                     and math.isfinite(mosaic_roll_deg[k]) and math.isfinite(imu_roll_deg[k]))
     if not common:
         return None
     offsets = np.array([imu_roll_deg[k] - mosaic_roll_deg[k] for k in common])
     c, spread = _circular_mean_deg(offsets)
-    return RollReference(CROWN_THETA_GRAVITY_DEG - c, "imu",
-                         f"imu.csv roll over {len(common)} frames (spread {spread:.2f} deg)")
+    return (c - 360.0 if c > 180.0 else c), spread, len(common)
 
 
 def crown_from_invert(invert_theta_deg: float, detail: str = "") -> RollReference:

@@ -166,6 +166,16 @@ class ProbeConfig(_Strict):
     probe: ProbeBodyConfig = ProbeBodyConfig()
     pipe: PipeConfig
 
+    @model_validator(mode="after")
+    def _body_fits_the_pipe(self) -> ProbeConfig:
+        # A body as wide as the pipe could hold no pose at all: one of the two is wrong,
+        # and every frame would be flagged for it.
+        body = self.probe.diameter_mm
+        if body is not None and body >= self.pipe.inner_diameter_mm:
+            raise ValueError(f"[probe] diameter_mm = {body:g} does not fit in [pipe] "
+                             f"inner_diameter_mm = {self.pipe.inner_diameter_mm:g}")
+        return self
+
     def camera_model(self) -> CameraModel:
         """Build the camera model."""
         return self.camera.build()

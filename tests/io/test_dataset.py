@@ -69,6 +69,8 @@ def test_probe_toml_round_trip(tmp_path: Path, camera) -> None:
     (lambda t: t.replace("inner_diameter_mm = 65.0", "inner_diameter_mm = -65.0"),
      "inner_diameter_mm"),
     (lambda t: t.replace("pol = [-634.0", "pol = [634.0"), "negative"),
+    (lambda t: t.replace("diameter_mm = 45.0", "diameter_mm = 70.0"),
+     r"^some/probe.toml: \[probe\] diameter_mm = 70 does not fit in \[pipe\] inner_diameter_mm"),
 ])
 def test_bad_probe_toml_names_the_problem(edit, message: str) -> None:
     with pytest.raises(ConfigError, match=message) as info:

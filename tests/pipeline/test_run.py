@@ -553,3 +553,19 @@ def test_registration_decides_a_mirror_only_against_a_frame_whose_mirror_is_deci
     assert [(c.ambiguous, c.reason) for c in anchored[1:]] == [
         (False, "registration"), (False, "registration"), (False, "registration"),
         (True, "registration-relative"), (False, "registration")]
+
+
+def test_a_body_too_big_for_the_measured_poses_keeps_its_frames_flagged(
+        dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    toml = copy / "probe.toml"
+    toml.write_text(toml.read_text().replace("diameter_mm = 45.0", "diameter_mm = 63.0"))
+    result = runner.invoke(app, ["run", str(copy), "--out", str(tmp_path / "out"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    rows = list(csv.DictReader((tmp_path / "out" / "poses.csv").open()))
+    # the run tests the oval and measures the tilt from the LED frames; the pipe is round,
+    # so the body is what is wrong, and the frames say so (SPEC: flagged, reason given)
+    assert all(r["chosen_by"] == "infeasible" and r["ambiguous"] == "1"
+               and "check probe.toml's [probe] body" in r["warning"] for r in rows)
+    assert all(abs(float(r["ovality"])) < 0.002 for r in rows)

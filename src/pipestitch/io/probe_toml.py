@@ -42,6 +42,8 @@ def _describe(exc: ValidationError, *, sections: bool) -> str:
             problems.append(f"unknown key {where}")
         elif err["type"] == "missing":
             problems.append(f"missing key {where}")
+        elif not loc and err["type"] == "value_error":   # a check across sections
+            problems.append(str(err["ctx"]["error"]))
         else:
             problems.append(f"{where}: {err['msg']}")
     return "; ".join(problems)

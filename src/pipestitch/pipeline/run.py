@@ -24,7 +24,7 @@ from pipestitch import __version__
 from pipestitch._runtime.memory import keep_buffers_in_heap, release_free_memory
 from pipestitch._runtime.threads import opencv_threads
 from pipestitch.errors import PipestitchError
-from pipestitch.geometry import WallGrid
+from pipestitch.geometry import BodyEnvelope, WallGrid
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
@@ -36,6 +36,7 @@ from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
 from pipestitch.pipeline.posing import (
+    INFEASIBLE_SIGMAS,
     OVAL_POSE_WARNING,
     OVAL_TILT_WARNING,
     FramePose,
@@ -65,7 +66,7 @@ from pipestitch.pipeline.stitching import (
     sample_led,
 )
 from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
-from pipestitch.pose.ambiguity import Choice
+from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm
 from pipestitch.pose.fit import Hypothesis, RingPoints
 from pipestitch.report.html import (
     PROBLEMS_CSV,
@@ -201,6 +202,33 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                             warning=warning)
         out.append(frame)
     return out
+
+
+def _still_infeasible(frames: list[FramePose], choices: list[Choice],
+                      body: BodyEnvelope | None) -> tuple[list[FramePose], list[Choice]]:
+    """Frames the body could not hold in either mirror (started as ovals) whose refined
+    pose and section it still cannot hold: the declared body is wrong for them (SPEC:
+    flagged, the reason in ``warning``), whatever the refinement measured."""
+    if body is None:
+        return frames, choices
+    out_frames, out_choices = [], []
+    for frame, choice in zip(frames, choices, strict=True):
+        if frame.circle_fallback is not None and choice.chosen is not None and frame.fit.ok:
+            h = frame.fit.hypotheses[choice.chosen]
+            clearance = body.clearance_mm(h.pose, h.pipe_section)
+            if clearance < -INFEASIBLE_SIGMAS * clearance_sigma_mm(h, body):
+                warning = REFINED_INFEASIBLE.format(clearance=-clearance)
+                frame = replace(frame, warning="; ".join(m for m in (frame.warning, warning)
+                                                         if m))
+                choice = Choice(choice.chosen, True, "infeasible", choice.margin)
+        out_frames.append(frame)
+        out_choices.append(choice)
+    return out_frames, out_choices
+
+
+REFINED_INFEASIBLE = ("the declared probe body cannot hold the pose and section measured "
+                      "from the LED frames either (it would cross the wall by {clearance:.1f} "
+                      "mm): check probe.toml's [probe] body")
 
 
 def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
@@ -438,6 +466,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     if result is not None:
         choices = _apply_switches(choices, result.switched, result.links)
         frames = _with_refined(frames, choices, result.views)
+        frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope())
         z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
                            result.positions.odometer_scale)
         roll = _finite(result.positions.roll_deg)

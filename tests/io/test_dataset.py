@@ -130,8 +130,8 @@ def _tiny_dataset(root: Path, n: int = 3, size=(64, 48), led: bool = True) -> No
     text = text.replace("height = 1024", f"height = {size[1]}")
     (root / "frames").mkdir(parents=True)
     (root / "probe.toml").write_text(text)
-    for i in range(n):
-        img = np.zeros((size[1], size[0]), np.uint8)
+    for i in range(n):   # frames with a picture (a black one is warned of: check below)
+        img = np.random.default_rng(i).integers(0, 256, (size[1], size[0]), dtype=np.uint8)
         cv2.imwrite(str(root / "frames" / f"laser_{i:05d}.png"), img)
         if led:
             cv2.imwrite(str(root / "frames" / f"led_{i:05d}.png"), img)
@@ -324,3 +324,21 @@ def test_truth_wall_json_not_an_object_is_a_problem_naming_it(tmp_path: Path, te
     assert len(problems) == 1 and problems[0].path == tmp_path / "truth" / "wall.json"
     assert problems[0].message == ("expected a JSON object (mm_per_px_axial, deg_per_px, "
                                    f"z0_mm, radius_mm), got {got}")
+
+
+def test_a_missing_led_frame_is_a_warning_as_run_takes_it(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=4)
+    (tmp_path / "frames" / "led_00002.png").unlink()
+    problems = check_dataset(tmp_path)
+    assert [(p.severity, "pair 00002 has no led frame" in p.message) for p in problems] == [
+        ("warning", True)]
+    assert open_dataset(tmp_path).led_missing() == [2]
+
+
+def test_check_warns_of_a_frame_that_shows_nothing(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    led = tmp_path / "frames" / "led_00001.png"
+    cv2.imwrite(str(led), np.zeros_like(cv2.imread(str(led), cv2.IMREAD_UNCHANGED)))
+    problems = check_dataset(tmp_path)
+    assert [(p.path.name, p.severity) for p in problems] == [("led_00001.png", "warning")]
+    assert "black" in problems[0].message and "not in the mosaic" in problems[0].message

@@ -41,8 +41,9 @@ def _dataset(root: Path, *, windows: bool) -> Path:
     (root / "frames").mkdir(parents=True)
     (root / "truth").mkdir()
     for i in range(3):
-        for kind in ("laser", "led"):
-            cv2.imwrite(str(root / "frames" / f"{kind}_{i:05d}.png"), np.zeros((48, 64), np.uint8))
+        for kind in ("laser", "led"):   # frames with a picture (check warns of black ones)
+            noise = np.random.default_rng(i).integers(0, 256, (48, 64), dtype=np.uint8)
+            cv2.imwrite(str(root / "frames" / f"{kind}_{i:05d}.png"), noise)
     files = {"probe.toml": probe, "odometry.csv": ODOMETRY, "imu.csv": IMU,
              "survey.toml": SURVEY, "truth/poses.csv": TRUTH_POSES, "truth/wall.json": WALL_JSON}
     for name, text in files.items():

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipestitch.camera import blank_frame
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.io.frame_files import frame_files
@@ -382,11 +383,18 @@ def _check_images(paths: list[Path], size: tuple[int, int],
                   progress: Callable[[], None] | None) -> Iterator[Problem]:
     for path in paths:
         try:
-            read_frame(path, size)
+            blank = blank_frame(read_frame(path, size))
+            if blank:   # read as a frame; pose and run take it as one that shows nothing
+                yield Problem(path, f"{blank}: {BLANK_CONSEQUENCE[path.name.split('_')[0]]}",
+                              "warning")
         except DatasetError as exc:
             yield Problem(path, exc.problem)
         if progress is not None:
             progress()
+
+
+BLANK_CONSEQUENCE = {"laser": "no ring, the pair gets no pose",
+                     "led": "the pose comes from the laser frame alone, not in the mosaic"}
 
 
 def _check_frames(root: Path, config: ProbeConfig | None,
@@ -401,15 +409,18 @@ def _check_frames(root: Path, config: ProbeConfig | None,
                       "warning")
     if not found["laser"]:
         yield Problem(frames_dir, "no laser frames (expected frames/laser_00000.png, ...)")
-    for kind in ("laser", "led"):
-        yield from _numbering_problems(kind, found[kind], frames_dir)
+    yield from _numbering_problems("laser", found["laser"], frames_dir)
     if not found["led"]:
-        yield Problem(frames_dir, "no LED frames: laser-only dataset (pose works, run does not)",
-                      "warning")
+        yield Problem(frames_dir, "no LED frames: laser-only dataset (run gives poses, profile "
+                                  "and report, no mosaic)", "warning")
     else:
         for i in sorted(set(found["laser"]) ^ set(found["led"])):
-            kind = "led" if i in found["laser"] else "laser"
-            yield Problem(frames_dir, f"pair {i:05d} has no {kind} frame")
+            if i in found["laser"]:   # as run takes it: that pair reported and not stitched
+                yield Problem(frames_dir, f"pair {i:05d} has no led frame: its pose comes from "
+                                          "the laser frame alone, it is not in the mosaic",
+                              "warning")
+            else:
+                yield Problem(frames_dir, f"pair {i:05d} has no laser frame")
     if config is not None:
         paths = [found[k][i] for k in ("laser", "led") for i in sorted(found[k])]
         yield from _check_images(paths, (config.camera.width, config.camera.height), progress)

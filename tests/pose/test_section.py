@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose.section import fit_section, oval_residuals
+from pipestitch.pose.section import fit_section, oval_residuals, section_free_information
 
 D = 16.0
 
@@ -59,3 +59,20 @@ def test_one_ring_cannot_separate_tilt_from_ovality() -> None:
     # The fit's own information says so: two pose directions are (nearly) unseen.
     assert np.sum(np.linalg.eigvalsh(wrong.information) > 1e-3 * np.abs(
         wrong.information).max()) == 2
+
+
+def test_the_section_free_prior_leaves_the_tilt_to_other_evidence() -> None:
+    """At a circle fit of a ring, the information on the pose with the section left free
+    is what fit_section reports there: two directions of the pose (a tilt with the offset
+    that keeps the ring in place, which an ovality mimics) are nearly unseen."""
+    pose = Pose.from_degrees(3.0, -1.0, 1.0, -1.0)
+    rng = np.random.default_rng(0)
+    ring = laser_ring(pose, PipeSection.circle(65.0), D, n_points=360)
+    ring = ring + np.column_stack([rng.normal(0, 0.02, (360, 2)), np.zeros(360)])
+    free = section_free_information(ring, pose, 32.5)
+    fitted = fit_section(ring, pose, 32.5)
+    np.testing.assert_allclose(free, fitted.information, rtol=0.05,
+                               atol=1e-4 * np.abs(fitted.information).max())
+    # two pose directions (tilt with the offset that keeps the ring) nearly unseen
+    eigen = np.linalg.eigvalsh(free)
+    assert np.sum(eigen > 1e-3 * eigen.max()) == 2

@@ -68,6 +68,7 @@ from pipestitch.pipeline.stitching import (
 from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm
 from pipestitch.pose.fit import Hypothesis, RingPoints
+from pipestitch.pose.section import section_free_information
 from pipestitch.report.html import (
     PROBLEMS_CSV,
     TABLES,
@@ -119,11 +120,21 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
         alt = None
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
-            alt = FrameView(m.pose, m.pipe_section, information=m.information,
+            alt = FrameView(m.pose, m.pipe_section, information=_prior(m, ring),
                             ring=ring, oval=m.section is not None)
-        views[frame.index] = FrameView(h.pose, h.pipe_section, alt, h.information,
+        views[frame.index] = FrameView(h.pose, h.pipe_section, alt, _prior(h, ring),
                                        ring=ring, oval=h.section is not None)
     return views
+
+
+def _prior(h: Hypothesis, ring: RingPoints | StoredRing | None) -> np.ndarray | None:
+    """The refinement's prior of a frame's pose: for a circle fit, what its ring says
+    with the section left free (:func:`pipestitch.pose.section.section_free_information`;
+    the ring's own information assumes a round pipe, and would hold a slightly oval
+    pipe's ovality as tilt against the LED frames), else the fit's own."""
+    if h.section is not None or ring is None:
+        return h.information
+    return section_free_information(ring.points_mm, h.pose, h.radius_mm)
 
 
 def _compact_ring(ring: RingPoints | StoredRing | None) -> RingPoints | StoredRing | None:

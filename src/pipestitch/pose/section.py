@@ -29,7 +29,8 @@ from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, rot_x, rot_y
 from pipestitch.pose.fit import RESELECT_SIGMAS, Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
-__all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_residuals"]
+__all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_residuals",
+           "section_free_information"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,21 +133,44 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
     res = least_squares(fun, x0, loss="soft_l1", f_scale=noise_mm, method="trf",
                         x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]), bounds=bounds)
     x = np.concatenate([tilt, res.x])
-    resid = oval_residuals(x, points_mm)
-    jac = _numeric_jacobian(x, points_mm)
-    dof = max(1, len(resid) - 5)
-    info = jac.T @ jac / max(float(resid @ resid) / dof, 1e-12)
+    resid, info = _information(x, points_mm)
     cov = np.linalg.pinv(info[2:, 2:])
     e = float(np.hypot(x[5], x[6]))
     grad = np.array([x[5], x[6]]) / e if e > 0 else np.array([1.0, 0.0])
     ovality_std = float(np.sqrt(max(grad @ cov[3:, 3:] @ grad, 0.0)))
-    section_info = info[4:, 4:]
-    pose_info = info[:4, :4] - info[:4, 4:] @ np.linalg.pinv(section_info) @ info[4:, :4]
-    evals, evecs = np.linalg.eigh((pose_info + pose_info.T) / 2)
-    pose_info = (evecs * np.maximum(evals, 0.0)) @ evecs.T   # PSD up to rounding
+    pose_info = _section_marginalised(info)
     return SectionFit(Pose(pose.alpha, pose.beta, float(x[2]), float(x[3])),
                       _section(*x[4:]), ovality_std, float(np.sqrt(max(cov[2, 2], 0.0))),
                       float(np.sqrt(np.mean(resid**2))), resid, pose_info)
+
+
+def _information(x: np.ndarray, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals at ``x`` (alpha, beta, dx, dy, r, c, s) and the 7 x 7 information
+    of the parameters (Gauss-Newton, scaled by the residuals' variance)."""
+    resid = oval_residuals(x, points_mm)
+    jac = _numeric_jacobian(x, points_mm)
+    dof = max(1, len(resid) - 5)
+    return resid, jac.T @ jac / max(float(resid @ resid) / dof, 1e-12)
+
+
+def _section_marginalised(info: np.ndarray) -> np.ndarray:
+    """The 4 x 4 information of (alpha, beta, dx, dy) with (r, c, s) marginalised out
+    (Schur complement), made positive semi-definite up to rounding."""
+    pose_info = info[:4, :4] - info[:4, 4:] @ np.linalg.pinv(info[4:, 4:]) @ info[4:, :4]
+    evals, evecs = np.linalg.eigh((pose_info + pose_info.T) / 2)
+    return (evecs * np.maximum(evals, 0.0)) @ evecs.T
+
+
+def section_free_information(points_mm: np.ndarray, pose: Pose,
+                             radius_mm: float) -> np.ndarray:
+    """What a frame's ring says about its pose when the pipe's section is not assumed
+    round: the 4 x 4 information of (alpha, beta, dx, dy) at a circle fit (``pose``,
+    ``radius_mm``) with the section's radius and ovality marginalised out. Near zero
+    along the tilt directions an ovality can mimic, so a refinement that takes it as
+    its prior measures those from the LED frames rather than keeping the ring's
+    circle tilt (a 0.6 % oval read as a round pipe: several degrees of tilt)."""
+    x = np.array([pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm, radius_mm, 0.0, 0.0])
+    return _section_marginalised(_information(x, points_mm)[1])
 
 
 def oval_at_zero_tilt(fit: PoseFit, camera: CameraModel) -> PoseFit:

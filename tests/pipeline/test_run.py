@@ -569,3 +569,29 @@ def test_a_body_too_big_for_the_measured_poses_keeps_its_frames_flagged(
     assert all(r["chosen_by"] == "infeasible" and r["ambiguous"] == "1"
                and "check probe.toml's [probe] body" in r["warning"] for r in rows)
     assert all(abs(float(r["ovality"])) < 0.002 for r in rows)
+
+
+def test_a_refined_pose_the_body_cannot_hold_gives_way_to_the_rings(dataset: Path) -> None:
+    from dataclasses import replace
+
+    from pipestitch.geometry import Pose
+    from pipestitch.pipeline.posing import estimate_poses
+    from pipestitch.pipeline.run import _still_infeasible
+
+    data = open_dataset(dataset)
+    ring_frames, choices = estimate_poses(data, show_progress=False, drop_rings=True)
+    body = data.config.probe.envelope()
+    assert body is not None
+    k, choice = 2, choices[2]
+    h = ring_frames[k].fit.hypotheses[choice.chosen]
+    astray = replace(h, pose=Pose.from_degrees(3.0, -19.0, h.pose.dx_mm, h.pose.dy_mm))
+    hyps = list(ring_frames[k].fit.hypotheses)
+    hyps[choice.chosen] = astray
+    refined = list(ring_frames)
+    refined[k] = replace(ring_frames[k], fit=replace(ring_frames[k].fit, hypotheses=tuple(hyps)))
+    frames, flagged = _still_infeasible(refined, choices, body, ring_frames)
+    assert flagged[k].ambiguous and flagged[k].reason == "refinement-rejected"
+    assert frames[k].fit.hypotheses[choice.chosen].pose == h.pose   # the ring's pose kept
+    assert "the ring's pose is kept" in frames[k].warning
+    others = [i for i in range(len(frames)) if i != k]
+    assert all(frames[i] is refined[i] and flagged[i] == choices[i] for i in others)

@@ -32,7 +32,12 @@ from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
-from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs
+from pipestitch.mosaic.photometric import (
+    MAX_SHIFT_SHARE,
+    StripPair,
+    contrast_strips,
+    pair_costs,
+)
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
@@ -231,9 +236,21 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
                            range(dataset.n_pairs), workers)
 
 
+def _overlap(first: FramePose, second: FramePose,
+             odometry_mm: Mapping[int, float] | None) -> bool:
+    """Whether the odometer (where it has both frames) lets two frames' comparison strips
+    (:func:`pipestitch.mosaic.photometric.contrast_strips`: 0.6 to 1.8 radii ahead) share
+    at least half their length."""
+    if not odometry_mm or first.index not in odometry_mm or second.index not in odometry_mm:
+        return True   # the correlation's own shift is checked then (photometric._misfit)
+    step = abs(odometry_mm[second.index] - odometry_mm[first.index])
+    return step <= MAX_SHIFT_SHARE * 1.2 * first.fit.hypotheses[0].radius_mm
+
+
 def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
-                   rings: RingStore | None = None, *,
-                   drop_rings: bool = False) -> tuple[list[FramePose], list[Choice]]:
+                   rings: RingStore | None = None, *, drop_rings: bool = False,
+                   odometry_mm: Mapping[int, float] | None = None
+                   ) -> tuple[list[FramePose], list[Choice]]:
     """Compare consecutive frames photometrically as they come, then choose over the run.
 
     Strips are dropped as soon as the next frame has been compared with them, so
@@ -247,7 +264,8 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
     previous: FramePose | None = None
     for frame in frames_in:
         if frame.fit.ok:
-            if previous is not None and previous.strips and frame.strips:
+            if (previous is not None and previous.strips and frame.strips
+                    and _overlap(previous, frame, odometry_mm)):
                 pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
             previous = frame
         if (rings is not None or drop_rings) and frame.fit.ring is not None:
@@ -272,7 +290,7 @@ def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
     return resolve_frames(check_readable(frames, dataset), settings.body, rings,
-                          drop_rings=drop_rings)
+                          drop_rings=drop_rings, odometry_mm=dataset.odometry_mm)
 
 
 def check_readable(frames: Iterable[FramePose], dataset: Dataset) -> Iterator[FramePose]:

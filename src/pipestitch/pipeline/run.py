@@ -216,25 +216,39 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
 
 
 def _still_infeasible(frames: list[FramePose], choices: list[Choice],
-                      body: BodyEnvelope | None) -> tuple[list[FramePose], list[Choice]]:
-    """Frames the body could not hold in either mirror (started as ovals) whose refined
-    pose and section it still cannot hold: the declared body is wrong for them (SPEC:
-    flagged, the reason in ``warning``), whatever the refinement measured."""
+                      body: BodyEnvelope | None, ring_frames: list[FramePose]
+                      ) -> tuple[list[FramePose], list[Choice]]:
+    """Refined poses the declared body cannot hold, flagged (SPEC: the reason in
+    ``warning``). A frame the body could not hold in either mirror (started as an oval)
+    whose refined pose and section it still cannot hold: the body is wrong for it. A
+    frame whose ring pose it held: the refinement went astray (the LED frames share too
+    little wall, a texture that misleads the patch shifts), and the ring's pose
+    (``ring_frames``) is kept."""
     if body is None:
         return frames, choices
     out_frames, out_choices = [], []
-    for frame, choice in zip(frames, choices, strict=True):
-        if frame.circle_fallback is not None and choice.chosen is not None and frame.fit.ok:
+    for k, (frame, choice) in enumerate(zip(frames, choices, strict=True)):
+        if choice.chosen is not None and frame.fit.ok:
             h = frame.fit.hypotheses[choice.chosen]
             clearance = body.clearance_mm(h.pose, h.pipe_section)
             if clearance < -INFEASIBLE_SIGMAS * clearance_sigma_mm(h, body):
-                warning = REFINED_INFEASIBLE.format(clearance=-clearance)
-                frame = replace(frame, warning="; ".join(m for m in (frame.warning, warning)
-                                                         if m))
-                choice = Choice(choice.chosen, True, "infeasible", choice.margin)
+                started_oval = frame.circle_fallback is not None
+                warning = (REFINED_INFEASIBLE if started_oval
+                           else REFINEMENT_REJECTED).format(clearance=-clearance)
+                kept = frame if started_oval else ring_frames[k]
+                frame = replace(kept, warning="; ".join(m for m in (kept.warning, warning)
+                                                        if m))
+                choice = Choice(choice.chosen, True,
+                                "infeasible" if started_oval else "refinement-rejected",
+                                choice.margin)
         out_frames.append(frame)
         out_choices.append(choice)
     return out_frames, out_choices
+
+
+REFINEMENT_REJECTED = ("the LED refinement moved this pose where the declared probe body "
+                       "cannot be (crossing the wall by {clearance:.1f} mm): the ring's pose is "
+                       "kept, the mosaic near this frame is doubtful")
 
 
 REFINED_INFEASIBLE = ("the declared probe body cannot hold the pose and section measured "
@@ -476,8 +490,10 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     release_free_memory()
     if result is not None:
         choices = _apply_switches(choices, result.switched, result.links)
+        ring_frames = frames
         frames = _with_refined(frames, choices, result.views)
-        frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope())
+        frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope(),
+                                            ring_frames)
         z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
                            result.positions.odometer_scale)
         roll = _finite(result.positions.roll_deg)

@@ -17,19 +17,21 @@ def _fit_of(poses: list[Pose]) -> PoseFit:
     return PoseFit(True, "", tuple(Hypothesis(p, R, 0.0, 0.0, 0.0) for p in poses), 100, 1.0)
 
 
+def _strips_at(renderer: Renderer, z: float):
+    """A frame at ``z`` with 3° of tilt; its "fit" holds the truth and its mirror (-alpha,
+    -beta, offset moved so the ring stays the same, from the ring's conic)."""
+    pose = Pose.from_degrees(2.4, -1.8, 3.0, -2.0, 0.0, z)
+    ring = laser_ring(pose, PipeSection(R), 16.0, n_points=90)
+    sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), 16.0)
+    true_first = sorted(sols, key=lambda s: abs(s[0].alpha - pose.alpha))
+    _, led = renderer.render_pair(pose, np.random.default_rng(int(z)))
+    fit = _fit_of([p for p, _ in true_first])
+    return contrast_strips(prepare_laser_frame(led), renderer.camera, fit)
+
+
 def test_photometric_costs_prefer_the_true_pair(holed_renderer: Renderer) -> None:
-    # Two frames 5 mm apart with 3° of tilt; each "fit" holds the truth and its mirror
-    # (-alpha, -beta, offset moved so the ring stays the same, from the ring's conic).
-    strips = []
-    for z in (20.0, 25.0):
-        pose = Pose.from_degrees(2.4, -1.8, 3.0, -2.0, 0.0, z)
-        ring = laser_ring(pose, PipeSection(R), 16.0, n_points=90)
-        sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), 16.0)
-        true_first = sorted(sols, key=lambda s: abs(s[0].alpha - pose.alpha))
-        _, led = holed_renderer.render_pair(pose, np.random.default_rng(int(z)))
-        fit = _fit_of([p for p, _ in true_first])
-        strips.append(contrast_strips(prepare_laser_frame(led), holed_renderer.camera, fit))
-    costs = pair_costs(*strips)
+    # Two frames 5 mm apart
+    costs = pair_costs(_strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0))
     assert costs[0, 0] == 0.0
     assert costs[1, 1] > 5 and costs[0, 1] > 5 and costs[1, 0] > 5
 
@@ -38,16 +40,7 @@ def test_frames_that_share_under_half_the_window_give_no_evidence(
         holed_renderer: Renderer) -> None:
     # The same two hypotheses, frames 5 mm apart and 30 mm apart (the window runs from
     # 0.6 to 1.8 radii ahead: 39 mm): the far pair shares too little wall to say anything.
-    def strips_at(z: float):
-        pose = Pose.from_degrees(2.4, -1.8, 3.0, -2.0, 0.0, z)
-        ring = laser_ring(pose, PipeSection(R), 16.0, n_points=90)
-        sols = pose_from_conic(*ConicModel.from_estimate(ring[:, :2]).normalised(), 16.0)
-        true_first = sorted(sols, key=lambda s: abs(s[0].alpha - pose.alpha))
-        _, led = holed_renderer.render_pair(pose, np.random.default_rng(int(z)))
-        fit = _fit_of([p for p, _ in true_first])
-        return contrast_strips(prepare_laser_frame(led), holed_renderer.camera, fit)
-
-    near = pair_costs(strips_at(20.0), strips_at(25.0))
+    near = pair_costs(_strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0))
     assert near.max() > 5
-    far = pair_costs(strips_at(20.0), strips_at(50.0))
+    far = pair_costs(_strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 50.0))
     np.testing.assert_array_equal(far, np.zeros((2, 2)))

@@ -126,3 +126,16 @@ def test_pose_uses_the_calibrated_plane_of_probe_toml(tmp_path: Path) -> None:
                             for i, p in enumerate(poses))
     assert errors["calibrated"] < 0.2      # the accuracy of an aligned plane (half size)
     assert errors["nominal"] > 0.5         # a 1° plane error read as z = d
+
+
+def test_frames_the_odometer_puts_far_apart_are_not_compared_photometrically() -> None:
+    from pipestitch.geometry import Pose
+    from pipestitch.pipeline.posing import FramePose, strips_overlap
+    from pipestitch.pose.fit import Hypothesis, PoseFit
+
+    fit = PoseFit(True, "", (Hypothesis(Pose(), 32.5, 0.0, 0.0, 0.0),) * 2, 100, 1.0)
+    first, second = FramePose(0, fit), FramePose(1, fit)
+    # the strips run 0.6 to 1.8 radii ahead (39 mm): half of that shared, or no comparison
+    assert strips_overlap(first, second, {0: 0.0, 1: 19.0})
+    assert not strips_overlap(first, second, {0: 0.0, 1: 20.0})
+    assert strips_overlap(first, second, None) and strips_overlap(first, second, {0: 0.0})

@@ -383,14 +383,23 @@ def _check_images(paths: list[Path], size: tuple[int, int],
                   progress: Callable[[], None] | None) -> Iterator[Problem]:
     for path in paths:
         try:
-            blank = blank_frame(read_frame(path, size))
+            kind = path.name.split("_")[0]
+            blank = _shows_nothing(read_frame(path, size), kind)
             if blank:   # read as a frame; pose and run take it as one that shows nothing
-                yield Problem(path, f"{blank}: {BLANK_CONSEQUENCE[path.name.split('_')[0]]}",
-                              "warning")
+                yield Problem(path, f"{blank}: {BLANK_CONSEQUENCE[kind]}", "warning")
         except DatasetError as exc:
             yield Problem(path, exc.problem)
         if progress is not None:
             progress()
+
+
+def _shows_nothing(frame: np.ndarray, kind: str) -> str:
+    """Why ``frame`` shows nothing, or "". An LED frame: :func:`blank_frame`. A laser frame
+    is dark but for a thin ring (a thousandth of its pixels, as many as blank_frame lets
+    pass for hot pixels): only one whose every pixel is the same shows nothing."""
+    if kind == "led":
+        return blank_frame(frame)
+    return blank_frame(frame) if float(np.ptp(frame)) == 0 else ""
 
 
 BLANK_CONSEQUENCE = {"laser": "no ring, the pair gets no pose",

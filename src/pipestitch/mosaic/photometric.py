@@ -29,10 +29,14 @@ __all__ = ["StripPair", "contrast_strip", "contrast_strips", "pair_costs", "stri
 STRIP_ROWS = 584    # nodes around the pipe in a comparison strip
 BLOCK_PX = 8        # residuals are treated as independent per 8 x 8 block
 MAX_COST = 30.0     # cap on one pair's evidence (negative log-likelihood units)
-# Frames further apart than this share of the comparison window (the probe's step, or
-# the shift the correlation finds) are not compared: on an independent dataset with
-# 25-30 mm steps (a 39 mm window) the comparison chose wrong mirrors with margins 13-24.
+# Frames further apart than this share of the comparison window (by the odometer) are
+# not compared; nor are frames whose best-agreeing combination peaks below MIN_PEAK
+# (registration trusts no peak below 0.04): they show too little common wall for their
+# agreement to say anything (frames 5 mm apart: 0.81; 30 mm apart in a 39 mm window:
+# <= 0.02, where without the floor the comparison chose wrong mirrors with margins of
+# 13-24 on 25-30 mm steps).
 MAX_SHIFT_SHARE = 0.5
+MIN_PEAK = 0.05
 
 
 @dataclass(frozen=True)
@@ -111,10 +115,7 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
     fa, fb = np.where(va, a, 0).astype(np.float32), np.where(vb, b, 0).astype(np.float32)
     win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
     win = np.tile(win[a.shape[0] // 2:a.shape[0] // 2 + 1, :], (a.shape[0], 1))  # z only
-    (shift_z, _), response = cv2.phaseCorrelate(fb, fa, win)
-    if abs(shift_z) > MAX_SHIFT_SHARE * a.shape[1]:
-        # the frames share less than half the window: what agrees or not is too little wall
-        return np.nan, 0
+    _, response = cv2.phaseCorrelate(fb, fa, win)
     return 1.0 - float(response), int(np.sum(va & vb))
 
 
@@ -130,7 +131,7 @@ def pair_costs(first: StripPair, second: StripPair) -> np.ndarray:
     for i, a in enumerate(first.strips):
         for j, b in enumerate(second.strips):
             misfit[i, j], count[i, j] = _misfit(a, b)
-    if not np.all(np.isfinite(misfit)) or np.min(misfit) <= 0:
+    if not np.all(np.isfinite(misfit)) or np.min(misfit) <= 0 or np.min(misfit) > 1 - MIN_PEAK:
         return np.zeros((2, 2))
     n_eff = np.min(count) / BLOCK_PX**2
     return np.minimum(0.5 * n_eff * np.log(misfit / np.min(misfit)), MAX_COST)

@@ -46,9 +46,8 @@ from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
 from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "FramePose", "PoseSettings",
-           "estimate_poses", "fit_frame",
-           "report_frame_messages", "resolve_frames", "ring_search_band",
-           "run_pose", "write_poses_csv"]
+           "estimate_poses", "fit_frame", "report_frame_messages", "resolve_frames",
+           "ring_search_band", "run_pose", "strips_overlap", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -236,13 +235,13 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
                            range(dataset.n_pairs), workers)
 
 
-def _overlap(first: FramePose, second: FramePose,
+def strips_overlap(first: FramePose, second: FramePose,
              odometry_mm: Mapping[int, float] | None) -> bool:
     """Whether the odometer (where it has both frames) lets two frames' comparison strips
     (:func:`pipestitch.mosaic.photometric.contrast_strips`: 0.6 to 1.8 radii ahead) share
     at least half their length."""
     if not odometry_mm or first.index not in odometry_mm or second.index not in odometry_mm:
-        return True   # the correlation's own shift is checked then (photometric._misfit)
+        return True   # their correlation's peak is checked then (photometric.pair_costs)
     step = abs(odometry_mm[second.index] - odometry_mm[first.index])
     return step <= MAX_SHIFT_SHARE * 1.2 * first.fit.hypotheses[0].radius_mm
 
@@ -265,7 +264,7 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
     for frame in frames_in:
         if frame.fit.ok:
             if (previous is not None and previous.strips and frame.strips
-                    and _overlap(previous, frame, odometry_mm)):
+                    and strips_overlap(previous, frame, odometry_mm)):
                 pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
             previous = frame
         if (rings is not None or drop_rings) and frame.fit.ring is not None:

@@ -219,11 +219,11 @@ def _still_infeasible(frames: list[FramePose], choices: list[Choice],
                       body: BodyEnvelope | None, ring_frames: list[FramePose]
                       ) -> tuple[list[FramePose], list[Choice]]:
     """Refined poses the declared body cannot hold, flagged (SPEC: the reason in
-    ``warning``). A frame the body could not hold in either mirror (started as an oval)
-    whose refined pose and section it still cannot hold: the body is wrong for it. A
-    frame whose ring pose it held: the refinement went astray (the LED frames share too
-    little wall, a texture that misleads the patch shifts), and the ring's pose
-    (``ring_frames``) is kept."""
+    ``warning``; SPEC's columns keep the ring's fit). A frame the body could not hold in
+    either mirror (started as an oval) whose refined pose and section it still cannot
+    hold: the body is wrong for it, and its circle fit is kept. A frame whose ring pose
+    it held: the refinement went astray (the LED frames share too little wall, a texture
+    that misleads the patch shifts), and the ring's pose (``ring_frames``) is kept."""
     if body is None:
         return frames, choices
     out_frames, out_choices = [], []
@@ -235,12 +235,14 @@ def _still_infeasible(frames: list[FramePose], choices: list[Choice],
                 started_oval = frame.circle_fallback is not None
                 warning = (REFINED_INFEASIBLE if started_oval
                            else REFINEMENT_REJECTED).format(clearance=-clearance)
-                kept = frame if started_oval else ring_frames[k]
+                # SPEC's columns keep the ring's fit: the circle one of a frame started as
+                # an oval, the ring's pose of one the refinement moved
+                kept = (replace(frame, fit=frame.circle_fallback[0], circle_fallback=None)
+                        if started_oval else ring_frames[k])
                 frame = replace(kept, warning="; ".join(m for m in (kept.warning, warning)
                                                         if m))
-                choice = Choice(choice.chosen, True,
-                                "infeasible" if started_oval else "refinement-rejected",
-                                choice.margin)
+                choice = (Choice(0, True, "infeasible", 0.0) if started_oval
+                          else Choice(choice.chosen, True, "refinement-rejected", choice.margin))
         out_frames.append(frame)
         out_choices.append(choice)
     return out_frames, out_choices
@@ -497,9 +499,11 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
                            result.positions.odometer_scale)
         roll = _finite(result.positions.roll_deg)
+        if result.positions.roll_reference == "imu":   # frames not placed: the IMU's own
+            roll = {**(read_imu(dataset.root) or {}), **roll}
     else:
-        # Poses and the profile still; z from the odometer.
-        z, roll = dict(dataset.odometry_mm or {}), {}
+        # Poses and the profile still; z from the odometer, roll from the IMU (as pose).
+        z, roll = dict(dataset.odometry_mm or {}), dict(read_imu(dataset.root) or {})
     frames, choices = _unrefined_ovals_back(frames, choices,
                                             result.views if result is not None else {})
     rows = _frame_rows(frames, choices, z)

@@ -929,7 +929,9 @@ def _roll_from_imu(positions: Positions, imu_roll_deg: Mapping[int, float] | Non
     theta is then the pipe frame's, crown at 270 deg."""
     if not imu_roll_deg:
         return positions
-    roll = {i: float(r) for i, r in enumerate(positions.roll_deg) if np.isfinite(r)}
+    guessed = set(positions.roll_guessed)   # interpolated, not registered: no measure of c
+    roll = {i: float(r) for i, r in enumerate(positions.roll_deg)
+            if np.isfinite(r) and i not in guessed}
     found = imu_roll_offset(roll, imu_roll_deg)
     if found is None:
         return positions

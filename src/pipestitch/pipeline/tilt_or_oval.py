@@ -10,9 +10,10 @@ to one shift, with a wrong tilt the strip is warped and no shift explains it
 (:mod:`pipestitch.mosaic.photometric`).
 
 So, once the pose pass has fitted every frame as a circle, up to five pairs of
-consecutive frames whose circle tilt is well above the ring's own tilt error (a tilt
-within that error says nothing about its cause) are taken from the middle of the
-run, and each frame is unwrapped twice: with no tilt and the oval section the ring
+consecutive frames (no frame in two pairs; the odometer's step leaves their comparison
+strips half their length in common) whose circle tilt is well above the ring's own tilt
+error (a tilt within that error says nothing about its cause) are taken from the middle
+of the run, and each frame is unwrapped twice: with no tilt and the oval section the ring
 then gives (:func:`pipestitch.pose.section.fit_section`: its ellipse all ovality), and
 with its circle fit (all tilt), in either mirror. Where no tilt agrees better between
 consecutive frames, pair after pair (a one-sided t-test over the pairs), the pipe is
@@ -34,14 +35,14 @@ from pipestitch.errors import DatasetError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
 from pipestitch.mosaic.photometric import contrast_strip, strip_misfit
-from pipestitch.pipeline.posing import PHOTOMETRIC_MIN_TILT_DEG, FramePose
+from pipestitch.pipeline.posing import PHOTOMETRIC_MIN_TILT_DEG, FramePose, strips_overlap
 from pipestitch.pose.fit import PoseFit
 from pipestitch.pose.ring import prepare_laser_frame
 from pipestitch.pose.section import fit_section
 
 __all__ = ["OVAL_SHARE", "SAMPLE_PAIRS", "SHARES", "SIGNIFICANCE", "TiltOrOval", "tilt_or_oval"]
 
-SAMPLE_PAIRS = 5                       # pairs of consecutive frames, nearest the run's middle
+SAMPLE_PAIRS = 5   # pairs of consecutive frames sharing no frame, nearest the run's middle
 SHARES = (0.0, 1.0)   # of each frame's circle tilt: none (an oval) and all (the circle)
 # A run is taken as oval where no tilt agrees better, significantly (:func:`_oval`); shares
 # between (1/4, 1/2, 3/4 were tried) decided nothing else on nine runs and cost fits.
@@ -78,8 +79,9 @@ def tilt_or_oval(dataset: Dataset, frames: Sequence[FramePose],
     if not dataset.has_led:
         return None
     asked = {f.index: f for f in frames if _clear_tilt(f)}
-    pairs = sorted((i for i in asked if i + 1 in asked),
-                   key=lambda i: abs(i + 0.5 - dataset.n_pairs / 2))[:SAMPLE_PAIRS]
+    pairs = _disjoint_pairs([i for i in asked if i + 1 in asked
+                             and strips_overlap(asked[i], asked[i + 1], dataset.odometry_mm)],
+                            dataset.n_pairs / 2)
     samples = {i: _sample(dataset, asked[i]) for i in sorted({*pairs, *(i + 1 for i in pairs)})}
     strips = {i: [_strips(s, share, camera) for share in SHARES]
               for i, s in samples.items() if s is not None}
@@ -111,14 +113,27 @@ def _oval(table: np.ndarray, best: int) -> bool:
     return bool(t > float(stdtrit(len(gains) - 1, 1 - SIGNIFICANCE)))
 
 
+def _disjoint_pairs(firsts: list[int], middle: float) -> list[int]:
+    """Up to ``SAMPLE_PAIRS`` of the pairs (i, i + 1) starting at ``firsts``, nearest the
+    run's ``middle`` and sharing no frame (each pair's gain is then its own replicate)."""
+    chosen: list[int] = []
+    for i in sorted(firsts, key=lambda i: abs(i + 0.5 - middle)):
+        if all(abs(i - j) > 1 for j in chosen):
+            chosen.append(i)
+        if len(chosen) == SAMPLE_PAIRS:
+            break
+    return sorted(chosen)
+
+
 def _clear_tilt(frame: FramePose) -> bool:
-    """The frame's circle fit has a tilt well above its error (and its ring points)."""
+    """The frame's circle fit has a tilt well above its (known) error, and its ring points."""
     if not frame.fit.ok or frame.ring is None or not frame.fit.model.startswith("circle"):
         return False
     h = frame.fit.hypotheses[0]
     sigma = np.hypot(h.std.get("alpha", np.nan), h.std.get("beta", np.nan))
     tilt = np.rad2deg(h.pose.tilt)
-    return bool(tilt >= max(PHOTOMETRIC_MIN_TILT_DEG, TILT_SIGMAS * np.rad2deg(sigma)))
+    return bool(np.isfinite(sigma)
+                and tilt >= max(PHOTOMETRIC_MIN_TILT_DEG, TILT_SIGMAS * np.rad2deg(sigma)))
 
 
 def _sample(dataset: Dataset, frame: FramePose) -> tuple[np.ndarray, FramePose] | None:

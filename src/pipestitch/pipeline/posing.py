@@ -303,9 +303,10 @@ def check_readable(frames: Iterable[FramePose], dataset: Dataset) -> Iterator[Fr
         first = first or frame
         yield frame
     if first is not None and not readable:
-        folder = dataset.laser_paths[first.index].parent
-        raise DatasetError(folder, f"not one of its {dataset.n_pairs} laser frames can be read "
-                                   f"(the first: {first.error})")
+        reader = getattr(dataset, "reader", None)   # a video's: name the video itself
+        where = reader.path if reader is not None else dataset.laser_paths[first.index].parent
+        raise DatasetError(where, f"not one of its {dataset.n_pairs} laser frames can be read "
+                                  f"(the first: {first.error})")
 
 
 def _fmt(value: float, digits: int = 6) -> str:

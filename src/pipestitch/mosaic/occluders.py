@@ -196,10 +196,18 @@ def _mean_ratio(stack: np.ndarray, noise: np.ndarray) -> np.ndarray:
     1.2-1.7 times the noise, measured at 12.6 DN of noise on an 84 DN wall), but its mean
     over 5 x 5 varies with the texture, which is correlated over the window, and the
     noise's share falls 25-fold (wall 5-170, occluders 0.6-2.6)."""
-    means = np.empty_like(stack)
-    for frame, out in zip(stack, means, strict=True):
-        cv2.blur(frame, (5, 5), dst=out)
-    return np.var(means, axis=0, ddof=1) / np.maximum(noise / 25, 1e-12)
+    # Welford's running mean and sum of squares: three frame-sized arrays, not a second
+    # stack (the mask is made beside the pose pass, where the run's memory peaks)
+    mean = np.zeros(stack.shape[1:], np.float32)
+    m2 = np.zeros_like(mean)
+    blurred, delta = np.empty_like(mean), np.empty_like(mean)
+    for k, frame in enumerate(stack, start=1):
+        cv2.blur(frame, (5, 5), dst=blurred)
+        np.subtract(blurred, mean, out=delta)
+        mean += delta / np.float32(k)
+        np.subtract(blurred, mean, out=blurred)
+        m2 += delta * blurred
+    return m2 / np.float32(max(len(stack) - 1, 1)) / np.maximum(noise / 25, 1e-12)
 
 
 def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:

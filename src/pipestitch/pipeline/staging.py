@@ -295,8 +295,9 @@ def _is_plain_name(name: str) -> bool:
 
 
 def _write_journal(path: Path, staging: str, made: list[str], remove: list[str]) -> None:
-    """The commit's journal, written to a temporary name, flushed and renamed."""
-    tmp = path.with_name(path.name + ".tmp")
+    """The commit's journal, written to a temporary name in the staging folder (a process
+    killed while writing it leaves nothing in OUT itself), flushed and renamed."""
+    tmp = path.parent / staging / (path.name + ".tmp")
     with tmp.open("w", encoding="utf-8") as handle:
         json.dump({"staging": staging, "made": made, "remove": remove}, handle)
         handle.flush()

@@ -400,3 +400,23 @@ def test_the_lock_is_re_entrant_within_a_thread_and_refused_to_another(
     assert not staging._held
     with StagedOutput(out):   # free again
         pass
+
+
+def test_a_process_killed_while_writing_the_journal_leaves_nothing_in_out(
+        tmp_path: Path, monkeypatch) -> None:
+    """Killed after the journal's temporary file was written, before it was renamed: the
+    temporary file is in the staging folder, OUT holds only the previous run's outputs."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "poses.csv").write_text("old")
+
+    def killed(fd: int) -> None:
+        raise _Killed
+
+    monkeypatch.setattr(staging.os, "fsync", killed)
+    with pytest.raises(_Killed), StagedOutput(out) as staged:
+        (staged.path / "poses.csv").write_text("new")
+        staged.commit()
+    visible = {p.name for p in out.iterdir() if not p.name.startswith(STAGING_PREFIX)}
+    assert visible <= {"poses.csv", LOCK} and (out / "poses.csv").read_text() == "old"
+    assert not finish_interrupted_commit(out)   # no journal: the previous run stands

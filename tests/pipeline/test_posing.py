@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch.io.dataset import open_dataset, read_csv_columns
-from pipestitch.pipeline.posing import estimate_poses, run_pose
+from pipestitch.pipeline.posing import PoseSettings, estimate_poses, run_pose
 from pipestitch.pipeline.simulating import simulate_dataset
 from pipestitch.simulate.scenarios import SCENARIOS
 
@@ -28,7 +28,8 @@ def test_oval_pipe_is_flagged_by_pose_and_started_as_an_oval_by_run(tmp_path: Pa
         assert np.rad2deg(frame.fit.hypotheses[0].pose.tilt) > 10.0   # the tilt it reads
     # ... and `run` (oval_start) starts such frames as an oval section with the tilt
     # (unobservable from the ring) held at 0, for its LED refinement to measure.
-    frames, _ = estimate_poses(dataset, show_progress=False, oval_start=True)
+    frames, _ = estimate_poses(dataset, show_progress=False, settings=PoseSettings.from_config(
+        dataset.config, oval_start=True))
     for frame, pose in zip(frames, run.poses, strict=True):
         assert frame.fit.ok and frame.fit.model == "oval/tilt-0"
         assert "cannot see the tilt" in frame.warning

@@ -86,6 +86,17 @@ class FramePose:
         """The frame's ring points, wherever they are kept."""
         return self.stored_ring if self.stored_ring is not None else self.fit.ring
 
+    def with_warning(self, message: str) -> FramePose:
+        """The frame with ``message`` added to its warnings ("; "-separated)."""
+        return replace(self, warning="; ".join(m for m in (self.warning, message) if m))
+
+    def without_warning(self, message: str) -> FramePose:
+        """The frame with the warning ``message`` taken out of its warnings."""
+        warning = self.warning
+        for part in (f"; {message}", f"{message}; ", message):   # it may hold "; " itself
+            warning = warning.replace(part, "")
+        return replace(self, warning=warning)
+
 
 INFEASIBLE_COST = 1e3   # above resolve_run's infeasible_cost: the frame is flagged infeasible
 BODY_WARNING = ("the declared probe body cannot hold this pose (it would cross the wall by "
@@ -223,7 +234,7 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
     try:
         with timer("ring + pose"):
             frame = fit_frame(index, laser, led, settings)
-            return replace(frame, warning="; ".join(m for m in (frame.warning, warning) if m))
+            return frame.with_warning(warning)
     except Exception as exc:  # one bad frame never stops the run
         return FramePose(index, PoseFit(False, repr(exc)),
                          f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
@@ -236,7 +247,7 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
 
 
 def strips_overlap(first: FramePose, second: FramePose,
-             odometry_mm: Mapping[int, float] | None) -> bool:
+                   odometry_mm: Mapping[int, float] | None) -> bool:
     """Whether the odometer (where it has both frames) lets two frames' comparison strips
     (:func:`pipestitch.mosaic.photometric.contrast_strips`: 0.6 to 1.8 radii ahead) share
     at least half their length."""
@@ -280,12 +291,12 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,
                    timer: StageTimer | None = None, rings: RingStore | None = None,
-                   drop_rings: bool = False, oval_start: bool = False,
+                   drop_rings: bool = False,
                    settings: PoseSettings | None = None) -> tuple[list[FramePose], list[Choice]]:
     """Fit every frame and choose between the mirror hypotheses over the run (ring
-    points into ``rings`` when given, or dropped: :func:`resolve_frames`;
-    ``oval_start``: see :class:`PoseSettings`; ``settings``: instead of the dataset's)."""
-    settings = settings or PoseSettings.from_config(dataset.config, oval_start=oval_start)
+    points into ``rings`` when given, or dropped: :func:`resolve_frames`; ``settings``:
+    :class:`PoseSettings`, default the dataset's probe.toml's)."""
+    settings = settings or PoseSettings.from_config(dataset.config)
     frames = track(_ordered(dataset, settings, workers, timer or StageTimer()), "pose",
                    total=dataset.n_pairs, enabled=show_progress)
     return resolve_frames(check_readable(frames, dataset), settings.body, rings,
@@ -385,7 +396,6 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     the dataset's odometry.csv and roll from its imu.csv where they have the frame (no
     registration here), else nan."""
     # tilt_or_oval reads this module's FramePose
-    from pipestitch.pipeline.ring_store import RingStore
     from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 
     dataset = open_dataset(root, video=video)
@@ -402,8 +412,7 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     if found is not None and found.oval:
         # No LED refinement here to measure the tilt: the circle fits stay, flagged.
         notes.append((-1, OVAL_POSE_NOTE.format(share=found.share)))
-        frames = [replace(f, warning="; ".join(m for m in (f.warning, OVAL_POSE_WARNING) if m))
-                  if f.fit.ok else f for f in frames]
+        frames = [f.with_warning(OVAL_POSE_WARNING) if f.fit.ok else f for f in frames]
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + notes

@@ -207,10 +207,8 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                 model = "oval/refined-tilt" if view.oval else "circle/refined-tilt"
             hyps[choice.chosen] = h
             # an oval started at tilt 0 has its tilt measured now: that warning is done
-            warning = (frame.warning.replace(f"; {OVAL_TILT_WARNING}", "")
-                       .replace(f"{OVAL_TILT_WARNING}; ", "").replace(OVAL_TILT_WARNING, ""))
-            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model),
-                            warning=warning)
+            frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps), model=model)
+                            ).without_warning(OVAL_TILT_WARNING)
         out.append(frame)
     return out
 
@@ -239,8 +237,7 @@ def _still_infeasible(frames: list[FramePose], choices: list[Choice],
                 # an oval, the ring's pose of one the refinement moved
                 kept = (replace(frame, fit=frame.circle_fallback[0], circle_fallback=None)
                         if started_oval else ring_frames[k])
-                frame = replace(kept, warning="; ".join(m for m in (kept.warning, warning)
-                                                        if m))
+                frame = kept.with_warning(warning)
                 choice = (Choice(0, True, "infeasible", 0.0) if started_oval
                           else Choice(choice.chosen, True, "refinement-rejected", choice.margin))
         out_frames.append(frame)
@@ -490,6 +487,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         if plots is not None and not plots.cancel():
             wait([plots])
     release_free_memory()
+    imu = read_imu(dataset.root) or {}
     if result is not None:
         choices = _apply_switches(choices, result.switched, result.links)
         ring_frames = frames
@@ -500,10 +498,10 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                            result.positions.odometer_scale)
         roll = _finite(result.positions.roll_deg)
         if result.positions.roll_reference == "imu":   # frames not placed: the IMU's own
-            roll = {**(read_imu(dataset.root) or {}), **roll}
+            roll = {**imu, **roll}
     else:
         # Poses and the profile still; z from the odometer, roll from the IMU (as pose).
-        z, roll = dict(dataset.odometry_mm or {}), dict(read_imu(dataset.root) or {})
+        z, roll = dict(dataset.odometry_mm or {}), dict(imu)
     frames, choices = _unrefined_ovals_back(frames, choices,
                                             result.views if result is not None else {})
     rows = _frame_rows(frames, choices, z)

@@ -42,7 +42,14 @@ from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
 from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
-from pipestitch.pose.ring import detect_ring, prepare_laser_frame, ring_band_px
+from pipestitch.pose.ring import (
+    RingDetection,
+    detect_ring,
+    prepare_laser_frame,
+    ring_band_px,
+    ring_centre,
+)
+from pipestitch.pose.second_ring import leftover_ring
 from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "FramePose", "PoseSettings",
@@ -189,6 +196,7 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
+    fit, second = _nearer_nominal(detection, fit, settings)
     warning, infeasible, fallback = "", False, None
     if fit.ok and settings.oval_run:
         fallback = (replace(fit, ring=None), OVAL_POSE_WARNING)
@@ -207,9 +215,40 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
                 warning = OVAL_TILT_WARNING
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
+    if second and fallback is not None:
+        fallback = (fallback[0], "; ".join((second, fallback[1])))
     return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
                      body_infeasible=infeasible and fit.model == "circle",
-                     circle_fallback=fallback)
+                     circle_fallback=fallback).with_warning(second)
+
+
+SECOND_RING_SHARE = 0.5   # a second ring: leftovers on at least this share of the ring's rays
+SECOND_RING_WARNING = ("two rings in the laser frame (radius {kept:.2f} and {other:.2f} mm, a "
+                       "reflection?): kept the one nearer the nominal {nominal:.2f} mm")
+
+
+def _nearer_nominal(detection: RingDetection, fit: PoseFit, settings: PoseSettings
+                    ) -> tuple[PoseFit, str]:
+    """Of the fitted ring and a second one the candidates it left make (a reflection of
+    the laser line: :mod:`pipestitch.pose.second_ring`), the one whose radius is nearer
+    the nominal pipe's, and a warning naming both; ``fit`` and "" when there is no
+    second ring."""
+    if not fit.ok or fit.ring is None:
+        return fit, ""
+    ring_rays = fit.coverage * detection.n_azimuths
+    rest = leftover_ring(detection, fit.ring.pixels, ring_centre(settings.camera),
+                         max(1, math.ceil(SECOND_RING_SHARE * ring_rays)))
+    if rest is None:
+        return fit, ""
+    other = fit_pose(rest, settings.camera, settings.plane_distance_mm,
+                     nominal_radius_mm=settings.nominal_radius_mm,
+                     plane_normal=settings.plane_normal)
+    if not other.ok or other.coverage < SECOND_RING_SHARE * fit.coverage:
+        return fit, ""
+    radii = [f.hypotheses[0].radius_mm for f in (fit, other)]
+    keep = int(np.argmin([abs(r - settings.nominal_radius_mm) for r in radii]))
+    return (fit, other)[keep], SECOND_RING_WARNING.format(
+        kept=radii[keep], other=radii[1 - keep], nominal=settings.nominal_radius_mm)
 
 
 def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,

@@ -28,7 +28,7 @@ from pipestitch.camera import CameraModel
 from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
-           "prepare_laser_frame", "ring_band_px", "row_percentile"]
+           "prepare_laser_frame", "ring_band_px", "ring_centre", "row_percentile"]
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,15 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,
 
 
 @functools.lru_cache(maxsize=8)
+def ring_centre(camera: CameraModel) -> np.ndarray:
+    """The image of the optical axis (col, row), about which :func:`detect_ring`'s rays
+    run (cached, read-only)."""
+    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    centre.flags.writeable = False
+    return centre
+
+
+@functools.lru_cache(maxsize=8)
 def polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
                band_px: tuple[float, float] | None = None,
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -145,7 +154,7 @@ def polar_grid(camera: CameraModel, n_azimuths: int, step_px: float,
     centre : numpy.ndarray, shape (2,)
         The image of the optical axis (col, row).
     """
-    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    centre = ring_centre(camera)
     edge_theta = min(camera.max_incidence_rad, np.deg2rad(100.0))
     phi = np.linspace(0, 2 * np.pi, n_azimuths, endpoint=False)
     edge_rays = np.stack([np.sin(edge_theta) * np.cos(phi), np.sin(edge_theta) * np.sin(phi),
@@ -232,7 +241,7 @@ def ring_band_px(camera: CameraModel, plane_distance_mm: float,
     if not ok.any():
         raise ValueError(f"no ray meets the laser plane {min_wall_mm:g}-{max_wall_mm:g} mm "
                          f"from the probe axis")
-    centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+    centre = ring_centre(camera)
     px = camera.project(rays[ok])
     radius = np.linalg.norm(px - centre, axis=1)
     radius = radius[np.isfinite(radius)]

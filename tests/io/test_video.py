@@ -438,3 +438,23 @@ def test_check_lists_an_undecodable_frame(tmp_path: Path) -> None:
 
 def runner_check(root: Path, video: Path):
     return CliRunner().invoke(app, ["check", str(root), "--video", str(video), "--quiet"])
+
+
+@pytest.mark.parametrize("damaged", [{0}, {0, 1}, {0, 1, 2}])
+def test_a_video_whose_first_frames_cannot_be_decoded_keeps_its_pair_numbers(
+        tmp_path: Path, damaged: set[int]) -> None:
+    """The refused packets' timestamps say where the recording starts: the first decoded
+    frame is not taken for frame 0 of the recording (every pair would be one off)."""
+    frames = _interleaved(5)
+    path = _damage(write_video(tmp_path / "v.avi", frames, fps=20.0), tmp_path / "bad.avi",
+                   damaged)
+    ds = open_dataset(_dataset_root(tmp_path, W, H), video=path)
+    assert ds.n_pairs == 5
+    first = max(damaged) + 1
+    for i in range(first // 2 + (first % 2), 5):   # pairs with both frames decodable
+        assert np.array_equal(ds.read_laser(i), frames[2 * i])
+        assert np.array_equal(ds.read_led(i), frames[2 * i + 1])
+    lost = [i for i in range(5) if 2 * i in damaged]
+    assert [i for i in range(5) if ds.pairs.laser[i] < 0] == lost
+    assert any("pair 0 has" in note or "pairs 0-" in note for note in ds.notes), ds.notes
+    ds.close()

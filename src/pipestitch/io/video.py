@@ -69,6 +69,9 @@ class FrameIndex:
     height: int
     # One line per frame the decoder refused (its packet is damaged): not in the index.
     undecodable: tuple[str, ...] = ()
+    # Time of the recording's first frame, decodable or not (a refused packet's
+    # timestamp can be earlier than the first decoded frame's); NaN when unknown.
+    start_s: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -149,7 +152,7 @@ def _frame_period(is_laser: np.ndarray, time_s: np.ndarray) -> float | None:
     return period if period > 0 else None
 
 
-def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None
+def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None, period: float | None
                      ) -> tuple[np.ndarray, list[tuple[int, str]]]:
     """How many frames are missing between each frame and the next, and notes.
 
@@ -157,9 +160,9 @@ def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None
     an even number; of those counts, the one nearest what the timestamps say (the step
     over the frame period, less one; ties to fewer, none without timestamps). A jump
     longer than the whole video is a timestamp discontinuity, not lost frames.
+    ``period``: the frame period (:func:`_frame_period`); None counts by alternation only.
     """
     same = (is_laser[1:] == is_laser[:-1]).astype(int)
-    period = None if time_s is None or time_s.size < 3 else _frame_period(is_laser, time_s)
     if period is None:
         return same, []
     steps = np.diff(time_s)
@@ -174,12 +177,22 @@ def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None
     return same + extra, notes
 
 
-def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None) -> VideoPairs:
+def _leading(time_s: np.ndarray | None, start_s: float | None, period: float | None) -> int:
+    """Frames of the recording before the first decoded one (refused by the decoder):
+    the time from the recording's start to that frame over the frame period."""
+    if time_s is None or start_s is None or period is None or not np.isfinite(start_s):
+        return 0
+    return max(0, int(round((time_s[0] - start_s) / period)))
+
+
+def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None,
+                start_s: float | None = None) -> VideoPairs:
     """Pair alternating laser/LED frames, numbering each pair by its place in the recording.
 
     A frame's place is its index in the video plus the frames missing before it (see
-    :func:`_missing_between`: two frames of a kind in a row, timestamp gaps), so the
-    pairs after a dropped frame keep their numbers. The order within a pair (laser
+    :func:`_missing_between`: two frames of a kind in a row, timestamp gaps; before the
+    first decoded frame, those from ``start_s``, the recording's first timestamp, on), so
+    the pairs after a dropped frame keep their numbers. The order within a pair (laser
     first or LED first) is the one that completes more pairs (ties: laser first). A pair
     lacking a frame has ``MISSING`` there: without its LED frame it still gives a pose
     (no strip); without its laser frame, or with neither (whole pairs dropped), it gives
@@ -190,8 +203,10 @@ def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None) -> Video
     if is_laser.size == 0:
         return VideoPairs(np.zeros(0, dtype=int), np.zeros(0, dtype=int), (), True)
     time_s = None if time_s is None else np.asarray(time_s, dtype=float)
-    missing, notes = _missing_between(is_laser, time_s)
-    place = np.concatenate([[0], np.cumsum(1 + missing)])
+    period = None if time_s is None or time_s.size < 3 else _frame_period(is_laser, time_s)
+    missing, notes = _missing_between(is_laser, time_s, period)
+    lead = _leading(time_s, start_s, period)
+    place = lead + np.concatenate([[0], np.cumsum(1 + missing)])
     laser_parity = int(place[0] + (0 if is_laser[0] else 1)) % 2  # every laser frame's
     best = None
     for laser_first in (True, False):   # only more complete pairs beat laser first
@@ -229,11 +244,16 @@ def _pair_notes(laser: np.ndarray, led: np.ndarray, missing: np.ndarray,
             last = p
             while last + 1 < n_pairs and laser[last + 1] < 0 and led[last + 1] < 0:
                 last += 1
-            k = int(max(laser[p - 1], led[p - 1]))   # pair 0 always holds the first frame
             pairs = f"pair {p} has" if last == p else f"pairs {p}-{last} have"
-            step = "" if time_s is None else f"timestamp gap of {time_s[k + 1] - time_s[k]:.4g} s, "
-            notes.append((k, f"frames {k}-{k + 1}: {step}{missing[k]} frame(s) dropped; "
-                             f"{pairs} no frame"))
+            if p == 0:   # the recording's first frames were refused by the decoder
+                notes.append((0, f"the recording's first frames before frame 0 cannot be "
+                                 f"decoded; {pairs} no frame"))
+            else:
+                k = int(max(laser[p - 1], led[p - 1]))
+                step = ("" if time_s is None
+                        else f"timestamp gap of {time_s[k + 1] - time_s[k]:.4g} s, ")
+                notes.append((k, f"frames {k}-{k + 1}: {step}{missing[k]} frame(s) dropped; "
+                                 f"{pairs} no frame"))
             p = last
         p += 1
     return notes
@@ -355,8 +375,9 @@ class VideoReader:
         undecodable = tuple(_undecodable_line(pts_arr, base, p, reason) for p, reason in refused)
         for line in undecodable:
             logging.getLogger(__name__).warning("%s: %s", self.path, line)
+        first = min([int(pts_arr[0]), *(p for p, _ in refused if p is not None)])
         return FrameIndex(pts_arr, pts_arr * base, np.asarray(bright)[order],
-                          size[0], size[1], undecodable)
+                          size[0], size[1], undecodable, first * base)
 
     @property
     def n_frames(self) -> int:

@@ -52,9 +52,9 @@ from pipestitch.pose.ring import (
 from pipestitch.pose.second_ring import leftover_ring
 from pipestitch.pose.section import oval_at_zero_tilt
 
-__all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "FramePose", "PoseSettings",
-           "estimate_poses", "fit_frame", "report_frame_messages", "resolve_frames",
-           "ring_search_band", "run_pose", "strips_overlap", "write_poses_csv"]
+__all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "CircleFallback",
+           "FramePose", "PoseSettings", "estimate_poses", "fit_frame", "report_frame_messages",
+           "resolve_frames", "ring_search_band", "run_pose", "strips_overlap", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -64,6 +64,17 @@ POSE_COLUMNS = ("frame", "alpha_deg", "beta_deg", "dx_mm", "dy_mm", "z_mm", "rol
 EXTRA_COLUMNS = ("error", "chosen_by", "margin", "n_points", "coverage", "model",
                  "alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm", "radius_std_mm",
                  "warning", "ovality_std", "exposure_gain")
+
+
+@dataclass(frozen=True)
+class CircleFallback:
+    """A frame's ring circle fit that an oval start at tilt 0 replaced (without its ring
+    points), its warning, and whether the run's oval decision (no body: ``oval_run``) or
+    the body that could not hold the circle pose started it."""
+
+    fit: PoseFit
+    warning: str
+    oval_run: bool
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,9 +95,9 @@ class FramePose:
     stored_ring: StoredRing | RingPoints | None = field(default=None, compare=False)
     body_infeasible: bool = False   # the declared body can hold neither hypothesis
     unreadable: bool = False        # the laser frame could not be read at all
-    # run's oval start replaced the ring's circle fit: that fit (without its ring points)
-    # and its warning, for frames the LED refinement then never reaches
-    circle_fallback: tuple[PoseFit, str] | None = field(default=None, compare=False)
+    # run's oval start replaced the ring's circle fit: that fit, for frames the LED
+    # refinement then never reaches
+    circle_fallback: CircleFallback | None = field(default=None, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -199,9 +210,7 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit, second = _nearer_nominal(detection, fit, settings)
     warning, infeasible, fallback = "", False, None
     if fit.ok and settings.oval_run:
-        fallback = (replace(fit, ring=None), OVAL_POSE_WARNING)
-        fit = oval_at_zero_tilt(fit, settings.camera)
-        warning = OVAL_TILT_WARNING
+        fallback = CircleFallback(replace(fit, ring=None), OVAL_POSE_WARNING, True)
     elif fit.ok and settings.body is not None:
         clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
                         for h in fit.hypotheses)
@@ -210,13 +219,13 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
             infeasible = True
             warning = BODY_WARNING.format(clearance=-clearance)
             if settings.oval_start:
-                fallback = (replace(fit, ring=None), warning)
-                fit = oval_at_zero_tilt(fit, settings.camera)
-                warning = OVAL_TILT_WARNING
+                fallback = CircleFallback(replace(fit, ring=None), warning, False)
+    if fallback is not None:
+        fit, warning = oval_at_zero_tilt(fit, settings.camera), OVAL_TILT_WARNING
+        if second:
+            fallback = replace(fallback, warning=f"{second}; {fallback.warning}")
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    if second and fallback is not None:
-        fallback = (fallback[0], "; ".join((second, fallback[1])))
     return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
                      body_infeasible=infeasible and fit.model == "circle",
                      circle_fallback=fallback).with_warning(second)

@@ -37,7 +37,6 @@ from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrame
 from pipestitch.pipeline.measuring import write_defects_csv
 from pipestitch.pipeline.posing import (
     INFEASIBLE_SIGMAS,
-    OVAL_POSE_WARNING,
     OVAL_TILT_WARNING,
     FramePose,
     PoseSettings,
@@ -235,7 +234,7 @@ def _still_infeasible(frames: list[FramePose], choices: list[Choice],
                            else REFINEMENT_REJECTED).format(clearance=-clearance)
                 # SPEC's columns keep the ring's fit: the circle one of a frame started as
                 # an oval, the ring's pose of one the refinement moved
-                kept = (replace(frame, fit=frame.circle_fallback[0], circle_fallback=None)
+                kept = (replace(frame, fit=frame.circle_fallback.fit, circle_fallback=None)
                         if started_oval else ring_frames[k])
                 frame = kept.with_warning(warning)
                 choice = (Choice(0, True, "infeasible", 0.0) if started_oval
@@ -265,10 +264,10 @@ def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
     for frame, choice in zip(frames, choices, strict=True):
         view = views.get(frame.index)
         if frame.circle_fallback is not None and not (view is not None and view.refined):
-            fit, warning = frame.circle_fallback
-            oval_run = warning == OVAL_POSE_WARNING   # no body: the run's oval decision
-            frame = replace(frame, fit=fit, warning=warning, body_infeasible=not oval_run,
-                            circle_fallback=None)
+            back = frame.circle_fallback
+            oval_run = back.oval_run   # no body: the run's oval decision
+            frame = replace(frame, fit=back.fit, warning=back.warning,
+                            body_infeasible=not oval_run, circle_fallback=None)
             choice = Choice(0, True, "oval-run" if oval_run else "infeasible", 0.0)
         out_frames.append(frame)
         out_choices.append(choice)

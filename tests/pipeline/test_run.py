@@ -596,3 +596,41 @@ def test_a_refined_pose_the_body_cannot_hold_gives_way_to_the_rings(dataset: Pat
     assert "the ring's pose is kept" in frames[k].warning
     others = [i for i in range(len(frames)) if i != k]
     assert all(frames[i] is refined[i] and flagged[i] == choices[i] for i in others)
+
+
+def test_a_stretch_that_registers_better_as_chosen_than_mirrored_is_decided() -> None:
+    from pipestitch.pipeline.run import _apply_switches
+    from pipestitch.pipeline.stitching import ChainLink
+    from pipestitch.pose.ambiguity import Choice
+
+    undecided = Choice(0, True, "undecided", 1.0)
+    switched = {k: k % 3 == 0 for k in range(1, 8)}
+
+    def chains(gains: list[float]) -> list[ChainLink]:
+        return [ChainLink(k, k + 1, 0.8, 0.8 - g, switched.get(k, False), switched[k + 1])
+                for k, g in enumerate(gains)]
+
+    # the chosen chain correlates better link after link: decided, not flagged
+    clear = _apply_switches([undecided] * 8, switched, [],
+                            chains([0.10, 0.30, 0.05, 0.20, 0.15, 0.25, 0.12]))
+    assert [(c.ambiguous, c.reason) for c in clear[1:]] == [(False, "registration-chain")] * 7
+    assert [c.chosen for c in clear[1:]] == [1 if switched[k] else 0 for k in range(1, 8)]
+    # as often worse as better: no evidence, flagged
+    mixed = _apply_switches([undecided] * 8, switched, [],
+                            chains([0.10, -0.30, 0.05, -0.20, 0.15, -0.05, 0.12]))
+    assert {(c.ambiguous, c.reason) for c in mixed[1:]} == {(True, "registration-relative")}
+    # the mirrored chain better: flagged (the stretch may be on its mirror)
+    mirrored = _apply_switches([undecided] * 8, switched, [],
+                               chains([-0.10, -0.30, -0.05, -0.20, -0.15, -0.25, -0.12]))
+    assert {c.ambiguous for c in mirrored[1:]} == {True}
+    # a link measured while a frame was on its other hypothesis does not count: three
+    # frames' stretch keeps two links of its three, too few to decide
+    short = [undecided] * 4
+    three = {1: False, 2: True, 3: False}
+    measured = [ChainLink(k, k + 1, 0.8, 0.6, three.get(k, False), three[k + 1])
+                for k in range(3)]
+    assert {c.reason for c in _apply_switches(short, three, [], measured)[1:]} == {
+        "registration-chain"}
+    stale = [*measured[:2], ChainLink(2, 3, 0.8, 0.6, True, True)]   # 3 was switched then
+    assert {c.reason for c in _apply_switches(short, three, [], stale)[1:]} == {
+        "registration-relative"}

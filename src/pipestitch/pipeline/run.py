@@ -10,6 +10,7 @@ and kept in poses.csv with their error; they never stop the run.
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import shutil
 import time
@@ -56,6 +57,7 @@ from pipestitch.pipeline.stitched_output import (
     write_viewer,
 )
 from pipestitch.pipeline.stitching import (
+    ChainLink,
     FrameView,
     LedSample,
     MosaicResult,
@@ -65,7 +67,7 @@ from pipestitch.pipeline.stitching import (
     sample_led,
 )
 from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
-from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm
+from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, consistently_positive
 from pipestitch.pose.fit import Hypothesis, RingPoints
 from pipestitch.pose.section import section_free_information
 from pipestitch.report.html import (
@@ -158,17 +160,20 @@ RELATIVE_MIRROR = ("pose ambiguous: mirror chosen by registration against its ne
 
 
 def _apply_switches(choices: list[Choice], switched: dict[int, bool],
-                    links: Sequence[Link]) -> list[Choice]:
+                    links: Sequence[Link], chains: Sequence[ChainLink] = ()) -> list[Choice]:
     """Choices after registration's photometric decision on the ambiguous frames.
 
     Registration compares a frame's two unwraps with the earlier frames it links to, as
     they were chosen: a decision is only as absolute as they are. Two consecutive frames
-    on their wrong mirrors warp the wall alike, so a stretch of ambiguous frames
-    decided only against each other is one consistent choice of two, either of which
-    could be the truth. A decision counts (``registration``, not flagged) when the frame
-    links back to a frame whose mirror the pose step decided (body, photometric
-    comparison, continuity) or to one such decision in turn; otherwise the frame stays
-    flagged (``registration-relative``)."""
+    on their wrong mirrors warp the wall alike where their poses are alike, so a stretch
+    of ambiguous frames decided only against each other may be one consistent choice of
+    two. A decision counts (``registration``, not flagged) when the frame links back to
+    a frame whose mirror the pose step decided (body, photometric comparison,
+    continuity) or to one such decision in turn; or (``registration-chain``) when its
+    stretch, registered frame to frame as chosen, correlates better than the same
+    stretch all mirrored, link after link (:func:`_chain_decided`: where the pose
+    changes along the stretch, only the right chain unwraps every frame undistorted).
+    Otherwise the frame stays flagged (``registration-relative``)."""
     earlier: dict[int, set[int]] = {}
     for ln in links:
         earlier.setdefault(max(ln.i, ln.j), set()).add(min(ln.i, ln.j))
@@ -176,14 +181,46 @@ def _apply_switches(choices: list[Choice], switched: dict[int, bool],
     for k in sorted(switched):
         if earlier.get(k, set()) & anchored:
             anchored.add(k)
+    by_chain = _chain_decided(sorted(set(switched) - anchored), switched, chains)
     out = []
     for k, c in enumerate(choices):
         if k in switched and c.chosen is not None:
             chosen = 1 - c.chosen if switched[k] else c.chosen
             c = (Choice(chosen, False, "registration", c.margin) if k in anchored
+                 else Choice(chosen, False, "registration-chain", c.margin) if k in by_chain
                  else Choice(chosen, True, "registration-relative", c.margin))
         out.append(c)
     return out
+
+
+def _chain_decided(relative: list[int], switched: dict[int, bool],
+                   chains: Sequence[ChainLink]) -> set[int]:
+    """The frames of ``relative`` (decided by registration against ambiguous frames only)
+    whose stretch of consecutive such frames, with the frame before it, registered
+    better as chosen than mirrored link after link: the gains of its consecutive
+    :class:`~pipestitch.pipeline.stitching.ChainLink` (chosen minus mirrored response)
+    positive at 1 % (one-sided t-test, at least 3 links). Only links measured with both
+    frames on their final hypotheses count."""
+    valid = {(c.first, c.second): c.chosen - c.mirrored for c in chains
+             if c.switched_first == switched.get(c.first, False)
+             and c.switched_second == switched.get(c.second, False)}
+    decided: set[int] = set()
+    stretch: list[int] = []
+    for k in [*relative, None]:
+        if k is not None and (not stretch or k == stretch[-1] + 1):
+            stretch.append(k)
+            continue
+        if stretch:
+            frames = [stretch[0] - 1, *stretch]
+            gains = [valid[a, b] for a, b in itertools.pairwise(frames) if (a, b) in valid]
+            if consistently_positive(gains, CHAIN_SIGNIFICANCE, MIN_CHAIN_LINKS):
+                decided.update(stretch)
+        stretch = [] if k is None else [k]
+    return decided
+
+
+CHAIN_SIGNIFICANCE = 0.01   # a stretch registered as chosen beats its mirror at this level
+MIN_CHAIN_LINKS = 3
 
 
 def _with_refined(frames: list[FramePose], choices: list[Choice],
@@ -488,7 +525,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     release_free_memory()
     imu = read_imu(dataset.root) or {}
     if result is not None:
-        choices = _apply_switches(choices, result.switched, result.links)
+        choices = _apply_switches(choices, result.switched, result.links, result.chains)
         ring_frames = frames
         frames = _with_refined(frames, choices, result.views)
         frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope(),

@@ -89,7 +89,7 @@ from pipestitch.pose.fit import RingPoints
 from pipestitch.pose.section import SectionFit, fit_section
 from pipestitch.standards.roll_reference import imu_roll_offset
 
-__all__ = ["UNWRAP_MODES", "FrameView", "LedSample", "MosaicResult", "MosaicSettings",
+__all__ = ["UNWRAP_MODES", "ChainLink", "FrameView", "LedSample", "MosaicResult", "MosaicSettings",
            "MosaicSink", "build_mosaic", "find_occluders", "led_frames", "sample_led"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
@@ -194,7 +194,8 @@ class MosaicResult:
     ``image`` is float (NaN where no data) on ``grid`` (None when the mosaic was
     streamed to a sink); ``skipped`` maps frame -> why;
     ``switched`` says, for each frame the pose step left ambiguous, whether registration
-    chose its mirror hypothesis instead.
+    chose its mirror hypothesis instead; ``chains`` how those frames registered with each
+    other as chosen and as mirrored (:class:`ChainLink`).
     """
 
     grid: WallGrid
@@ -209,6 +210,7 @@ class MosaicResult:
     gains: dict[int, float] = field(default_factory=dict)
     switched: dict[int, bool] = field(default_factory=dict)
     views: dict[int, FrameView] = field(default_factory=dict)
+    chains: list[ChainLink] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -360,6 +362,26 @@ class _Registered:
     error: str = ""
 
 
+@dataclass(frozen=True, slots=True)
+class ChainLink:
+    """Two frames the pose step left ambiguous, registered as chosen and both mirrored.
+
+    ``chosen``: the response of the link between their unwraps as registration chose
+    them; ``mirrored``: between their other hypotheses' (0 where that found no link).
+    Two consecutive frames on their wrong mirrors warp the wall alike only where their
+    poses are alike: along a stretch whose pose changes, the right chain correlates
+    better than its mirror (see ``pipestitch.pipeline.run._apply_switches``).
+    ``switched_*``: whether each frame was on its mirror hypothesis when measured.
+    """
+
+    first: int
+    second: int
+    chosen: float
+    mirrored: float
+    switched_first: bool
+    switched_second: bool
+
+
 @dataclass
 class _Pass1:
     """What pass 1 gathers over the run."""
@@ -375,6 +397,7 @@ class _Pass1:
     done: list[int] = field(default_factory=list)
     switched: dict[int, bool] = field(default_factory=dict)
     patches: list[PatchShifts] = field(default_factory=list)
+    chains: list[ChainLink] = field(default_factory=list)
 
 
 def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view: FrameView,
@@ -453,6 +476,23 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
     return best if scores[best] >= MIRROR_RATIO * scores[1 - best] else None
 
 
+def _chain_links(recent_alt: Sequence[tuple[int, _Candidate | None, bool]], alt: _Candidate,
+                 chosen: Sequence[tuple[Link, _Candidate]], grid: WallGrid, i: int,
+                 switched: bool, links: Sequence[Link],
+                 odometry_mm: Mapping[int, float] | None) -> list[ChainLink]:
+    """Frame ``i``'s :class:`ChainLink` with each recent ambiguous frame: its other
+    hypothesis ``alt`` registered to theirs, beside its ``chosen`` links."""
+    out = []
+    for j, prev_alt, prev_switched in recent_alt:
+        if prev_alt is None:
+            continue
+        mirrored = _link(prev_alt, alt, grid, j, i, predict_motion(j, i, links, odometry_mm))
+        response = next((ln.response for ln, _ in chosen if ln.i == j), 0.0)
+        out.append(ChainLink(j, i, response, mirrored.response if mirrored else 0.0,
+                             prev_switched, switched))
+    return out
+
+
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
               own: WallGrid, timer: StageTimer, show_progress: bool,
               skipped: dict[int, str], *, patches: bool, flat: bool,
@@ -492,6 +532,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     out = _Pass1()
     history = list(seed)   # the links the motion prior reads: seed, then this pass's
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
+    # the other hypothesis of those of them the pose step left ambiguous (for ChainLink)
+    recent_alt: deque[tuple[int, _Candidate | None, bool]] = deque(maxlen=LINK_SPAN)
     order = sorted(views)
     # the flat field's data of the frames it will take, not all (a
     # skipped frame only thins them: still evenly spaced, at most PROFILE_FRAMES)
@@ -518,6 +560,12 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 if best == 1:
                     views[reg.index] = views[reg.index].alternative  # type: ignore[assignment]
             cand = reg.candidates[best or 0]
+            alt = reg.candidates[1 - (best or 0)] if len(reg.candidates) > 1 else None
+            if alt is not None:
+                with timer("register"):
+                    out.chains.extend(_chain_links(recent_alt, alt, found[best or 0], own,
+                                                   reg.index, best == 1, history,
+                                                   dataset.odometry_mm))
             sampled = len(out.done) % level_step == 0
             for link, prev in found[best or 0]:
                 out.links.append(link)
@@ -531,6 +579,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             while len(flats) > 2 * max(1, workers):
                 out.add_flat(*flats.popleft().result())
             recent.append((reg.index, cand))
+            recent_alt.append((reg.index, alt, best == 1))
             out.done.append(reg.index)
         out.patches.extend(f.result() for f in pending)
         for f in flats:
@@ -621,6 +670,7 @@ class _Registration:
     done: list[int]
     switched: dict[int, bool]
     flat_field: RadialFlatField     # from the last pass's levels
+    chains: list[ChainLink]         # the latest measured of each pair
 
 
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
@@ -646,6 +696,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     on strips from the poses before the correction).
     """
     camera, switched = unwrapper.camera, {}
+    chains: dict[tuple[int, int], ChainLink] = {}
     before = views
     for k in range(max(1, rounds)):
         own = grids[0] if k < rounds - 1 else grids[1]
@@ -653,6 +704,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
                           patches=rounds > 0, flat=k >= rounds - 1)
         switched.update(pass1.switched)
+        chains.update(((c.first, c.second), c) for c in pass1.chains)
         links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
         before = views
         if pass1.patches:
@@ -667,7 +719,8 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         redo = sorted({*redo, *(i for i in done if views[i].alternative is not None)})
         release_free_memory()
         views, links, patches = _register_again(dataset, views, unwrapper, grids[1], timer,
-                                                skipped, links, done, redo, switched)
+                                                skipped, links, done, redo, switched,
+                                                chains)
         again = set(redo)
         with timer("refine"):
             views, links = _refine_views(views, patches, links, camera, grids[1], again)
@@ -678,7 +731,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     views = {i: _without_ring(v) for i, v in views.items()}
     flat = (RadialFlatField.from_pairs(pairs, unwrapper.edges, unwrapper.centre)
             or RadialFlatField.from_levels(levels, unwrapper.edges, unwrapper.centre))
-    return _Registration(views, links, done, switched, flat)
+    return _Registration(views, links, done, switched, flat, list(chains.values()))
 
 
 LINEAR_TILT_DEG = 1.0   # after a round that corrects a tilt by more, frames are redone:
@@ -726,7 +779,7 @@ SEED_LINKS = 8 * LINK_SPAN   # links before a run: more than predict_motion's 5 
 def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
                     own: WallGrid, timer: StageTimer, skipped: dict[int, str],
                     links: list[Link], done: list[int], redo: Sequence[int],
-                    switched: dict[int, bool],
+                    switched: dict[int, bool], chains: dict[tuple[int, int], ChainLink],
                     ) -> tuple[dict[int, FrameView], list[Link], list[PatchShifts]]:
     """The links of the ``redo`` frames measured again on strips from the current views.
 
@@ -738,8 +791,8 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
     (:func:`_repatch`): their rigid part is the refinement's already, and the
     whole-strip correlation that would find it again is the costly part of a round.
 
-    Returns the views (hypotheses chosen now applied, ``switched`` updated), the links
-    and the patch shifts measured.
+    Returns the views (hypotheses chosen now applied, ``switched`` and ``chains``
+    updated), the links and the patch shifts measured.
     """
     views, patches, new = dict(views), [], []
     runs = _segments(done, [i for i in redo if views[i].alternative is not None], LINK_SPAN)
@@ -754,6 +807,7 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
                           patches=True, flat=False, seed=seed)
         views.update(part)
         switched.update(found.switched)
+        chains.update(((c.first, c.second), c) for c in found.chains)
         new.extend(found.links)
         patches.extend(found.patches)
     kept = [ln for ln in links
@@ -1064,4 +1118,5 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                     reg.flat_field, timer, show_progress, skipped, sink)
     image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
-                        [i for i in placed if i in gains], skipped, gains, reg.switched, views)
+                        [i for i in placed if i in gains], skipped, gains, reg.switched, views,
+                        reg.chains)

@@ -28,7 +28,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import stdtrit
 
 from pipestitch.camera import CameraModel, blank_frame
 from pipestitch.errors import DatasetError
@@ -36,6 +35,7 @@ from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
 from pipestitch.mosaic.photometric import contrast_strip, strip_misfit
 from pipestitch.pipeline.posing import PHOTOMETRIC_MIN_TILT_DEG, FramePose, strips_overlap
+from pipestitch.pose.ambiguity import consistently_positive
 from pipestitch.pose.fit import PoseFit
 from pipestitch.pose.ring import prepare_laser_frame
 from pipestitch.pose.section import fit_section
@@ -105,12 +105,9 @@ def _oval(table: np.ndarray, best: int) -> bool:
     significant at ``SIGNIFICANCE`` (one-sided t-test over the pairs: the pairs are the
     replicates; on round pipes the gains scatter about zero, t = 0.7-2.2 over 5 pairs,
     on oval ones t = 7-39)."""
-    if SHARES[best] >= OVAL_SHARE or len(table) < MIN_PAIRS:
+    if SHARES[best] >= OVAL_SHARE:
         return False
-    gains = table[:, -1] - table[:, best]
-    spread = float(np.std(gains, ddof=1))
-    t = float(np.mean(gains)) / max(spread / np.sqrt(len(gains)), 1e-12)
-    return bool(t > float(stdtrit(len(gains) - 1, 1 - SIGNIFICANCE)))
+    return consistently_positive(table[:, -1] - table[:, best], SIGNIFICANCE, MIN_PAIRS)
 
 
 def _disjoint_pairs(firsts: list[int], middle: float) -> list[int]:

@@ -33,13 +33,14 @@ from dataclasses import dataclass
 from itertools import pairwise as pairwise_indices
 
 import numpy as np
+from scipy.special import stdtrit
 
 from pipestitch.geometry import BodyEnvelope, PipeSection
 from pipestitch.pose.fit import Hypothesis, PoseFit
 
 __all__ = ["BODY_TOLERANCE_RADII", "STEP_ANGLE_DEG", "STEP_OFFSET_RADII", "Choice",
-           "clearance_sigma_mm", "coincide", "envelope_costs", "hypothesis_distance",
-           "resolve_run"]
+           "clearance_sigma_mm", "coincide", "consistently_positive", "envelope_costs",
+           "hypothesis_distance", "resolve_run"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -307,3 +308,17 @@ def resolve_run(fits: list[PoseFit], unary: np.ndarray, *,
             choices[i] = Choice(chosen, False, _reason(u[k], _photo_evidence(photo, idx, k),
                                                        min_margin), margin)
     return choices
+
+
+def consistently_positive(gains: np.ndarray | list[float], significance: float = 0.01,
+                          min_count: int = 3) -> bool:
+    """Whether paired evidence favours one hypothesis over the other replicate after
+    replicate: ``gains`` (one per replicate, positive where the first hypothesis did
+    better) have a mean above zero at ``significance`` (one-sided Student t-test; at
+    least ``min_count`` replicates, else False)."""
+    gains = np.asarray(gains, dtype=float)
+    if gains.size < max(2, min_count):
+        return False
+    spread = float(np.std(gains, ddof=1))
+    t = float(np.mean(gains)) / max(spread / np.sqrt(gains.size), 1e-12)
+    return bool(t > float(stdtrit(gains.size - 1, 1 - significance)))

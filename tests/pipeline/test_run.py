@@ -49,6 +49,10 @@ def test_run_writes_every_output(output: Path) -> None:
     profile = read_csv_columns(output / "profile.csv", ("diameter_mm", "within_tolerance"))
     assert np.allclose(profile["diameter_mm"], 65.0, atol=0.1)   # the simulated pipe
     assert np.all(profile["within_tolerance"] == 1)
+    # a round pipe: the ring follows its section everywhere, no departure
+    with (output / "profile.csv").open(newline="") as f:
+        departure = [row["departure_mm"] for row in csv.DictReader(f)]
+    assert departure == ["nan"] * 6
     html = (output / "report.html").read_text()
     assert 'id="mosaic"' in html and "data:image/png;base64," in html
     assert "http://" not in html and "https://" not in html   # self-contained

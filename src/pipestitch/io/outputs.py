@@ -31,7 +31,8 @@ __all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "intensity_scale", "mosaic_from_
 
 PROFILE_COLUMNS = ("frame", "z_mm", "diameter_mm", "ovality", "min_radius_mm", "max_radius_mm",
                    "diameter_std_mm", "model", "within_tolerance", "ovality_std",
-                   "major_axis_theta_deg")
+                   "major_axis_theta_deg", "departure_mm", "departure_theta_deg",
+                   "departure_extent_deg")
 DEFECT_COLUMNS = ("kind", "z_mm", "theta_deg", "clock", "diameter_mm", "area_mm2", "z_min_mm",
                   "z_max_mm", "theta_min_deg", "theta_max_deg", "contrast", "confidence",
                   "partial")

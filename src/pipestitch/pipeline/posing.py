@@ -41,7 +41,8 @@ from pipestitch.mosaic.photometric import (
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
-from pipestitch.pose.fit import PoseFit, RingPoints, fit_pose
+from pipestitch.pose.departure import MIN_EXTENT_DEG, Departure, ring_departure
+from pipestitch.pose.fit import LaserPlane, PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import (
     RingDetection,
     detect_ring,
@@ -98,6 +99,9 @@ class FramePose:
     # run's oval start replaced the ring's circle fit: that fit, for frames the LED
     # refinement then never reaches
     circle_fallback: CircleFallback | None = field(default=None, compare=False)
+    # where the ring leaves the fitted section (a dent...), per hypothesis (same depth,
+    # each in its own frame); empty when it follows it
+    departures: tuple[Departure | None, ...] = field(default=(), compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -226,9 +230,32 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
             fallback = replace(fallback, warning=f"{second}; {fallback.warning}")
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    return FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
-                     body_infeasible=infeasible and fit.model == "circle",
-                     circle_fallback=fallback).with_warning(second)
+    departures = _departures(detection, fit, settings)
+    frame = FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
+                      body_infeasible=infeasible and fit.model == "circle",
+                      circle_fallback=fallback, departures=departures)
+    found = [d for d in departures if d is not None]
+    return frame.with_warning(second).with_warning(
+        DEPARTURE_WARNING.format(d=found[0]) if found else "")
+
+
+DEPARTURE_WARNING = ("the ring leaves the pipe section by {d.depth_mm:+.2f} mm over "
+                     "{d.extent_deg:.0f} deg of its circumference (a dent, a deposit or a "
+                     "bulge; profile.csv's departure columns)")
+
+
+def _departures(detection: RingDetection, fit: PoseFit, settings: PoseSettings
+                ) -> tuple[Departure | None, ...]:
+    """:func:`pipestitch.pose.departure.ring_departure` of each hypothesis; () where the
+    fit left too few rays with a candidate unexplained for one (the common case: a
+    frame whose ring follows its section is not looked at twice)."""
+    if not fit.ok or fit.ring is None or (
+            detection.coverage - fit.coverage < MIN_EXTENT_DEG / 360.0):
+        return ()
+    plane = LaserPlane.of(settings.plane_distance_mm, settings.plane_normal)
+    found = tuple(ring_departure(detection, h.pose, h.pipe_section, settings.camera, plane,
+                                 fit.ring.noise_mm) for h in fit.hypotheses)
+    return found if any(d is not None for d in found) else ()
 
 
 SECOND_RING_SHARE = 0.5   # a second ring: leftovers on at least this share of the ring's rays

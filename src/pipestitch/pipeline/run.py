@@ -324,20 +324,28 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
     ``within_tolerance`` is 1 when the mean diameter is within ``tolerance_pct`` %
     of nominal; ``major_axis_theta_deg`` is the mosaic theta (0-180) of the oval's
     longer axis (the frame's own angle turned by its roll; nan without an oval fit or
-    a place in the mosaic).
+    a place in the mosaic). Where the ring leaves the section over part of its
+    circumference (a dent: :mod:`pipestitch.pose.departure`), ``departure_mm`` is its
+    signed radial extreme (negative inward) at mosaic theta ``departure_theta_deg``
+    over ``departure_extent_deg``, and min/max radius include it; nan elsewhere.
     """
     rows: list[list[object]] = []
-    for frame, _, h in _chosen(frames, choices):
+    for frame, choice, h in _chosen(frames, choices):
         sec = h.pipe_section
         lo, hi = sorted((sec.a_mm, sec.b_mm))
         major = math.degrees(sec.angle) + (0.0 if sec.a_mm >= sec.b_mm else 90.0)
-        axis = ((major + roll.get(frame.index, math.nan)) % 180.0
-                if h.section is not None else math.nan)
+        turn = roll.get(frame.index, math.nan)
+        axis = (major + turn) % 180.0 if h.section is not None else math.nan
+        dep = frame.departures[choice.chosen] if frame.departures else None
+        departure = ([math.nan] * 3 if dep is None else
+                     [dep.depth_mm, (dep.theta_deg + turn) % 360.0, dep.extent_deg])
+        if dep is not None:
+            lo, hi = min(lo, dep.min_radius_mm), max(hi, dep.max_radius_mm)
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, sec.ovality if h.section is not None else math.nan,
                      lo, hi, 2 * h.std.get("radius_mm", math.nan), frame.fit.model,
                      int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm),
-                     h.std.get("ovality", math.nan), axis])
+                     h.std.get("ovality", math.nan), axis, *departure])
     return rows
 
 

@@ -447,8 +447,9 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
         ahead = _occluders_ahead(pool, ds, settings, timer, False, None)
         assert ahead is not None
         assert _occluders_ahead(pool, ds, settings, timer, True, None) is None
-        mask, noise = ahead.result()
+        mask, noise, defects = ahead.result()
     assert led_frames(ds) == list(range(ds.n_pairs))
+    assert [len(d) for d in defects] == [0, 0]   # the simulated sensor has no stuck pixel
     own = find_occluders(ds, led_frames(ds), settings.reference_frames, timer, settings.workers)
     np.testing.assert_array_equal(mask, own)
     assert noise is not None and noise.slope > 0   # shot noise, from the same frames

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["blank_frame", "to_grey"]
+__all__ = ["blank_frame", "repair_pixels", "to_grey"]
 
 
 def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
@@ -110,3 +110,18 @@ def _clearly_a_picture(arr: np.ndarray) -> bool:
     with np.errstate(invalid="ignore"):
         far = np.abs(values - np.median(values)) > 0.1 * full
     return int(np.count_nonzero(far)) > 0.01 * sparse.size
+
+
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+def repair_pixels(grey: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``grey`` (2-D) with the pixels at ``rows``, ``cols`` replaced, in place, by the
+    median of their 8 neighbours (clamped at the border): a sensor's hot and dead
+    pixels. Returns ``grey``."""
+    if len(rows) == 0:
+        return grey
+    r = np.clip(np.asarray(rows)[:, None] + _NEIGHBOURS[:, 0], 0, grey.shape[0] - 1)
+    c = np.clip(np.asarray(cols)[:, None] + _NEIGHBOURS[:, 1], 0, grey.shape[1] - 1)
+    grey[rows, cols] = np.median(grey[r, c], axis=1)
+    return grey

@@ -22,6 +22,7 @@ that frame's dark wall features; the caller should sample frames spread along th
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from itertools import pairwise
@@ -32,7 +33,8 @@ import numpy as np
 from pipestitch.camera.frames import to_grey
 from pipestitch.mosaic._occluder_kernels import quantile_over_frames
 
-__all__ = ["FULL_SCALES", "full_scale", "noise_variance", "occluder_mask", "static_pixels"]
+__all__ = ["FULL_SCALES", "defect_pixels", "full_scale", "noise_variance", "occluder_mask",
+           "static_pixels"]
 
 NEARLY_ALL = 0.85   # dark at this quantile over frames = dark in nearly all of them
 # Static: temporal variance below this many times the sensor noise's, on a 5 x 5 mean
@@ -43,6 +45,7 @@ STATIC_RATIO = 4.0
 # pixels, as in demosaiced frames, whose 5 x 5 mean keeps more of it).
 MEAN_STATIC_RATIO = 8.0
 MIN_STATIC_FRAMES = 5   # fewer frames cannot tell a static pixel from a slow wall
+DEFECT_SIGMAS = 4.0     # a hot or dead pixel stands out of its 3 x 3 median by this much
 # Frames of 1.5 times this many rows or more are area-averaged by a whole factor (the
 # rows over this, rounded; a 2448 x 2048 frame by 2) to about this many rows first: the
 # mask's finest structures (the static test's 5 x 5 mean, a static region of 1/100 of
@@ -134,6 +137,36 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     margin = max(2, round(shape[0] / 200)) if margin_px is None else margin_px
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
     return cv2.dilate(mask, kernel).astype(bool)
+
+
+def defect_pixels(frames: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Hot and dead pixels of the sensor, (rows, cols), from LED frames of one run.
+
+    A pixel stands out of its 3 x 3 median by more than ``DEFECT_SIGMAS`` of the frame's
+    own spread of that difference (1.4826 MAD), the same way in nearly all frames
+    (``NEARLY_ALL``). The wall moves past a pixel; a pixel stuck bright or dark does
+    not, and its fixed dot pulls the registration of consecutive strips towards no
+    motion (a separate generator's 0.1 % hot pixels: refined tilts 1.3-4.5 deg off). The
+    occluder mask does not take them (the static test's opening removes single pixels,
+    and a saturated one is no static evidence), nor should it: a mask dotted over the
+    frame leaves the registration's patches without a whole one. They are repaired
+    instead (:func:`pipestitch.camera.frames.repair_pixels`). Fewer than
+    ``MIN_STATIC_FRAMES`` frames find none.
+    """
+    if len(frames) < MIN_STATIC_FRAMES:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    above = below = None
+    for frame in frames:
+        grey = to_grey(frame)
+        resid = grey - cv2.medianBlur(grey, 3)
+        spread = 1.4826 * float(np.median(np.abs(resid[::4, ::4])))
+        limit = DEFECT_SIGMAS * max(spread, 1e-6)
+        if above is None:
+            above, below = np.zeros(grey.shape, np.uint16), np.zeros(grey.shape, np.uint16)
+        above += resid > limit
+        below += resid < -limit
+    need = math.ceil(NEARLY_ALL * len(frames))
+    return np.nonzero((above >= need) | (below >= need))
 
 
 def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> np.ndarray:

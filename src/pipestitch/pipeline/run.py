@@ -487,11 +487,12 @@ def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: M
     if not dataset.has_led:
         return None, None, "the dataset has no LED frames: no mosaic"
     try:
-        occluded, noise = (declared, None) if occluders is None else occluders.result()
+        occluded, noise, defects = ((declared, None, ()) if occluders is None
+                                    else occluders.result())
         with StreamedMosaic(out, timer) as sink:
             result = build_mosaic(dataset, views, settings, timer=timer,
                                   show_progress=show_progress, sink=sink,
-                                  occluded=occluded, noise=noise)
+                                  occluded=occluded, noise=noise, defects=defects)
             return result, sink.finish(), ""
     except PipestitchError as exc:
         return None, None, f"no mosaic: {exc}"

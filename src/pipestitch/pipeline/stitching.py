@@ -31,7 +31,7 @@ from pipestitch._runtime import scratch
 from pipestitch._runtime.memory import release_free_memory
 from pipestitch._runtime.threads import ordered_map
 from pipestitch.camera import CameraModel
-from pipestitch.camera.frames import blank_frame, to_grey
+from pipestitch.camera.frames import blank_frame, repair_pixels, to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import Dataset
@@ -58,7 +58,7 @@ from pipestitch.mosaic.flat_field import (
     unclipped_weight,
 )
 from pipestitch.mosaic.noise import ContrastNoise, NoiseModel, contrast_noise, estimate_noise
-from pipestitch.mosaic.occluders import occluder_mask
+from pipestitch.mosaic.occluders import defect_pixels, occluder_mask
 from pipestitch.mosaic.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
 from pipestitch.mosaic.register import (
     Link,
@@ -93,6 +93,8 @@ __all__ = ["UNWRAP_MODES", "ChainLink", "FrameView", "LedSample", "MosaicResult"
            "MosaicSink", "build_mosaic", "find_occluders", "led_frames", "sample_led"]
 
 UNWRAP_MODES = ("ours", "centred", "polar")
+Defects = tuple[np.ndarray, ...]   # a sensor's hot and dead pixels: (rows, cols), or ()
+NO_DEFECTS: Defects = ()
 LINK_SPAN = 2          # each frame is registered to this many following frames
 
 
@@ -222,6 +224,7 @@ class _Unwrapper:
     centre: tuple[float, float]     # optical centre (px): the flat field's rings
     edges: np.ndarray               # ring edges (px), mosaic/flat_field.py
     noise: NoiseModel | None = None  # the LED frames' noise (mosaic/noise.py)
+    defects: Defects = ()           # the sensor's hot and dead pixels (rows, cols)
     # each frame's clipping level, found on its first unwrap that needs it (a full scan)
     levels: dict[int, float | None] = field(default_factory=dict)
 
@@ -251,16 +254,20 @@ class _Unwrapper:
 
 
 def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
-               scratch_buffer: bool = False) -> np.ndarray:
-    """The LED frame as grey float32; with ``scratch_buffer`` in this thread's buffer
-    (:mod:`pipestitch._runtime.scratch`), for a caller done with it before its next frame."""
+               scratch_buffer: bool = False, defects: Defects = ()) -> np.ndarray:
+    """The LED frame as grey float32, its sensor's ``defects`` (rows, cols) repaired;
+    with ``scratch_buffer`` in this thread's buffer (:mod:`pipestitch._runtime.scratch`),
+    for a caller done with it before its next frame."""
     with timer("decode"):
         led = dataset.read_led(index)
         if blank := blank_frame(led):   # the pose pass took the laser frame alone
             raise DatasetError(dataset.led_paths[index], blank)
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
-        return to_grey(led, out=out)
+        grey = to_grey(led, out=out)
+        if not len(defects):
+            return grey
+        return repair_pixels(grey.copy() if grey is led else grey, *defects)
 
 
 NOISE_FRAMES = 3   # LED frames, spread over the run, the noise model is measured on
@@ -302,6 +309,7 @@ class LedSample(NamedTuple):
 
     occluded: np.ndarray       # the occluder mask (True: never the wall)
     noise: NoiseModel | None   # the frames' noise model (None: too few blocks to fit one)
+    defects: Defects = NO_DEFECTS  # the sensor's hot and dead pixels (rows, cols)
 
 
 def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: StageTimer,
@@ -327,11 +335,15 @@ def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: Stage
         raise StageError("no LED frame could be read")
     with timer("occluders"):
         occluded = occluder_mask(leds, workers=workers)
+        rows, cols = defect_pixels(leds)
+        seen = ~occluded[rows, cols]   # those the mask takes are never read
+        defects = (rows[seen], cols[seen])
     if not with_noise:
-        return LedSample(occluded, None)
+        return LedSample(occluded, None, defects)
     with timer("register"):   # one float frame at a time
-        noise = estimate_noise(to_grey(f) for f in _spread(leds, NOISE_FRAMES))
-    return LedSample(occluded, noise)
+        noise = estimate_noise(repair_pixels(to_grey(f), *defects)
+                               for f in _spread(leds, NOISE_FRAMES))
+    return LedSample(occluded, noise, defects)
 
 
 def find_occluders(dataset: Dataset, frames: Sequence[int], count: int,
@@ -512,7 +524,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     """
     def work(i: int) -> _Registered:
         try:
-            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True,
+                              defects=unwrapper.defects)
         except DatasetError as exc:
             return _Registered(i, [], f"{exc.path.name}: {exc.problem}")
         options = [views[i]] + ([views[i].alternative] if views[i].alternative else [])
@@ -839,7 +852,8 @@ def _repatch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwra
 
     def work(i: int) -> tuple[int, _Candidate | None]:
         try:
-            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True,
+                              defects=unwrapper.defects)
         except DatasetError:
             return i, None
         return i, _unwrap_candidate(unwrapper, i, grey, views[i], own, timer, flat=False,
@@ -906,7 +920,8 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
     def work(i: int) -> tuple[int, ShadedStrip | None, int, str]:
         grid, col = frame_grid(canvas.grid, positions.z_mm[i], positions.roll_deg[i], window)
         try:
-            grey = _read_grey(dataset, i, timer, scratch_buffer=True)
+            grey = _read_grey(dataset, i, timer, scratch_buffer=True,
+                              defects=unwrapper.defects)
         except DatasetError as exc:  # readable in pass 1: changed on disk since
             return i, None, col, f"{exc.path.name}: {exc.problem}"
         with timer("unwrap"):
@@ -1027,7 +1042,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                  show_progress: bool = True, sink: MosaicSink | None = None,
                  positions: Positions | None = None,
                  occluded: np.ndarray | None = None,
-                 noise: NoiseModel | None = None) -> MosaicResult:
+                 noise: NoiseModel | None = None, defects: Defects = ()) -> MosaicResult:
     """Unwrap, register and stitch the frames that have a pose.
 
     Parameters
@@ -1059,6 +1074,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         The LED frames' noise model, when the caller has measured it with ``occluded``
         (:func:`sample_led`). Default: measured here, from the occluders' sample, else
         from a few of the posed frames.
+    defects : tuple of numpy.ndarray, optional
+        The sensor's hot and dead pixels (rows, cols: :func:`sample_led`), repaired in
+        every LED frame read; found here with the occluders when they are.
 
     Returns
     -------
@@ -1092,8 +1110,9 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     if occluded is None:
         occluded = read_mask(dataset.root, dataset.config)   # probe.toml's, else found
     if occluded is None:
-        occluded, noise = sample_led(dataset, led_frames(dataset), settings.reference_frames,
-                                     timer, settings.workers)
+        occluded, noise, defects = sample_led(dataset, led_frames(dataset),
+                                              settings.reference_frames, timer,
+                                              settings.workers)
     with timer("unwrap"):
         windows = _windows(camera, views, radius, mm, settings, occluded)
     window = windows[1]
@@ -1104,7 +1123,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
                               *windows[settings.register_coarsening], fft_sizes=True)
     unwrapper = _Unwrapper(camera, settings, radius, occluded, optical_centre_px(camera),
                            radial_edges(camera),
-                           noise or _led_noise(dataset, sorted(usable), timer))
+                           noise or _led_noise(dataset, sorted(usable), timer), defects)
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     views, links = reg.views, reg.links

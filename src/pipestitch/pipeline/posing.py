@@ -54,8 +54,9 @@ from pipestitch.pose.second_ring import leftover_ring
 from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "CircleFallback",
-           "FramePose", "PoseSettings", "estimate_poses", "fit_frame", "report_frame_messages",
-           "resolve_frames", "ring_search_band", "run_pose", "strips_overlap", "write_poses_csv"]
+           "FramePose", "PoseSettings", "choose", "estimate_poses", "fit_frame",
+           "report_frame_messages", "resolve_frames", "ring_search_band", "run_pose",
+           "strips_overlap", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -102,6 +103,9 @@ class FramePose:
     # where the ring leaves the fitted section (a dent...), per hypothesis (same depth,
     # each in its own frame); empty when it follows it
     departures: tuple[Departure | None, ...] = field(default=(), compare=False)
+    # the photometric comparison with the previous frame that has a fit: (its index,
+    # the 2 x 2 costs), the evidence resolve_run took (None: not compared)
+    compared: tuple[int, np.ndarray] | None = field(default=None, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -345,23 +349,35 @@ def resolve_frames(frames_in: Iterable[FramePose], body: BodyEnvelope | None,
     ``drop_rings`` they are not kept at all (and ``rings`` is not used).
     """
     frames: list[FramePose] = []
-    pairwise: dict[int, np.ndarray] = {}
     previous: FramePose | None = None
     for frame in frames_in:
         if frame.fit.ok:
             if (previous is not None and previous.strips and frame.strips
                     and strips_overlap(previous, frame, odometry_mm)):
-                pairwise[previous.index] = pair_costs(previous.strips, frame.strips)
+                frame = replace(frame, compared=(previous.index,
+                                                 pair_costs(previous.strips, frame.strips)))
             previous = frame
         if (rings is not None or drop_rings) and frame.fit.ring is not None:
             frame = replace(frame, fit=replace(frame.fit, ring=None),
                             stored_ring=None if drop_rings else rings.put(frame.fit.ring))
         frames.append(replace(frame, strips=None))
+    return frames, choose(frames, body)
+
+
+def choose(frames: list[FramePose], body: BodyEnvelope | None,
+           unlinked: Iterable[int] = ()) -> list[Choice]:
+    """The run's choices (:func:`pipestitch.pose.ambiguity.resolve_run`) from the
+    frames' fits, the body and their photometric comparisons (``compared``), except
+    those of the frames ``unlinked``: a comparison with the previous frame that
+    registration could not confirm."""
+    skip = set(unlinked)
+    pairwise = {f.compared[0]: f.compared[1] for f in frames
+                if f.compared is not None and f.index not in skip}
     # a frame the body cannot hold in either mirror is infeasible, whatever its costs
     unary = np.array([np.full(2, INFEASIBLE_COST) if f.body_infeasible
                       else envelope_costs(f.fit, body) if f.fit.ok else np.zeros(2)
                       for f in frames])
-    return frames, resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
+    return resolve_run([f.fit for f in frames], unary, pairwise=pairwise)
 
 
 def estimate_poses(dataset: Dataset, *, show_progress: bool = True, workers: int = 2,

@@ -41,6 +41,7 @@ from pipestitch.pipeline.posing import (
     OVAL_TILT_WARNING,
     FramePose,
     PoseSettings,
+    choose,
     estimate_poses,
     report_frame_messages,
     write_poses_csv,
@@ -157,6 +158,35 @@ def _without_rings(frames: list[FramePose]) -> list[FramePose]:
 RELATIVE_MIRROR = ("pose ambiguous: mirror chosen by registration against its neighbours only, "
                    "whose own mirrors nothing decided (this stretch may be on its mirror as a "
                    "whole)")
+AMBIGUOUS = {
+    "registration-relative": RELATIVE_MIRROR,
+    "photometric-unconfirmed": "pose ambiguous: its mirror was chosen by comparing LED frames "
+                               "that registration found no common wall between",
+}
+
+
+def _unconfirmed_comparisons(frames: list[FramePose], choices: list[Choice],
+                             result: MosaicResult, body: BodyEnvelope | None) -> list[Choice]:
+    """Choices made again without the photometric comparisons of consecutive frames
+    that registration found no link between (their strips share too little wall: a
+    step too large for the comparison, which without an odometer cannot tell). A frame
+    the mosaic placed keeps its hypothesis (it was stitched with it) and is flagged
+    where the choice changes (``photometric-unconfirmed``); one it did not place takes
+    the new choice."""
+    linked = {(min(ln.i, ln.j), max(ln.i, ln.j)) for ln in result.links}
+    unlinked = [f.index for f in frames
+                if f.compared is not None and (f.compared[0], f.index) not in linked]
+    if not unlinked:
+        return choices
+    placed = set(result.placed)
+    out = []
+    again = choose(frames, body, unlinked)
+    for frame, old, new in zip(frames, choices, again, strict=True):
+        if (new.chosen, new.ambiguous) != (old.chosen, old.ambiguous):
+            old = (Choice(old.chosen, True, "photometric-unconfirmed", new.margin)
+                   if frame.index in placed else new)
+        out.append(old)
+    return out
 
 
 def _apply_switches(choices: list[Choice], switched: dict[int, bool],
@@ -401,8 +431,7 @@ def _problems(frames: list[FramePose], result: MosaicResult | None, choices: lis
                      for i, j, src in result.positions.outliers]
         problems += [(k, "roll interpolated (not linked to the roll reference by registration)")
                      for k in result.positions.roll_guessed]
-    problems += [(c_i, RELATIVE_MIRROR if c.reason == "registration-relative"
-                  else "pose ambiguous (mirror hypothesis not ruled out)")
+    problems += [(c_i, AMBIGUOUS.get(c.reason, "pose ambiguous (mirror hypothesis not ruled out)"))
                  for c_i, c in enumerate(choices) if c.ambiguous]
     if result is not None:
         problems += [(i, f"not in the mosaic: {m}") for i, m in sorted(result.skipped.items())]
@@ -534,6 +563,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     release_free_memory()
     imu = read_imu(dataset.root) or {}
     if result is not None:
+        choices = _unconfirmed_comparisons(frames, choices, result,
+                                           dataset.config.probe.envelope())
         choices = _apply_switches(choices, result.switched, result.links, result.chains)
         ring_frames = frames
         frames = _with_refined(frames, choices, result.views)

@@ -458,3 +458,13 @@ def test_a_video_whose_first_frames_cannot_be_decoded_keeps_its_pair_numbers(
     assert [i for i in range(5) if ds.pairs.laser[i] < 0] == lost
     assert any("pair 0 has" in note or "pairs 0-" in note for note in ds.notes), ds.notes
     ds.close()
+
+
+def test_leading_frames_are_counted_by_the_packets_refused_before_the_first_decoded() -> None:
+    """The recording's first two frames refused: counted from the timestamps, never more
+    than the packets refused there (a stray early timestamp adds no pairs)."""
+    is_laser, time_s = _recording(4, {0, 1}, inside_s=0.05, pair_s=0.1)
+    right = pair_frames(is_laser, time_s, start_s=0.0, refused_before=2)
+    assert right.laser.tolist() == [-1, 0, 2, 4] and right.led.tolist() == [-1, 1, 3, 5]
+    stray = pair_frames(is_laser, time_s, start_s=-1000.0, refused_before=2)
+    assert stray.laser.tolist() == right.laser.tolist()

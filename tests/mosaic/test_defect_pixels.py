@@ -57,3 +57,22 @@ def test_repaired_pixels_take_their_neighbours_median() -> None:
     repair_pixels(grey, np.array([2, 0]), np.array([3, 0]))
     assert grey[2, 3] == 0.5 and grey[0, 0] == 0.5
     assert np.all(grey == 0.5)
+
+
+def test_a_black_border_and_a_sensor_s_fine_pattern_are_no_defects() -> None:
+    """8-bit frames of a smooth wall inside a lens' image circle (black outside) with a
+    per-pixel offset pattern of under one grey level: the spread is measured where the
+    wall is seen, and a defect stands out by a few grey levels at least."""
+    rng = np.random.default_rng(1)
+    rows, cols = np.mgrid[:240, :320]
+    circle = (rows - 120) ** 2 + (cols - 160) ** 2 < 100 ** 2
+    pattern = rng.normal(0, 0.8, circle.shape)
+    hot = (50, 140)
+    frames = []
+    for k in range(11):
+        wall = 100 + 20 * np.sin((cols + 7 * k) / 15.0) + pattern + rng.normal(0, 1, circle.shape)
+        wall[~circle] = 0
+        wall[hot] = 255
+        frames.append(np.clip(np.round(wall), 0, 255).astype(np.uint8))
+    found_rows, found_cols = defect_pixels(frames)
+    assert list(zip(found_rows.tolist(), found_cols.tolist(), strict=True)) == [hot]

@@ -28,10 +28,10 @@ def compared(simulate_small, tmp_path_factory):
     return frames, choices
 
 
-def _result(frames, unlinked: set[int], placed: set[int]) -> SimpleNamespace:
+def _result(frames, unlinked: set[int], registered: set[int]) -> SimpleNamespace:
     links = [Link(i, i + 1, 5.0, 0.0, 0.5, 0.02, 0.02) for i in range(len(frames) - 1)
              if i + 1 not in unlinked]
-    return SimpleNamespace(links=links, placed=sorted(placed))
+    return SimpleNamespace(links=links, views=dict.fromkeys(registered))
 
 
 def test_linked_comparisons_keep_their_choices(compared) -> None:
@@ -46,7 +46,7 @@ def test_comparisons_registration_never_linked_decide_nothing(compared) -> None:
     none = _result(frames, set(range(1, len(frames))), set())
     again = _unconfirmed_comparisons(frames, choices, none, None)
     assert all(c.ambiguous for c in again)
-    # the same, the frames placed in the mosaic: hypotheses kept (stitched so), flagged
+    # the same, the frames registered: hypotheses kept (unwrapped so), flagged
     placed = _result(frames, set(range(1, len(frames))), set(range(len(frames))))
     kept = _unconfirmed_comparisons(frames, choices, placed, None)
     assert [c.chosen for c in kept] == [c.chosen for c in choices]

@@ -89,3 +89,18 @@ def test_a_ring_crossing_a_hole_is_no_dent() -> None:
     holed = RingDetection(pixels[keep], det.azimuth[keep], det.rank[keep], det.snr[keep],
                           N_RAYS, 0.01, line_sigma_px=1.0)
     assert _departure(holed, cam)[0] is None
+
+
+def test_rays_without_a_candidate_take_the_angle_between_their_neighbours() -> None:
+    """Across ray 0 too: not half a turn off (the angles wrap there)."""
+    from pipestitch.pose.departure import _ray_angles
+
+    rays = np.array([k for k in range(N_RAYS) if k not in (0, 1, N_RAYS - 1)])
+    theta = 2 * np.pi * rays / N_RAYS + 0.1          # the world angle of each ray's point
+    det = RingDetection(np.zeros((len(rays), 2)), rays, np.zeros(len(rays), int),
+                        np.ones(len(rays)), N_RAYS, 0.01)
+    xy = np.stack([np.cos(theta), np.sin(theta)], 1)
+    angle = _ray_angles(det, xy, np.ones(len(rays), bool))
+    expected = 2 * np.pi * np.array([0, 1, N_RAYS - 1]) / N_RAYS + 0.1
+    off = (angle[[0, 1, N_RAYS - 1]] - expected + np.pi) % (2 * np.pi) - np.pi
+    assert np.all(np.abs(off) < 1e-3)

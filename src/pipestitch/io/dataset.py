@@ -266,7 +266,8 @@ class VideoDataset:
             is_laser = classify_laser_frames(reader.index.brightness)
         except ValueError as exc:
             raise DatasetError(reader.path, str(exc)) from exc
-        self.pairs = pair_frames(is_laser, reader.index.time_s, reader.index.start_s)
+        self.pairs = pair_frames(is_laser, reader.index.time_s, reader.index.start_s,
+                                 reader.index.refused_before)
         if self.pairs.laser.size == 0:
             raise DatasetError(reader.path, "no laser frame found in the video")
         self.notes = [*reader.index.undecodable, *self.pairs.messages]

@@ -72,6 +72,7 @@ class FrameIndex:
     # Time of the recording's first frame, decodable or not (a refused packet's
     # timestamp can be earlier than the first decoded frame's); NaN when unknown.
     start_s: float = float("nan")
+    refused_before: int = 0   # refused packets timestamped before the first decoded frame
 
 
 @dataclass(frozen=True)
@@ -177,22 +178,25 @@ def _missing_between(is_laser: np.ndarray, time_s: np.ndarray | None, period: fl
     return same + extra, notes
 
 
-def _leading(time_s: np.ndarray | None, start_s: float | None, period: float | None) -> int:
+def _leading(time_s: np.ndarray | None, start_s: float | None, period: float | None,
+             most: int) -> int:
     """Frames of the recording before the first decoded one (refused by the decoder):
-    the time from the recording's start to that frame over the frame period."""
+    the time from the recording's start to that frame over the frame period, at most
+    ``most`` (the packets refused before it: a stray timestamp adds no frames)."""
     if time_s is None or start_s is None or period is None or not np.isfinite(start_s):
         return 0
-    return max(0, int(round((time_s[0] - start_s) / period)))
+    return min(most, max(0, int(round((time_s[0] - start_s) / period))))
 
 
 def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None,
-                start_s: float | None = None) -> VideoPairs:
+                start_s: float | None = None, refused_before: int = 0) -> VideoPairs:
     """Pair alternating laser/LED frames, numbering each pair by its place in the recording.
 
     A frame's place is its index in the video plus the frames missing before it (see
     :func:`_missing_between`: two frames of a kind in a row, timestamp gaps; before the
-    first decoded frame, those from ``start_s``, the recording's first timestamp, on), so
-    the pairs after a dropped frame keep their numbers. The order within a pair (laser
+    first decoded frame, those from ``start_s``, the recording's first timestamp, on, at
+    most the ``refused_before`` packets the decoder refused there), so the pairs after a
+    dropped frame keep their numbers. The order within a pair (laser
     first or LED first) is the one that completes more pairs (ties: laser first). A pair
     lacking a frame has ``MISSING`` there: without its LED frame it still gives a pose
     (no strip); without its laser frame, or with neither (whole pairs dropped), it gives
@@ -205,7 +209,7 @@ def pair_frames(is_laser: np.ndarray, time_s: np.ndarray | None = None,
     time_s = None if time_s is None else np.asarray(time_s, dtype=float)
     period = None if time_s is None or time_s.size < 3 else _frame_period(is_laser, time_s)
     missing, notes = _missing_between(is_laser, time_s, period)
-    lead = _leading(time_s, start_s, period)
+    lead = _leading(time_s, start_s, period, refused_before)
     place = lead + np.concatenate([[0], np.cumsum(1 + missing)])
     laser_parity = int(place[0] + (0 if is_laser[0] else 1)) % 2  # every laser frame's
     best = None
@@ -375,9 +379,10 @@ class VideoReader:
         undecodable = tuple(_undecodable_line(pts_arr, base, p, reason) for p, reason in refused)
         for line in undecodable:
             logging.getLogger(__name__).warning("%s: %s", self.path, line)
-        first = min([int(pts_arr[0]), *(p for p, _ in refused if p is not None)])
+        before = [p for p, _ in refused if p is not None and p < pts_arr[0]]
         return FrameIndex(pts_arr, pts_arr * base, np.asarray(bright)[order],
-                          size[0], size[1], undecodable, first * base)
+                          size[0], size[1], undecodable, min([int(pts_arr[0]), *before]) * base,
+                          len(before))
 
     @property
     def n_frames(self) -> int:

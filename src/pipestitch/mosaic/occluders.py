@@ -46,6 +46,7 @@ STATIC_RATIO = 4.0
 MEAN_STATIC_RATIO = 8.0
 MIN_STATIC_FRAMES = 5   # fewer frames cannot tell a static pixel from a slow wall
 DEFECT_SIGMAS = 4.0     # a hot or dead pixel stands out of its 3 x 3 median by this much
+DEFECT_QUANTA = 3.0     # ... and by at least this many steps of the frames' quantisation
 # Frames of 1.5 times this many rows or more are area-averaged by a whole factor (the
 # rows over this, rounded; a 2448 x 2048 frame by 2) to about this many rows first: the
 # mask's finest structures (the static test's 5 x 5 mean, a static region of 1/100 of
@@ -139,19 +140,22 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     return cv2.dilate(mask, kernel).astype(bool)
 
 
-def defect_pixels(frames: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def defect_pixels(frames: Sequence[np.ndarray], occluded: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Hot and dead pixels of the sensor, (rows, cols), from LED frames of one run.
 
-    A pixel stands out of its 3 x 3 median by more than ``DEFECT_SIGMAS`` of the frame's
-    own spread of that difference (1.4826 MAD), the same way in nearly all frames
-    (``NEARLY_ALL``). The wall moves past a pixel; a pixel stuck bright or dark does
-    not, and its fixed dot pulls the registration of consecutive strips towards no
-    motion (a separate generator's 0.1 % hot pixels: refined tilts 1.3-4.5 deg off). The
-    occluder mask does not take them (the static test's opening removes single pixels,
-    and a saturated one is no static evidence), nor should it: a mask dotted over the
-    frame leaves the registration's patches without a whole one. They are repaired
-    instead (:func:`pipestitch.camera.frames.repair_pixels`). Fewer than
-    ``MIN_STATIC_FRAMES`` frames find none.
+    A pixel stands out of its 3 x 3 median by more than ``DEFECT_SIGMAS`` robust sigmas
+    of that difference (1.4826 MAD over the pixels that see the wall: outside
+    ``occluded`` and not black; at least ``DEFECT_QUANTA`` steps of the frames'
+    quantisation), the same way in nearly all frames (``NEARLY_ALL``). The wall moves
+    past a pixel; a pixel stuck bright or dark does not, and its fixed dot pulls the
+    registration of consecutive strips towards no motion (a separate generator's 0.1 %
+    hot pixels: refined tilts 1.3-4.5 deg off). The occluder mask does not take them
+    (the static test's opening removes single pixels, and a saturated one is no static
+    evidence), nor should it: a mask dotted over the frame leaves the registration's
+    patches without a whole one. They are repaired instead
+    (:func:`pipestitch.camera.frames.repair_pixels`). Fewer than ``MIN_STATIC_FRAMES``
+    frames find none.
     """
     if len(frames) < MIN_STATIC_FRAMES:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
@@ -159,8 +163,13 @@ def defect_pixels(frames: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
     for frame in frames:
         grey = to_grey(frame)
         resid = grey - cv2.medianBlur(grey, 3)
-        spread = 1.4826 * float(np.median(np.abs(resid[::4, ::4])))
-        limit = DEFECT_SIGMAS * max(spread, 1e-6)
+        seen = grey > 0
+        if occluded is not None:
+            seen &= ~occluded
+        sample = np.abs(resid[::4, ::4][seen[::4, ::4]])
+        spread = 1.4826 * float(np.median(sample)) if sample.size else 0.0
+        quantum = 1.0 / np.iinfo(frame.dtype).max if frame.dtype.kind in "ui" else 1.0 / 255
+        limit = max(DEFECT_SIGMAS * spread, DEFECT_QUANTA * quantum)
         if above is None:
             above, below = np.zeros(grey.shape, np.uint16), np.zeros(grey.shape, np.uint16)
         above += resid > limit

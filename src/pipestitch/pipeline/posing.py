@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
@@ -215,7 +216,7 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
-    fit, second = _nearer_nominal(detection, fit, settings)
+    fit, second = _optional(_nearer_nominal, (fit, ""), detection, fit, settings)
     warning, infeasible, fallback = "", False, None
     if fit.ok and settings.oval_run:
         fallback = CircleFallback(replace(fit, ring=None), OVAL_POSE_WARNING, True)
@@ -228,19 +229,31 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
             warning = BODY_WARNING.format(clearance=-clearance)
             if settings.oval_start:
                 fallback = CircleFallback(replace(fit, ring=None), warning, False)
+    # where the ring leaves its section: on the ring's own fit (a circle fallback keeps it)
+    departures = _optional(_departures, (), detection, fit, settings)
+    found = [d for d in departures if d is not None]
+    notes = "; ".join(m for m in (second, DEPARTURE_WARNING.format(d=found[0]) if found else "")
+                      if m)
     if fallback is not None:
         fit, warning = oval_at_zero_tilt(fit, settings.camera), OVAL_TILT_WARNING
-        if second:
-            fallback = replace(fallback, warning=f"{second}; {fallback.warning}")
+        if notes:
+            fallback = replace(fallback, warning=f"{notes}; {fallback.warning}")
     strips = (_photometric_strips(led, fit, settings.camera)
               if fit.ok and led is not None else None)
-    departures = _departures(detection, fit, settings)
     frame = FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
                       body_infeasible=infeasible and fit.model == "circle",
                       circle_fallback=fallback, departures=departures)
-    found = [d for d in departures if d is not None]
-    return frame.with_warning(second).with_warning(
-        DEPARTURE_WARNING.format(d=found[0]) if found else "")
+    return frame.with_warning(notes)
+
+
+def _optional(step: Callable[..., T], otherwise: T, *args: object) -> T:
+    """``step(*args)``, or ``otherwise`` where it fails: a check a frame's pose does not
+    depend on (a second ring, a dent) never costs the frame its pose."""
+    try:
+        return step(*args)
+    except Exception as exc:  # one frame's optional check, whatever it raises
+        logging.getLogger(__name__).warning("%s failed on a frame: %r", step.__name__, exc)
+        return otherwise
 
 
 DEPARTURE_WARNING = ("the ring leaves the pipe section by {d.depth_mm:+.2f} mm over "

@@ -170,21 +170,20 @@ def _unconfirmed_comparisons(frames: list[FramePose], choices: list[Choice],
     """Choices made again without the photometric comparisons of consecutive frames
     that registration found no link between (their strips share too little wall: a
     step too large for the comparison, which without an odometer cannot tell). A frame
-    the mosaic placed keeps its hypothesis (it was stitched with it) and is flagged
-    where the choice changes (``photometric-unconfirmed``); one it did not place takes
-    the new choice."""
+    registration took (in ``result.views``: unwrapped, perhaps refined and stitched with
+    its hypothesis) keeps it and is flagged where the choice changes
+    (``photometric-unconfirmed``); any other takes the new choice."""
     linked = {(min(ln.i, ln.j), max(ln.i, ln.j)) for ln in result.links}
     unlinked = [f.index for f in frames
                 if f.compared is not None and (f.compared[0], f.index) not in linked]
     if not unlinked:
         return choices
-    placed = set(result.placed)
     out = []
     again = choose(frames, body, unlinked)
     for frame, old, new in zip(frames, choices, again, strict=True):
         if (new.chosen, new.ambiguous) != (old.chosen, old.ambiguous):
             old = (Choice(old.chosen, True, "photometric-unconfirmed", new.margin)
-                   if frame.index in placed else new)
+                   if frame.index in result.views else new)
         out.append(old)
     return out
 

@@ -264,10 +264,8 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
             raise DatasetError(dataset.led_paths[index], blank)
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
-        grey = to_grey(led, out=out)
-        if not len(defects):
-            return grey
-        return repair_pixels(grey.copy() if grey is led else grey, *defects)
+        grey = to_grey(led, out=out)   # a new array or this thread's buffer
+        return repair_pixels(grey, *defects) if len(defects) else grey
 
 
 NOISE_FRAMES = 3   # LED frames, spread over the run, the noise model is measured on
@@ -335,7 +333,7 @@ def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: Stage
         raise StageError("no LED frame could be read")
     with timer("occluders"):
         occluded = occluder_mask(leds, workers=workers)
-        rows, cols = defect_pixels(leds)
+        rows, cols = defect_pixels(leds, occluded)
         seen = ~occluded[rows, cols]   # those the mask takes are never read
         defects = (rows[seen], cols[seen])
     if not with_noise:
@@ -496,7 +494,7 @@ def _chain_links(recent_alt: Sequence[tuple[int, _Candidate | None, bool]], alt:
     hypothesis ``alt`` registered to theirs, beside its ``chosen`` links."""
     out = []
     for j, prev_alt, prev_switched in recent_alt:
-        if prev_alt is None:
+        if prev_alt is None or j != i - 1:   # the stretch test takes consecutive links
             continue
         mirrored = _link(prev_alt, alt, grid, j, i, predict_motion(j, i, links, odometry_mm))
         response = next((ln.response for ln, _ in chosen if ln.i == j), 0.0)

@@ -143,8 +143,9 @@ def _ray_angles(detection: RingDetection, xy: np.ndarray, valid: np.ndarray) -> 
     known = np.isfinite(angle)
     if known.sum() >= 2:   # rays without a candidate: between their neighbours
         rays = np.arange(detection.n_azimuths)
-        angle = np.interp(rays, rays[known], np.unwrap(angle[known]),
-                          period=detection.n_azimuths)
+        cos, sin = (np.interp(rays, rays[known], f(angle[known]), period=detection.n_azimuths)
+                    for f in (np.cos, np.sin))
+        angle = np.arctan2(sin, cos)
     return angle
 
 

@@ -217,18 +217,7 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
     fit, second = _optional(_nearer_nominal, (fit, ""), detection, fit, settings)
-    warning, infeasible, fallback = "", False, None
-    if fit.ok and settings.oval_run:
-        fallback = CircleFallback(replace(fit, ring=None), OVAL_POSE_WARNING, True)
-    elif fit.ok and settings.body is not None:
-        clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section)
-                        for h in fit.hypotheses)
-        if clearance < -INFEASIBLE_SIGMAS * max(clearance_sigma_mm(h, settings.body)
-                                                for h in fit.hypotheses):
-            infeasible = True
-            warning = BODY_WARNING.format(clearance=-clearance)
-            if settings.oval_start:
-                fallback = CircleFallback(replace(fit, ring=None), warning, False)
+    warning, infeasible, fallback = _body_check(fit, settings)
     # where the ring leaves its section: on the ring's own fit (a circle fallback keeps it)
     departures = _optional(_departures, (), detection, fit, settings)
     found = [d for d in departures if d is not None]
@@ -244,6 +233,23 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
                       body_infeasible=infeasible and fit.model == "circle",
                       circle_fallback=fallback, departures=departures)
     return frame.with_warning(notes)
+
+
+def _body_check(fit: PoseFit, settings: PoseSettings) -> tuple[str, bool, CircleFallback | None]:
+    """(warning, whether the declared body can hold neither hypothesis, the circle fit
+    an oval start replaces): an oval run's frames and, with ``oval_start``, those the
+    body cannot hold start as ovals at tilt 0 (:class:`PoseSettings`)."""
+    if fit.ok and settings.oval_run:
+        return "", False, CircleFallback(replace(fit, ring=None), OVAL_POSE_WARNING, True)
+    if not fit.ok or settings.body is None:
+        return "", False, None
+    clearance = max(settings.body.clearance_mm(h.pose, h.pipe_section) for h in fit.hypotheses)
+    if clearance >= -INFEASIBLE_SIGMAS * max(clearance_sigma_mm(h, settings.body)
+                                             for h in fit.hypotheses):
+        return "", False, None
+    warning = BODY_WARNING.format(clearance=-clearance)
+    return warning, True, (CircleFallback(replace(fit, ring=None), warning, False)
+                           if settings.oval_start else None)
 
 
 def _optional(step: Callable[..., T], otherwise: T, *args: object) -> T:

@@ -439,8 +439,9 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
                                                                   tmp_path: Path) -> None:
     """The mask ``run`` finds beside the pose pass is the one the mosaic stage finds on
     its own: both sample every pair with an LED frame, posed or not (as ``pipestitch
-    mask`` does); a mask named in probe.toml or frames read in order (a video) leave it
-    to the mosaic stage."""
+    mask`` does); frames read in order (a video) leave it to the mosaic stage; a mask
+    named in probe.toml is taken as it is, the frames still sampled for their noise and
+    the sensor's stuck pixels."""
     settings, timer = MosaicSettings(), StageTimer()
     ds = open_dataset(dataset)
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -470,8 +471,11 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
     declared = read_mask(named, open_dataset(named).config)
     assert declared is not None
     with ThreadPoolExecutor(max_workers=1) as pool:
-        assert _occluders_ahead(pool, open_dataset(named), settings, timer, False,
-                                declared) is None
+        # the named mask is the mask; the frames still give the noise and stuck pixels
+        sample = _occluders_ahead(pool, open_dataset(named), settings, timer, False,
+                                  declared).result()
+    assert sample.occluded is declared
+    assert sample.noise is not None and [len(d) for d in sample.defects] == [0, 0]
 
 
 def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:

@@ -483,23 +483,23 @@ def run_dataset(root: str | Path, out: str | Path, *, settings: MosaicSettings |
 def _occluders_ahead(pool: ThreadPoolExecutor, dataset: Dataset, settings: MosaicSettings,
                      timer: StageTimer, in_order: bool, declared: np.ndarray | None,
                      ) -> Future[LedSample] | None:
-    """The occluder mask and the LED frames' noise model (:func:`sample_led`), found from
-    the LED frames while the poses are fitted (they need no pose, and the pose pass's two
-    workers leave them a share of the machine instead of a stage of their own on one core
-    afterwards).
+    """The occluder mask (probe.toml's when it names one: ``declared``, as read), the
+    sensor's stuck pixels and the LED frames' noise model (:func:`sample_led`), found
+    from the LED frames while the poses are fitted (they need no pose, and the pose
+    pass's two workers leave them a share of the machine instead of a stage of their own
+    on one core afterwards).
 
-    None where there is nothing to find or the mosaic stage finds it itself: a mask
-    named in probe.toml (``declared``, as read), no LED frames, or frames read
-    ``in_order`` (a video's one decoder: reading frames spread along the run would make
-    the pose pass seek back each time).
+    None where there is nothing to find or the mosaic stage finds it itself: no LED
+    frames, or frames read ``in_order`` (a video's one decoder: reading frames spread
+    along the run would make the pose pass seek back each time).
     """
-    if in_order or not dataset.has_led or declared is not None:
+    if in_order or not dataset.has_led:
         return None
     frames = led_frames(dataset)
     if not frames:
         return None
     return pool.submit(sample_led, dataset, frames, settings.reference_frames, timer,
-                       settings.workers)
+                       settings.workers, occluded=declared)
 
 
 def _mosaic_or_reason(dataset: Dataset, views: dict[int, FrameView], settings: MosaicSettings,

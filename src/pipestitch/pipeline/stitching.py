@@ -311,11 +311,14 @@ class LedSample(NamedTuple):
 
 
 def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: StageTimer,
-               workers: int, *, with_noise: bool = True) -> LedSample:
-    """Occluder mask (:func:`pipestitch.mosaic.occluders.occluder_mask`) from up to
-    ``count`` readable LED frames spread over ``frames``, and the frames' noise model
+               workers: int, *, with_noise: bool = True,
+               occluded: np.ndarray | None = None) -> LedSample:
+    """Occluder mask (:func:`pipestitch.mosaic.occluders.occluder_mask`; ``occluded``
+    when probe.toml names one) and the sensor's stuck pixels
+    (:func:`pipestitch.mosaic.occluders.defect_pixels`) from up to ``count`` readable LED
+    frames spread over ``frames``, and the frames' noise model
     (:func:`pipestitch.mosaic.noise.estimate_noise`) from ``NOISE_FRAMES`` of the same
-    frames (None unless ``with_noise``): each frame is decoded once for both."""
+    frames (None unless ``with_noise``): each frame is decoded once for all."""
     def read(i: int) -> np.ndarray | None:
         try:
             with timer("decode"):
@@ -332,7 +335,8 @@ def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: Stage
     if not leds:
         raise StageError("no LED frame could be read")
     with timer("occluders"):
-        occluded = occluder_mask(leds, workers=workers)
+        if occluded is None:
+            occluded = occluder_mask(leds, workers=workers)
         rows, cols = defect_pixels(leds, occluded)
         seen = ~occluded[rows, cols]   # those the mask takes are never read
         defects = (rows[seen], cols[seen])

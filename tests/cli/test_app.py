@@ -225,7 +225,6 @@ def test_simulate_refuses_a_folder_with_frames(small_dataset: Path) -> None:
 
 def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
         small_dataset: Path, tmp_path: Path, monkeypatch) -> None:
-    import pipestitch.pipeline.run as run_module
     import pipestitch.pipeline.stitching as stitching
 
     data = tmp_path / "ds"
@@ -236,16 +235,15 @@ def test_mask_writes_the_occluders_found_and_a_run_uses_a_declared_mask(
     assert mask.shape == (1024, 1224) and set(np.unique(mask)) <= {0, 255}
     # the lens rim, the mirror mount and the arm: a real share of the image, not all of it
     assert 0.2 < float(np.mean(mask == 0)) < 0.6
-    # named in probe.toml, the mask is used as it is: nothing is searched for
+    # named in probe.toml, the mask is used as it is: no occluder is searched for (the
+    # frames are still sampled for their noise and the sensor's stuck pixels)
     text = (data / "probe.toml").read_text().replace("[pipe]", 'mask = "mask.png"\n\n[pipe]')
     (data / "probe.toml").write_text(text)
 
     def no_search(*args, **kwargs):
         raise AssertionError("the declared mask was not used")
 
-    # neither the mosaic stage nor the run's search beside the pose pass
-    monkeypatch.setattr(stitching, "sample_led", no_search)
-    monkeypatch.setattr(run_module, "sample_led", no_search)
+    monkeypatch.setattr(stitching, "occluder_mask", no_search)
     result = CliRunner().invoke(app, ["run", str(data), "--out", str(tmp_path / "out"),
                                       "--quiet"])
     assert result.exit_code == 0, result.output

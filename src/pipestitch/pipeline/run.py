@@ -340,6 +340,40 @@ def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],
     return out_frames, out_choices
 
 
+UNWRAP_RADIUS_WARNING = ("part of this frame's strip lies where the wall's radius (from the "
+                         "rings there) differs from its own ring's by up to {off:+.1f} %: "
+                         "the strip, its links and its z are scaled by up to about as much "
+                         "(each strip is unwrapped onto its ring's section)")
+
+
+def _wall_off_the_ring(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
+                       window_mm: tuple[float, float], plane_distance_mm: float,
+                       tolerance_pct: float) -> list[FramePose]:
+    """Frames whose strip (``window_mm`` about their camera's z) reaches wall whose radius,
+    measured by the rings of the frames there, differs from their own ring's by more
+    than ``tolerance_pct`` % (a reducer, a long dent), warned: each strip is unwrapped
+    onto its own ring's section, so its axial scale, the registration's steps and z are
+    off by about as much there."""
+    rings = [(z[f.index] + plane_distance_mm, f.fit.hypotheses[c.chosen].radius_mm)
+             for f, c in zip(frames, choices, strict=True)
+             if f.fit.ok and c.chosen is not None and math.isfinite(z.get(f.index, math.nan))]
+    if len(rings) < 2:
+        return frames
+    ring_z, ring_r = np.array(rings).T
+    out = []
+    for frame, choice in zip(frames, choices, strict=True):
+        zi = z.get(frame.index, math.nan)
+        if frame.fit.ok and choice.chosen is not None and math.isfinite(zi):
+            own = frame.fit.hypotheses[choice.chosen].radius_mm
+            there = ring_r[(ring_z >= zi + window_mm[0]) & (ring_z <= zi + window_mm[1])]
+            off = 100.0 * (there - own) / own
+            worst = float(off[np.argmax(np.abs(off))]) if off.size else 0.0
+            if abs(worst) > tolerance_pct:
+                frame = frame.with_warning(UNWRAP_RADIUS_WARNING.format(off=worst))
+        out.append(frame)
+    return out
+
+
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
                   roll: dict[int, float], plane_distance_mm: float, nominal_mm: float,
                   tolerance_pct: float) -> list[list[object]]:
@@ -579,6 +613,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         z, roll = dict(dataset.odometry_mm or {}), dict(imu)
     frames, choices = _unrefined_ovals_back(frames, choices,
                                             result.views if result is not None else {})
+    if result is not None:
+        frames = _wall_off_the_ring(frames, choices, z, result.window_mm,
+                                    dataset.config.laser.plane_distance_mm, tolerance_pct)
     rows = _frame_rows(frames, choices, z)
     tail = ThreadPoolExecutor(max_workers=1)
     try:

@@ -8,7 +8,7 @@ import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose.departure import ring_departure
+from pipestitch.pose.departure import ring_departures
 from pipestitch.pose.fit import LaserPlane, fit_pose
 from pipestitch.pose.ring import RingDetection
 
@@ -46,8 +46,8 @@ def _departure(det: RingDetection, cam) -> tuple[object, object]:
     fit = fit_pose(det, cam, D, nominal_radius_mm=RADIUS)
     assert fit.ok
     h = fit.hypotheses[0]
-    return ring_departure(det, h.pose, h.pipe_section, cam, LaserPlane.of(D),
-                          fit.ring.noise_mm), h
+    return ring_departures(det, [(h.pose, h.pipe_section)], cam, LaserPlane.of(D),
+                           fit.ring.noise_mm)[0], h
 
 
 @pytest.mark.parametrize("pose", [Pose.from_degrees(), Pose.from_degrees(2.0, -1.5, 3.0, -2.0)])

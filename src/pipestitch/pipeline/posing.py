@@ -42,7 +42,7 @@ from pipestitch.mosaic.photometric import (
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
-from pipestitch.pose.departure import MIN_EXTENT_DEG, Departure, ring_departure
+from pipestitch.pose.departure import MIN_EXTENT_DEG, Departure, ring_departures
 from pipestitch.pose.fit import LaserPlane, PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import (
     RingDetection,
@@ -269,15 +269,15 @@ DEPARTURE_WARNING = ("the ring leaves the pipe section by {d.depth_mm:+.2f} mm o
 
 def _departures(detection: RingDetection, fit: PoseFit, settings: PoseSettings
                 ) -> tuple[Departure | None, ...]:
-    """:func:`pipestitch.pose.departure.ring_departure` of each hypothesis; () where the
+    """:func:`pipestitch.pose.departure.ring_departures` of each hypothesis; () where the
     fit left too few rays with a candidate unexplained for one (the common case: a
     frame whose ring follows its section is not looked at twice)."""
     if not fit.ok or fit.ring is None or (
             detection.coverage - fit.coverage < MIN_EXTENT_DEG / 360.0):
         return ()
     plane = LaserPlane.of(settings.plane_distance_mm, settings.plane_normal)
-    found = tuple(ring_departure(detection, h.pose, h.pipe_section, settings.camera, plane,
-                                 fit.ring.noise_mm) for h in fit.hypotheses)
+    found = ring_departures(detection, [(h.pose, h.pipe_section) for h in fit.hypotheses],
+                            settings.camera, plane, fit.ring.noise_mm)
     return found if any(d is not None for d in found) else ()
 
 

@@ -354,24 +354,20 @@ def _wall_off_the_ring(frames: list[FramePose], choices: list[Choice], z: dict[i
     than ``tolerance_pct`` % (a reducer, a long dent), warned: each strip is unwrapped
     onto its own ring's section, so its axial scale, the registration's steps and z are
     off by about as much there."""
-    rings = [(z[f.index] + plane_distance_mm, f.fit.hypotheses[c.chosen].radius_mm)
-             for f, c in zip(frames, choices, strict=True)
-             if f.fit.ok and c.chosen is not None and math.isfinite(z.get(f.index, math.nan))]
-    if len(rings) < 2:
+    posed = [(f.index, h.radius_mm) for f, _, h in _chosen(frames, choices)
+             if math.isfinite(z.get(f.index, math.nan))]
+    if len(posed) < 2:
         return frames
-    ring_z, ring_r = np.array(rings).T
-    out = []
-    for frame, choice in zip(frames, choices, strict=True):
-        zi = z.get(frame.index, math.nan)
-        if frame.fit.ok and choice.chosen is not None and math.isfinite(zi):
-            own = frame.fit.hypotheses[choice.chosen].radius_mm
-            there = ring_r[(ring_z >= zi + window_mm[0]) & (ring_z <= zi + window_mm[1])]
-            off = 100.0 * (there - own) / own
-            worst = float(off[np.argmax(np.abs(off))]) if off.size else 0.0
-            if abs(worst) > tolerance_pct:
-                frame = frame.with_warning(UNWRAP_RADIUS_WARNING.format(off=worst))
-        out.append(frame)
-    return out
+    index, radius = np.array(posed).T
+    ring_z = np.array([z[int(i)] for i in index]) + plane_distance_mm
+    worst: dict[int, float] = {}
+    for i, own in posed:
+        there = radius[(ring_z >= z[i] + window_mm[0]) & (ring_z <= z[i] + window_mm[1])]
+        off = 100.0 * (there - own) / own
+        if off.size and np.max(np.abs(off)) > tolerance_pct:
+            worst[i] = float(off[np.argmax(np.abs(off))])
+    return [f.with_warning(UNWRAP_RADIUS_WARNING.format(off=worst[f.index]))
+            if f.index in worst else f for f in frames]
 
 
 def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, float],

@@ -94,7 +94,6 @@ __all__ = ["UNWRAP_MODES", "ChainLink", "FrameView", "LedSample", "MosaicResult"
 
 UNWRAP_MODES = ("ours", "centred", "polar")
 Defects = tuple[np.ndarray, ...]   # a sensor's hot and dead pixels: (rows, cols), or ()
-NO_DEFECTS: Defects = ()
 LINK_SPAN = 2          # each frame is registered to this many following frames
 
 
@@ -307,7 +306,7 @@ class LedSample(NamedTuple):
 
     occluded: np.ndarray       # the occluder mask (True: never the wall)
     noise: NoiseModel | None   # the frames' noise model (None: too few blocks to fit one)
-    defects: Defects = NO_DEFECTS  # the sensor's hot and dead pixels (rows, cols)
+    defects: Defects = ()          # the sensor's hot and dead pixels (rows, cols)
 
 
 def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: StageTimer,
@@ -490,21 +489,20 @@ def _better_hypothesis(found: list[list[tuple[Link, _Candidate]]]) -> int | None
     return best if scores[best] >= MIRROR_RATIO * scores[1 - best] else None
 
 
-def _chain_links(recent_alt: Sequence[tuple[int, _Candidate | None, bool]], alt: _Candidate,
-                 chosen: Sequence[tuple[Link, _Candidate]], grid: WallGrid, i: int,
-                 switched: bool, links: Sequence[Link],
-                 odometry_mm: Mapping[int, float] | None) -> list[ChainLink]:
-    """Frame ``i``'s :class:`ChainLink` with each recent ambiguous frame: its other
-    hypothesis ``alt`` registered to theirs, beside its ``chosen`` links."""
-    out = []
-    for j, prev_alt, prev_switched in recent_alt:
-        if prev_alt is None or j != i - 1:   # the stretch test takes consecutive links
-            continue
-        mirrored = _link(prev_alt, alt, grid, j, i, predict_motion(j, i, links, odometry_mm))
-        response = next((ln.response for ln, _ in chosen if ln.i == j), 0.0)
-        out.append(ChainLink(j, i, response, mirrored.response if mirrored else 0.0,
-                             prev_switched, switched))
-    return out
+def _chain_link(previous: tuple[int, _Candidate | None, bool] | None, alt: _Candidate,
+                chosen: Sequence[tuple[Link, _Candidate]], grid: WallGrid, i: int,
+                switched: bool, links: Sequence[Link],
+                odometry_mm: Mapping[int, float] | None) -> ChainLink | None:
+    """Frame ``i``'s :class:`ChainLink` with the frame just before it, when that one too
+    was left ambiguous (``previous``: its index, other hypothesis, whether switched):
+    the two other hypotheses registered, beside their ``chosen`` link."""
+    if previous is None or previous[1] is None or previous[0] != i - 1:
+        return None
+    j, prev_alt, prev_switched = previous
+    mirrored = _link(prev_alt, alt, grid, j, i, predict_motion(j, i, links, odometry_mm))
+    response = next((ln.response for ln, _ in chosen if ln.i == j), 0.0)
+    return ChainLink(j, i, response, mirrored.response if mirrored else 0.0, prev_switched,
+                     switched)
 
 
 def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
@@ -547,8 +545,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
     out = _Pass1()
     history = list(seed)   # the links the motion prior reads: seed, then this pass's
     recent: deque[tuple[int, _Candidate]] = deque(maxlen=LINK_SPAN)
-    # the other hypothesis of those of them the pose step left ambiguous (for ChainLink)
-    recent_alt: deque[tuple[int, _Candidate | None, bool]] = deque(maxlen=LINK_SPAN)
+    # the last frame's other hypothesis, if the pose step left it ambiguous (ChainLink)
+    previous_alt: tuple[int, _Candidate | None, bool] | None = None
     order = sorted(views)
     # the flat field's data of the frames it will take, not all (a
     # skipped frame only thins them: still evenly spaced, at most PROFILE_FRAMES)
@@ -578,9 +576,10 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             alt = reg.candidates[1 - (best or 0)] if len(reg.candidates) > 1 else None
             if alt is not None:
                 with timer("register"):
-                    out.chains.extend(_chain_links(recent_alt, alt, found[best or 0], own,
-                                                   reg.index, best == 1, history,
-                                                   dataset.odometry_mm))
+                    chain = _chain_link(previous_alt, alt, found[best or 0], own, reg.index,
+                                        best == 1, history, dataset.odometry_mm)
+                if chain is not None:
+                    out.chains.append(chain)
             sampled = len(out.done) % level_step == 0
             for link, prev in found[best or 0]:
                 out.links.append(link)
@@ -594,7 +593,7 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
             while len(flats) > 2 * max(1, workers):
                 out.add_flat(*flats.popleft().result())
             recent.append((reg.index, cand))
-            recent_alt.append((reg.index, alt, best == 1))
+            previous_alt = (reg.index, alt, best == 1)
             out.done.append(reg.index)
         out.patches.extend(f.result() for f in pending)
         for f in flats:

@@ -18,6 +18,7 @@ angle of the departure differs (each hypothesis' own world frame).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +28,7 @@ from pipestitch.geometry import PipeSection, Pose
 from pipestitch.pose.fit import GATE_SIGMAS, LaserPlane, plane_points, plane_to_world
 from pipestitch.pose.ring import RingDetection
 
-__all__ = ["BAND_RADII", "MIN_DEPTH_GATES", "MIN_EXTENT_DEG", "Departure", "ring_departure"]
+__all__ = ["BAND_RADII", "MIN_DEPTH_GATES", "MIN_EXTENT_DEG", "Departure", "ring_departures"]
 
 BAND_RADII = 0.25      # candidates further than this share of the radius are not the wall
 MIN_EXTENT_DEG = 6.0   # narrower stretches are not reported (a hole's edge: the mosaic's)
@@ -64,17 +65,18 @@ class Departure:
     max_radius_mm: float
 
 
-def ring_departure(detection: RingDetection, pose: Pose, section: PipeSection,
-                   camera: CameraModel, plane: LaserPlane, noise_mm: float,
-                   ) -> Departure | None:
-    """The ring's largest departure from ``section`` under ``pose``, or None.
+def ring_departures(detection: RingDetection, hypotheses: Sequence[tuple[Pose, PipeSection]],
+                    camera: CameraModel, plane: LaserPlane, noise_mm: float,
+                    ) -> tuple[Departure | None, ...]:
+    """The ring's largest departure from each hypothesis' section, or None for one.
 
     Parameters
     ----------
     detection : RingDetection
         The frame's ring candidates (:func:`pipestitch.pose.ring.detect_ring`).
-    pose, section : Pose, PipeSection
-        A fitted hypothesis and its section.
+    hypotheses : sequence of (Pose, PipeSection)
+        Fitted hypotheses and their sections (the candidates are put on the laser plane
+        once for all of them).
     camera : CameraModel
         Camera model.
     plane : LaserPlane
@@ -83,11 +85,22 @@ def ring_departure(detection: RingDetection, pose: Pose, section: PipeSection,
         The fit's point noise on the plane: departures beyond ``GATE_SIGMAS`` of it (the
         fit's inlier gate) count.
     """
+    uv, valid = plane_points(detection.pixels, camera, plane.distance_mm, plane.normal)
+    if len(uv) == 0:
+        return tuple(None for _ in hypotheses)
+    out = []
+    for pose, section in hypotheses:
+        a, c = plane_to_world(pose, plane)
+        xy = uv @ np.asarray(a).T + np.asarray(c)
+        out.append(_departure(detection, xy, valid, section, noise_mm))
+    return tuple(out)
+
+
+def _departure(detection: RingDetection, xy: np.ndarray, valid: np.ndarray,
+               section: PipeSection, noise_mm: float) -> Departure | None:
+    """:func:`ring_departures` of one hypothesis: its candidates' world ``xy``."""
     n_az = detection.n_azimuths
     min_rays = max(3, math.ceil(MIN_EXTENT_DEG / 360.0 * n_az))
-    xy, valid = _world_xy(detection, pose, camera, plane)
-    if len(xy) == 0:
-        return None
     delta = _ray_departures(detection, xy, valid, section)
     smooth = _running_median(delta, SMOOTH_RAYS)
     gate = GATE_SIGMAS * noise_mm
@@ -108,14 +121,6 @@ def ring_departure(detection: RingDetection, pose: Pose, section: PipeSection,
     wall = _section_radius(section, angle) + np.where(departing, smooth, 0.0)
     return Departure(float(smooth[extremes[k]]), theta, 360.0 * len(rays[k]) / n_az,
                      float(np.nanmin(wall)), float(np.nanmax(wall)))
-
-
-def _world_xy(detection: RingDetection, pose: Pose, camera: CameraModel, plane: LaserPlane
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """World (x, y) of every candidate put on the laser plane, and which are valid."""
-    uv, valid = plane_points(detection.pixels, camera, plane.distance_mm, plane.normal)
-    a, c = plane_to_world(pose, plane)
-    return uv @ np.asarray(a).T + np.asarray(c), valid
 
 
 def _ray_departures(detection: RingDetection, xy: np.ndarray, valid: np.ndarray,

@@ -122,6 +122,14 @@ def test_a_good_run_replaces_the_set_and_keeps_the_users_files(dataset: Path,
     assert not _staging(previous).exists()
 
 
+def test_every_output_a_run_writes_is_one_a_later_run_replaces(previous: Path) -> None:
+    # A name missing from RUN_OUTPUTS outlives a later run that no longer writes it.
+    written = {p.name for p in previous.iterdir()
+               if not p.name.startswith(".") and p.name != "my_notes.txt"}
+    assert {"poses.csv", "observations.txt", "observations.json"} <= written
+    assert written <= set(RUN_OUTPUTS), written - set(RUN_OUTPUTS)
+
+
 def test_ctrl_c_while_outputs_are_put_in_place_waits_for_the_whole_set(tmp_path: Path,
                                                                       monkeypatch) -> None:
     out = tmp_path / "out"

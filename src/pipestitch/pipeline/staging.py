@@ -50,7 +50,8 @@ __all__ = ["JOURNAL", "LOCK", "RUN_OUTPUTS", "STAGING_PREFIX", "OutputBusy", "St
 RUN_OUTPUTS = ("poses.csv", "profile.csv", "defects.csv", "mosaic.png", "mosaic.json",
                "mosaic.ome.tif", "mosaic.tif", "tiles", "viewer.html", "report.html",
                "observations.csv", "standards.json", "ovality.csv", "problems.csv",
-               "review.html")
+               "review.html", "observations.txt", "observations_pacp.csv",
+               "observations.json")
 # What a new run reads of the previous one in OUT (the user's observation rows).
 CARRIED = ("observations.csv", "standards.json")
 STAGING_PREFIX = ".pipestitch-partial-"

@@ -49,7 +49,7 @@ import numpy as np
 import tifffile
 
 from pipestitch._runtime.threads import opencv_threads
-from pipestitch.geometry import PipeSection, Pose, WallGrid
+from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS, open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
 from pipestitch.io.outputs import mosaic_from_uint8, mosaic_to_uint8
@@ -64,6 +64,7 @@ from pipestitch.simulate.scenarios import SCENARIOS
 MODES = ("ours", "centred", "polar")
 TRUE_POSE = "true-pose"
 QUALITY_SCENARIOS = ("chart83", "corrosion", "aluminium")
+MORE_SCENARIOS = ("reducer",)   # on request (--scenarios)
 
 
 def true_wall(dataset: Path) -> WallImage:
@@ -100,13 +101,17 @@ def true_views(dataset: Path) -> tuple[dict[int, FrameView], Positions]:
     """Every frame's view from the simulator's truth (pose without roll, the true
     section turned into the frame's roll-free axes) and the true z and roll."""
     truth = read_csv_columns(dataset / "truth" / "poses.csv", TRUTH_POSE_COLUMNS)
-    pipe = json.loads((dataset / "truth" / "simulation.json").read_text())["pipe"]
+    simulation = json.loads((dataset / "truth" / "simulation.json").read_text())
+    pipe, reducer = simulation["pipe"], simulation.get("diameter_profile")
     views = {}
     for k, frame in enumerate(truth["frame"].astype(int)):
         pose = Pose.from_degrees(*(float(truth[c][k]) for c in TRUTH_POSE_COLUMNS[1:5]))
         section = PipeSection(pipe["a_mm"], pipe["b_mm"],
                               float(np.deg2rad(pipe["angle_deg"] - truth["roll_deg"][k])))
-        views[int(frame)] = FrameView(pose, section)
+        wall = None if reducer is None else RadiusProfile(
+            np.array(reducer["z_mm"]) - truth["z_mm"][k],
+            np.array(reducer["diameter_mm"]) / (2 * section.mean_radius_mm))
+        views[int(frame)] = FrameView(pose, section, profile=wall)
     n = int(truth["frame"].max()) + 1
     z, roll = np.full(n, np.nan), np.full(n, np.nan)
     z[truth["frame"].astype(int)] = truth["z_mm"]
@@ -324,9 +329,10 @@ def main() -> None:
     parser.add_argument("--sizes", nargs="+", choices=("half", "full"), default=["half", "full"],
                         help="frame sizes (default both; the full-size quality table is "
                              "chart83's)")
-    parser.add_argument("--scenarios", nargs="+", choices=QUALITY_SCENARIOS,
+    parser.add_argument("--scenarios", nargs="+", choices=QUALITY_SCENARIOS + MORE_SCENARIOS,
                         default=list(QUALITY_SCENARIOS),
-                        help="datasets of the quality part (default all)")
+                        help="datasets of the quality part (default chart83, corrosion, "
+                             "aluminium; reducer on request)")
     parser.add_argument("--full-scenarios", nargs="+", choices=QUALITY_SCENARIOS,
                         default=["chart83"],
                         help="datasets of the full-size quality table (default chart83)")

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from pipestitch.geometry import (
     PipeSection,
     Pose,
+    RadiusProfile,
     laser_ring,
     ray_wall_distance,
     rays_to_wall,
@@ -136,3 +137,29 @@ def test_theta_z_round_trip() -> None:
     expected /= np.linalg.norm(expected, axis=1, keepdims=True)
     np.testing.assert_allclose(n[:, :2], expected, atol=1e-12)
     np.testing.assert_allclose(n[:, 2], 0.0)
+
+
+def test_rays_meet_a_wall_whose_radius_changes_along_the_pipe() -> None:
+    # A reducer (scale 1 -> 0.9 between z 20 and 40 mm) in an oval pipe: every hit lies on
+    # the scaled section at its own z; a profile of one scale is the plain section.
+    section = PipeSection.oval(65.0, 0.04, angle=0.3)
+    profile = RadiusProfile(np.array([0.0, 20.0, 40.0]), np.array([1.0, 1.0, 0.9]))
+    dirs = np.random.default_rng(0).normal(size=(20000, 3))
+    origin = np.array([3.0, -2.0, 25.0])
+    s = ray_wall_distance(origin, dirs, section, profile)
+    hit = origin + s[:, None] * dirs
+    ok = np.isfinite(s)
+    assert ok.mean() > 0.99 and np.all(s[ok] > 0)
+    theta = np.arctan2(hit[ok, 1], hit[ok, 0])
+    wall = section.radius_at(theta) * profile.at(hit[ok, 2])
+    assert np.max(np.abs(np.hypot(hit[ok, 0], hit[ok, 1]) - wall)) < 1e-9
+    flat = RadiusProfile(np.array([0.0]), np.array([1.0]))
+    np.testing.assert_array_equal(ray_wall_distance(origin, dirs, section, flat),
+                                  ray_wall_distance(origin, dirs, section))
+
+
+@pytest.mark.parametrize("z, scale", [([0.0, 0.0], [1.0, 1.0]), ([0.0, 1.0], [1.0, 0.0]),
+                                      ([0.0, 1.0], [1.0]), ([1.0, 0.0], [1.0, 1.0])])
+def test_a_radius_profile_refuses_what_is_no_wall(z, scale) -> None:
+    with pytest.raises(ValueError, match="RadiusProfile"):
+        RadiusProfile(np.array(z), np.array(scale))

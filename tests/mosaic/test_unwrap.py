@@ -11,7 +11,7 @@ import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.camera.frames import to_grey
-from pipestitch.geometry import PipeSection, Pose, WallGrid
+from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.mosaic.unwrap import (
     default_mm_per_px,
     polar_unwrap_maps,
@@ -75,6 +75,30 @@ def test_offset_tilted_frame_needs_its_pose(renderer: Renderer, wall) -> None:
     # so the bound is the mosaic target (SSIM 0.8), not the centred frame's.
     assert ssim > 0.8 and rms < 0.05
     assert rms_c > 5 * rms and ssim_c < ssim - 0.2
+
+
+def test_a_reducer_in_the_strip_unwraps_onto_the_wall_the_profile_gives(wall) -> None:
+    # The wall narrows 6 % between z 50 and 70 mm: the frame at z 40 sees it 10-30 mm
+    # ahead. Unwrapped onto its ring's section alone, that part of the strip is
+    # stretched; onto the profile (in the frame's own z), it lies where the wall is.
+    grid, albedo = wall
+    reducer = RadiusProfile(np.array([50.0, 70.0]), np.array([1.0, 0.94]))
+    narrowing = Renderer(CAMERA, PipeSection.circle(2 * R),
+                         WallTexture(albedo=albedo, grid=grid), 16.0, Optics(), profile=reducer)
+    pose = Pose.from_degrees(2.0, -1.0, 3.0, -2.0, 10.0, 40.0)
+    _, led = narrowing.render_pair(pose, np.random.default_rng(0))
+    strip_grid = WallGrid.window(R, default_mm_per_px(CAMERA, R), 5.0, 30.0)
+    scores = []
+    for profile in (reducer.shifted(pose.z_mm), None):
+        maps = unwrap_maps(CAMERA, pose, PipeSection(R), strip_grid, step=4, with_quality=True,
+                           profile=profile)
+        strip = unwrap_with_quality(to_grey(led), maps)
+        image = np.where(strip.weight > 0, strip.values / strip.shading, np.nan)
+        scores.append(score_mosaic(WallImage(image=image, grid=strip_grid), _truth(wall),
+                                   pose.z_mm, np.rad2deg(pose.roll)))
+    onto_wall, onto_section = scores
+    assert onto_wall.geometric_rms_mm < 0.05 and onto_wall.ssim > 0.8
+    assert onto_section.geometric_rms_mm > 5 * onto_wall.geometric_rms_mm
 
 
 def test_coarse_maps_match_exact_projection() -> None:

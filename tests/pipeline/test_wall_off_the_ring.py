@@ -32,14 +32,18 @@ def test_strips_reaching_a_wider_wall_are_warned(posed) -> None:
     frames, choices = posed
     z = {f.index: 5.0 * f.index for f in frames}     # rings at z + 16 mm
     window = (-14.0, 34.0)                           # each strip about its camera's z
-    assert not any(f.warning for f in _wall_off_the_ring(frames, choices, z, window, 16.0, 1.0))
+    assert not any(f.warning for f in _wall_off_the_ring(frames, choices, z, window, 16.0, 1.0,
+                                                            set()))
     # frame 5's ring (z 41 mm) 3 % wider: the strips reaching z 41 mm are frames 2-4
     # (camera z 10-20 mm) and frame 5 itself sees the others 3 % narrower
-    warned = _wall_off_the_ring(_widened(frames, choices, 5, 1.03), choices, z, window, 16.0,
-                                1.0)
+    wider = _widened(frames, choices, 5, 1.03)
+    warned = _wall_off_the_ring(wider, choices, z, window, 16.0, 1.0, set())
     assert [f.index for f in warned if "strip lies where" in f.warning] == [2, 3, 4, 5]
     assert "+3.0 %" in warned[2].warning and "-2.9 %" in warned[5].warning
     # within the tolerance: nothing
     small = _wall_off_the_ring(_widened(frames, choices, 5, 1.005), choices, z, window, 16.0,
-                               1.0)
+                               1.0, set())
     assert not any(f.warning for f in small)
+    # strips unwrapped onto the wall the rings measured (mosaic/wall_profile.py): not warned
+    profiled = _wall_off_the_ring(wider, choices, z, window, 16.0, 1.0, {2, 3})
+    assert [f.index for f in profiled if "strip lies where" in f.warning] == [4, 5]

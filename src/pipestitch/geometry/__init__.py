@@ -7,7 +7,7 @@ May import ``camera``. Must not import any stage, ``io``, ``pipeline`` or ``cli`
 from __future__ import annotations
 
 from pipestitch.geometry.body import BodyEnvelope
-from pipestitch.geometry.cylinder import PipeSection, theta_z_from_points
+from pipestitch.geometry.cylinder import PipeSection, RadiusProfile, theta_z_from_points
 from pipestitch.geometry.intersect import (
     laser_ring,
     plane_basis,
@@ -22,6 +22,7 @@ __all__ = [
     "BodyEnvelope",
     "PipeSection",
     "Pose",
+    "RadiusProfile",
     "WallGrid",
     "laser_ring",
     "plane_basis",

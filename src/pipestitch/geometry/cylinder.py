@@ -11,7 +11,42 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PipeSection", "theta_z_from_points"]
+__all__ = ["PipeSection", "RadiusProfile", "theta_z_from_points"]
+
+
+@dataclass(frozen=True)
+class RadiusProfile:
+    """A wall whose section changes size along the pipe (a reducer, a long dent): the
+    section is scaled about the axis by ``scale`` at axial positions ``z_mm``,
+    linearly in between and held at the end values beyond them.
+
+    Attributes
+    ----------
+    z_mm : numpy.ndarray
+        Increasing axial positions (mm; world z, or a frame's own z where a caller says).
+    scale : numpy.ndarray
+        Wall radius there over the section's (1: the section itself).
+    """
+
+    z_mm: np.ndarray
+    scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        z, s = np.asarray(self.z_mm, float), np.asarray(self.scale, float)
+        if (z.ndim != 1 or z.shape != s.shape or z.size == 0 or not np.all(np.isfinite(z))
+                or not np.all(np.isfinite(s)) or np.any(s <= 0) or np.any(np.diff(z) <= 0)):
+            raise ValueError("RadiusProfile: expected increasing finite z and positive "
+                             f"scales of one length, got {z!r}, {s!r}")
+        object.__setattr__(self, "z_mm", z)
+        object.__setattr__(self, "scale", s)
+
+    def at(self, z_mm: np.ndarray | float) -> np.ndarray:
+        """The scale at ``z_mm``."""
+        return np.interp(z_mm, self.z_mm, self.scale)
+
+    def shifted(self, dz_mm: float) -> RadiusProfile:
+        """The same wall with z measured from ``dz_mm`` (its z minus ``dz_mm``)."""
+        return RadiusProfile(self.z_mm - dz_mm, self.scale)
 
 
 @dataclass(frozen=True, slots=True)

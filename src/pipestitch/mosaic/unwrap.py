@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel
-from pipestitch.geometry import PipeSection, Pose, WallGrid
+from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
     contrast_of,
@@ -39,14 +39,16 @@ __all__ = ["Strip", "UnwrapMaps", "default_mm_per_px", "local_contrast",
            "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
-def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose,
-                 step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
+                 profile: RadiusProfile | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nodes of every ``step``-th row and column (the last ones always included).
 
     Returns the wall points of the rows' ring at z = 0 (rows, 3), the columns' z
     (cols,) and the nodes in the probe frame (rows, cols, 3). The wall's section
-    depends on theta alone and the world-to-probe map is affine, so the ring is
-    mapped once and each column adds z times the pipe axis seen from the probe (no
+    depends on theta alone (scaled about the axis by ``profile`` at each column's z)
+    and the world-to-probe map is affine, so the ring is mapped once and each column
+    scales it about the axis and adds z times the pipe axis seen from the probe (no
     (N, 3) x (3, 3) product, which a multi-threaded BLAS makes costly).
     """
     n_r = -(-(grid.n_rows - 1) // step) + 1
@@ -55,7 +57,12 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose,
     z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
     ring = section.points(theta, np.zeros_like(theta))
     axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
-    return ring, z, pose.to_probe(ring)[:, None, :] + z[None, :, None] * axis
+    seen = pose.to_probe(ring)
+    if profile is None:
+        return ring, z, seen[:, None, :] + z[None, :, None] * axis
+    origin = pose.to_probe(np.zeros((1, 3)))   # the pipe axis at z = 0
+    return ring, z, (origin + profile.at(z)[None, :, None] * (seen - origin)[:, None, :]
+                     + z[None, :, None] * axis)
 
 
 @dataclass(frozen=True)
@@ -82,7 +89,8 @@ class UnwrapMaps:
 
 
 def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid, *,
-                step: int = 1, with_quality: bool = False
+                step: int = 1, with_quality: bool = False,
+                profile: RadiusProfile | None = None
                 ) -> tuple[np.ndarray, np.ndarray] | UnwrapMaps:
     """``cv2.remap`` maps (float32, (n_rows, n_cols)) from the strip to the frame.
 
@@ -99,8 +107,11 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wal
         at most, where the wall is seen closest, see the tests); 1 projects every node.
     with_quality : bool
         Also return the quality weight (an :class:`UnwrapMaps`).
+    profile : RadiusProfile, optional
+        The wall's scale of ``section`` along the grid's z (the frame's own: a
+        reducer ahead of or behind the camera); default the section everywhere.
     """
-    nodes, _ = _node_fields(camera, pose, section, grid, step, with_quality)
+    nodes, _ = _node_fields(camera, pose, section, grid, step, with_quality, profile)
     # float32 keeps pixel positions to ~1e-4 px: ample, and the maps are float32 anyway.
     # Bilinear upsampling with exact weights (cv2.resize/remap quantise them to 1/32,
     # which would cost ~0.05 px on a map that moves several pixels per coarse cell);
@@ -113,7 +124,8 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wal
 
 
 def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,
-                 step: int, with_quality: bool) -> tuple[MapFields, np.ndarray]:
+                 step: int, with_quality: bool, profile: RadiusProfile | None = None
+                 ) -> tuple[MapFields, np.ndarray]:
     """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
     nodes' column z.
 
@@ -123,7 +135,7 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
     """
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
-    ring, z, probe = _grid_points(grid, section, local, step)
+    ring, z, probe = _grid_points(grid, section, local, step, profile)
     shape = probe.shape[:2]
     px = camera.project(probe.reshape(-1, 3)).reshape(*shape, 2)
     valid = np.isfinite(px).all(axis=2)
@@ -131,7 +143,8 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
     fields = MapFields(px[..., 0], px[..., 1], valid.astype(float))
     if with_quality:
         # Smooth quantities: computed on the projected nodes, interpolated with the maps.
-        cosine, distance = _line_of_sight(local, section, ring, z)
+        scale = np.ones_like(z) if profile is None else profile.at(z)
+        cosine, distance = _line_of_sight(local, section, ring, z, scale)
         cosine = np.clip(cosine, 0, 1)
         resolution = _resolution(px[..., 0], px[..., 1]) / step
         fields = fields._replace(quality=resolution * cosine,
@@ -139,20 +152,22 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
     return fields, z
 
 
-def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray,
-                   z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray, z: np.ndarray,
+                   scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """|cos| of the angle between line of sight and wall normal, and the distance (mm).
 
-    At the wall points ``ring`` (rows, 3; at z = 0) moved to each ``z`` (cols,):
-    (rows, cols) arrays. The wall normal has no axial part, so the sight's component
-    along it depends on the row alone.
+    At the wall points ``ring`` (rows, 3; at z = 0) scaled about the axis by ``scale``
+    and moved to each ``z`` (cols,): (rows, cols) arrays. The normal is the section's
+    (no axial part: a reducer's cone, a few degrees, is left out).
     """
     centre = pose.translation_world_probe()
-    sight = ring - centre
-    along_normal = np.abs(np.sum(sight * section.normals(ring), axis=1))
-    across = sight[:, 0] ** 2 + sight[:, 1] ** 2
-    distance = np.sqrt(across[:, None] + (z - centre[2])[None, :] ** 2)
-    return along_normal[:, None] / distance, distance
+    normals = section.normals(ring)
+    radial = np.sum(ring * normals, axis=1)[:, None] * scale[None, :]
+    along_normal = np.abs(radial - (normals[:, :2] @ centre[:2])[:, None])
+    across = ((ring[:, None, 0] * scale - centre[0]) ** 2
+              + (ring[:, None, 1] * scale - centre[1]) ** 2)
+    distance = np.sqrt(across + (z - centre[2])[None, :] ** 2)
+    return along_normal / distance, distance
 
 
 def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:

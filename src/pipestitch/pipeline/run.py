@@ -14,7 +14,7 @@ import itertools
 import math
 import shutil
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -348,12 +348,13 @@ UNWRAP_RADIUS_WARNING = ("part of this frame's strip lies where the wall's radiu
 
 def _wall_off_the_ring(frames: list[FramePose], choices: list[Choice], z: dict[int, float],
                        window_mm: tuple[float, float], plane_distance_mm: float,
-                       tolerance_pct: float) -> list[FramePose]:
+                       tolerance_pct: float, profiled: Collection[int]) -> list[FramePose]:
     """Frames whose strip (``window_mm`` about their camera's z) reaches wall whose radius,
     measured by the rings of the frames there, differs from their own ring's by more
-    than ``tolerance_pct`` % (a reducer, a long dent), warned: each strip is unwrapped
-    onto its own ring's section, so its axial scale, the registration's steps and z are
-    off by about as much there."""
+    than ``tolerance_pct`` % (a reducer, a long dent), warned unless their strip was
+    unwrapped onto that wall (``profiled``: :mod:`pipestitch.mosaic.wall_profile`);
+    unwrapped onto their own ring's section, their axial scale, the registration's steps
+    and z are off by about as much there."""
     posed = [(f.index, h.radius_mm) for f, _, h in _chosen(frames, choices)
              if math.isfinite(z.get(f.index, math.nan))]
     if len(posed) < 2:
@@ -362,6 +363,8 @@ def _wall_off_the_ring(frames: list[FramePose], choices: list[Choice], z: dict[i
     ring_z = np.array([z[int(i)] for i in index]) + plane_distance_mm
     worst: dict[int, float] = {}
     for i, own in posed:
+        if i in profiled:
+            continue
         there = radius[(ring_z >= z[i] + window_mm[0]) & (ring_z <= z[i] + window_mm[1])]
         off = 100.0 * (there - own) / own
         if off.size and np.max(np.abs(off)) > tolerance_pct:
@@ -611,7 +614,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                             result.views if result is not None else {})
     if result is not None:
         frames = _wall_off_the_ring(frames, choices, z, result.window_mm,
-                                    dataset.config.laser.plane_distance_mm, tolerance_pct)
+                                    dataset.config.laser.plane_distance_mm, tolerance_pct,
+                                    {i for i, v in result.views.items() if v.profile is not None})
     rows = _frame_rows(frames, choices, z)
     tail = ThreadPoolExecutor(max_workers=1)
     try:

@@ -53,6 +53,10 @@ def write_truth(run: SyntheticRun, out: Path) -> None:
                  "angle_deg": float(np.rad2deg(run.section.angle))},
         "body": dataclasses.asdict(run.body),
     }
+    if run.profile is not None:   # the wall's mean diameter along world z (a reducer)
+        sim["diameter_profile"] = {
+            "z_mm": run.profile.z_mm.tolist(),
+            "diameter_mm": (2 * run.section.mean_radius_mm * run.profile.scale).tolist()}
     atomic_write_text(truth / "simulation.json", json.dumps(sim, indent=2))
 
 

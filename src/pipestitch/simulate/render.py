@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from pipestitch.camera import CameraModel, pixel_grid
-from pipestitch.geometry import PipeSection, Pose, WallGrid, ray_wall_distance
+from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid, ray_wall_distance
 from pipestitch.simulate._remap import remap_points, remap_wrap
 from pipestitch.simulate.optics import Optics
 
@@ -77,13 +77,17 @@ class Renderer:
         Optics and sensor parameters.
     plane_normal : array_like, optional
         Unit normal of the laser plane in the probe frame (default +z, SPEC).
+    profile : RadiusProfile, optional
+        The section's scale along world z (a reducer); default the same everywhere.
     """
 
     def __init__(self, camera: CameraModel, section: PipeSection, wall: WallTexture,
                  plane_distance_mm: float, optics: Optics | None = None,
-                 plane_normal: np.ndarray | None = None) -> None:
+                 plane_normal: np.ndarray | None = None,
+                 profile: RadiusProfile | None = None) -> None:
         self.camera = camera
         self.section = section
+        self.profile = profile
         self.wall = wall
         self.optics = optics or Optics()
         self.plane_distance_mm = float(plane_distance_mm)
@@ -175,7 +179,7 @@ class Renderer:
         """Camera centre, world ray directions and wall distance of every visible pixel."""
         origin = pose.translation_world_probe().astype(np.float32)
         dirs = self._rays_visible @ pose.rotation_world_probe().T.astype(np.float32)
-        return origin, dirs, ray_wall_distance(origin, dirs, self.section)
+        return origin, dirs, ray_wall_distance(origin, dirs, self.section, self.profile)
 
     def _texture_coords(self, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, col) of world wall points in the wall texture."""

@@ -17,13 +17,14 @@ from pipestitch.simulate.optics import Optics
 
 if TYPE_CHECKING:   # the renderer and textures load when a run is built, not to list these
     from pipestitch.camera import CameraModel
-    from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, WallGrid
+    from pipestitch.geometry import BodyEnvelope, PipeSection, Pose, RadiusProfile, WallGrid
     from pipestitch.simulate.render import Renderer
     from pipestitch.simulate.textures import Defect
 
 __all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run"]
 
 PLANE_DISTANCE_MM = 16.0
+REDUCER_LENGTH_MM = 20.0
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,7 @@ class Scenario:
     laser_only: bool = False
     optics: Optics = field(default_factory=Optics)
     declare_body: bool = True         # write the probe body into probe.toml (table1: a point probe)
+    reducer_mm: float = 0.0           # diameter change over REDUCER_LENGTH_MM (< 0: narrows)
 
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
@@ -74,6 +76,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
              optics=Optics(exposure_step=0.25)),
     Scenario("oval", "oval 65 mm pipe (ovality 5 %), corrosion texture", n_pairs=20,
              ovality=0.05, defects="random"),
+    Scenario("reducer", "concentric reducer: a corroded 65 mm pipe narrowing to 61 mm over "
+             "20 mm mid-run, 16 pairs, odometer", n_pairs=16, odometer=True, defects="random",
+             reducer_mm=-4.0),
     Scenario("hard", "16-bit colour frames, glints, partial rings, strong noise",
              n_pairs=12, defects="random",
              optics=Optics(bit_depth=16, colour=True, glints=3, partial_ring_deg=60.0,
@@ -101,6 +106,7 @@ class SyntheticRun:
     odometry_mm: np.ndarray | None
     renderer: Renderer
     seed: int
+    profile: RadiusProfile | None = None   # the wall's scale along z (a reducer)
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(laser, LED) frames of pair ``index`` (deterministic per seed and index)."""
@@ -159,13 +165,17 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
                                 angle=float(rng.uniform(0, np.pi)))
                if scenario.ovality > 0 else PipeSection.circle(scenario.pipe_diameter_mm))
     body = BodyEnvelope()
+    narrowing = min(1.0, 1.0 + scenario.reducer_mm / scenario.pipe_diameter_mm)
     if scenario.trajectory == "table1":
         # Independent poses at one axial position: z means nothing between them.
         poses = table1_poses(n, radius, PLANE_DISTANCE_MM, rng)
     else:
-        poses = wandering_poses(n, section, body, rng, step_mm=scenario.step_mm,
+        narrowest = PipeSection(section.a_mm * narrowing, section.b_mm * narrowing,
+                                section.angle)
+        poses = wandering_poses(n, narrowest, body, rng, step_mm=scenario.step_mm,
                                 wander=scenario.wander)
     z = np.array([p.z_mm for p in poses])
+    profile = _reducer(scenario, float(np.median(z)) + PLANE_DISTANCE_MM)
     reach = 3.5 * max(section.a_mm, section.b_mm)
     mm_per_px = 0.04 if size == "full" else 0.07
     grid = WallGrid.square(radius, mm_per_px, float(z.min()) - 40.0, float(z.max()) + reach)
@@ -180,6 +190,19 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     odometry = (odometer_readings(z, rng, slip_probability=scenario.odometer_slip_probability)
                 if scenario.odometer else None)
     wall = WallTexture(albedo=albedo, grid=grid)
-    renderer = Renderer(camera, section, wall, PLANE_DISTANCE_MM, scenario.optics)
+    renderer = Renderer(camera, section, wall, PLANE_DISTANCE_MM, scenario.optics,
+                        profile=profile)
     return SyntheticRun(scenario, camera, section, body, poses, grid, albedo, defects, odometry,
-                        renderer, seed)
+                        renderer, seed, profile)
+
+
+def _reducer(scenario: Scenario, middle_mm: float) -> RadiusProfile | None:
+    """The scenario's reducer as a profile of the wall's scale, centred on ``middle_mm``
+    (where the middle frame's ring is); None without one."""
+    from pipestitch.geometry import RadiusProfile
+
+    if scenario.reducer_mm == 0:
+        return None
+    start = middle_mm - REDUCER_LENGTH_MM / 2
+    return RadiusProfile(np.array([start, start + REDUCER_LENGTH_MM]),
+                         np.array([1.0, 1.0 + scenario.reducer_mm / scenario.pipe_diameter_mm]))

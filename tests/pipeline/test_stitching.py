@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,8 +15,15 @@ from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS, open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
-from pipestitch.mosaic.register import Positions
-from pipestitch.pipeline.stitching import FrameView, MosaicSettings, _Unwrapper, build_mosaic
+from pipestitch.mosaic.register import Link, Positions
+from pipestitch.pipeline.stitching import (
+    FrameView,
+    MosaicSettings,
+    _mirror_spread,
+    _solved,
+    _Unwrapper,
+    build_mosaic,
+)
 from pipestitch.simulate.evaluate import WallImage, score_mosaic
 
 
@@ -240,3 +248,38 @@ def test_a_feature_poor_wall_keeps_its_axial_scale(tmp_path: Path, simulate_smal
     assert np.isfinite(ours).all()
     slope = np.polyfit(truth, ours, 1)[0]
     assert abs(slope - 1) <= 3e-4
+
+
+def _link(i: int, j: int, dz_mm: float, droll_deg: float = 0.0) -> Link:
+    return Link(i, j, dz_mm, droll_deg, 0.5, 0.02, 0.01)
+
+
+def test_an_undecided_frame_s_links_yield_to_the_odometer(monkeypatch) -> None:
+    # 20 mm steps, odometer good to 0.3 mm. Frame 4 was undecided; on its wrong mirror
+    # its strip is warped and its links to 3 and 5 are precise but 2.5 mm off. Its other
+    # hypothesis' link to frame 3 put it 2.4 mm elsewhere: that is its links' sigma once
+    # the solve has given up the odometer for them.
+    rng = np.random.default_rng(0)
+    truth = 20.0 * np.arange(10)
+    odometry = {f: float(truth[f] + rng.normal(0, 0.3)) for f in range(10)}
+    links = [_link(f, f + 1, 20.0 + (2.5 if f == 3 else -2.5 if f == 4 else 0.0))
+             for f in range(9)]
+    chosen, other = [(links[3], None)], [(_link(3, 4, 20.1, 0.4), None)]
+    spread = _mirror_spread([chosen, other])
+    assert spread == pytest.approx((2.4, 0.4))
+    assert _mirror_spread([chosen, [(_link(2, 4, 40.0), None)]]) is None   # nothing common
+    dataset = SimpleNamespace(n_pairs=10, odometry_mm=odometry)
+
+    def z_error(spread_of: dict) -> float:
+        reg = SimpleNamespace(links=links, done=list(range(10)), spread=spread_of)
+        z = _solved(dataset, reg).z_mm
+        return float(np.max(np.abs(z - z[0] - truth)))
+
+    assert z_error({}) > 2.0              # the precise links outvote the odometer
+    assert z_error({4: spread}) < 1.0     # the odometer places frame 4
+    # links that agree with the odometer keep their sigma, undecided frame or not
+    agreeing = [_link(f, f + 1, truth[f + 1] - truth[f]) for f in range(9)]
+    with_spread, without = (
+        _solved(dataset, SimpleNamespace(links=agreeing, done=list(range(10)), spread=s)).z_mm
+        for s in ({4: spread}, {}))
+    np.testing.assert_array_equal(with_spread, without)

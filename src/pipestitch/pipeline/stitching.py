@@ -19,6 +19,7 @@ or are not connected to the run by registration or the odometer are reported and
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from collections.abc import Collection, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -415,6 +416,31 @@ class _Pass1:
     switched: dict[int, bool] = field(default_factory=dict)
     patches: list[PatchShifts] = field(default_factory=list)
     chains: list[ChainLink] = field(default_factory=list)
+    # undecided frames: how far apart their two unwraps' links put them (dz mm, roll deg)
+    spread: dict[int, tuple[float, float]] = field(default_factory=dict)
+
+
+def _widened(link: Link, spread: Mapping[int, tuple[float, float]]) -> Link:
+    """``link`` as uncertain as the undecided frames it joins are far apart in their two
+    hypotheses (``spread``: :func:`_mirror_spread`)."""
+    extra = [spread[f] for f in (link.i, link.j) if f in spread]
+    if not extra:
+        return link
+    return replace(link, dz_sigma_mm=math.hypot(link.dz_sigma_mm, *(e[0] for e in extra)),
+                   droll_sigma_deg=math.hypot(link.droll_sigma_deg, *(e[1] for e in extra)))
+
+
+def _mirror_spread(found: list[list[tuple[Link, _Candidate]]]) -> tuple[float, float] | None:
+    """How far apart an undecided frame's two unwraps place it: the largest differences
+    of dz and roll between their links to a previous frame both registered with (None
+    without one)."""
+    first = {ln.i: ln for ln, _ in found[0]}
+    apart = [(abs(ln.dz_mm - first[ln.i].dz_mm), abs(ln.droll_deg - first[ln.i].droll_deg))
+             for ln, _ in found[1] if ln.i in first]
+    if not apart:
+        return None
+    dz, droll = np.max(np.array(apart), axis=0)
+    return float(dz), float(droll)
 
 
 def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view: FrameView,
@@ -572,6 +598,9 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 found = [_links_to(recent, c, own, reg.index, history, dataset.odometry_mm)
                          for c in reg.candidates]
             best = _better_hypothesis(found) if len(found) > 1 else None
+            spread = _mirror_spread(found) if len(found) > 1 and best is None else None
+            if spread is not None:
+                out.spread[reg.index] = spread
             if best is not None:
                 out.switched[reg.index] = best == 1
                 if best == 1:
@@ -689,6 +718,7 @@ class _Registration:
     switched: dict[int, bool]
     flat_field: RadialFlatField     # from the last pass's levels
     chains: list[ChainLink]         # the latest measured of each pair
+    spread: dict[int, tuple[float, float]] = field(default_factory=dict)   # _mirror_spread
 
 
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
@@ -715,6 +745,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     """
     camera, switched = unwrapper.camera, {}
     chains: dict[tuple[int, int], ChainLink] = {}
+    spread: dict[int, tuple[float, float]] = {}
     before = views
     for k in range(max(1, rounds)):
         own = grids[0] if k < rounds - 1 else grids[1]
@@ -722,6 +753,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
                           patches=rounds > 0, flat=k >= rounds - 1)
         switched.update(pass1.switched)
+        spread.update(pass1.spread)
         chains.update(((c.first, c.second), c) for c in pass1.chains)
         links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
         before = views
@@ -738,7 +770,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         release_free_memory()
         views, links, patches = _register_again(dataset, views, unwrapper, grids[1], timer,
                                                 skipped, links, done, redo, switched,
-                                                chains)
+                                                chains, spread)
         again = set(redo)
         with timer("refine"):
             views, links = _refine_views(views, patches, links, camera, grids[1], again)
@@ -749,7 +781,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     views = {i: _without_ring(v) for i, v in views.items()}
     flat = (RadialFlatField.from_pairs(pairs, unwrapper.edges, unwrapper.centre)
             or RadialFlatField.from_levels(levels, unwrapper.edges, unwrapper.centre))
-    return _Registration(views, links, done, switched, flat, list(chains.values()))
+    return _Registration(views, links, done, switched, flat, list(chains.values()), spread)
 
 
 LINEAR_TILT_DEG = 1.0   # after a round that corrects a tilt by more, frames are redone:
@@ -798,6 +830,7 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
                     own: WallGrid, timer: StageTimer, skipped: dict[int, str],
                     links: list[Link], done: list[int], redo: Sequence[int],
                     switched: dict[int, bool], chains: dict[tuple[int, int], ChainLink],
+                    spread: dict[int, tuple[float, float]],
                     ) -> tuple[dict[int, FrameView], list[Link], list[PatchShifts]]:
     """The links of the ``redo`` frames measured again on strips from the current views.
 
@@ -809,8 +842,8 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
     (:func:`_repatch`): their rigid part is the refinement's already, and the
     whole-strip correlation that would find it again is the costly part of a round.
 
-    Returns the views (hypotheses chosen now applied, ``switched`` and ``chains``
-    updated), the links and the patch shifts measured.
+    Returns the views (hypotheses chosen now applied, ``switched``, ``chains`` and
+    ``spread`` updated), the links and the patch shifts measured.
     """
     views, patches, new = dict(views), [], []
     runs = _segments(done, [i for i in redo if views[i].alternative is not None], LINK_SPAN)
@@ -827,6 +860,7 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
         switched.update(found.switched)
         chains.update(((c.first, c.second), c) for c in found.chains)
         new.extend(found.links)
+        spread.update(found.spread)
         patches.extend(found.patches)
     kept = [ln for ln in links
             if not (ln.i in run_of and run_of[ln.i] == run_of.get(ln.j))] + new
@@ -1012,6 +1046,24 @@ def _roll_from_imu(positions: Positions, imu_roll_deg: Mapping[int, float] | Non
     return replace(positions, roll_deg=positions.roll_deg + found[0], roll_reference="imu")
 
 
+def _solved(dataset: Dataset, reg: _Registration) -> Positions:
+    """The positions solved from the links and the odometer. Where the solve gave up an
+    odometer increment beside an undecided frame (:func:`_mirror_spread`), that frame's
+    links are taken as uncertain as its two hypotheses are far apart and the run solved
+    again: on its wrong mirror a frame's strip is warped, and its links are
+    precise but off by about as much (20 mm steps: 2-3.5 mm against an odometer good to
+    0.3 mm). Links that agree with the odometer keep their own sigma: there the two
+    hypotheses differ by less than the odometer's noise, which would only blur z."""
+    positions = solve_positions(dataset.n_pairs, reg.links, odometry_mm=dataset.odometry_mm,
+                                placed=reg.done)
+    doubted = {f: reg.spread[f] for i, j, src in positions.outliers if src == "odometer"
+               for f in (i, j) if f in reg.spread}
+    if not doubted:
+        return positions
+    return solve_positions(dataset.n_pairs, [_widened(ln, doubted) for ln in reg.links],
+                           odometry_mm=dataset.odometry_mm, placed=reg.done)
+
+
 def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
              skipped: dict[int, str], timer: StageTimer) -> tuple[Positions, list[int]]:
     """The run's positions and the registered frames they place.
@@ -1027,8 +1079,7 @@ def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
     """
     if given is None:
         with timer("register"):
-            positions = solve_positions(dataset.n_pairs, reg.links,
-                                        odometry_mm=dataset.odometry_mm, placed=reg.done)
+            positions = _solved(dataset, reg)
             positions = _roll_from_imu(positions, read_imu(dataset.root))
         why = "not registered to the run (no common texture, no odometer)"
     else:
@@ -1102,12 +1153,13 @@ def _with_wall_profiles(dataset: Dataset, reg: _Registration, positions: Positio
     # (a reducer mid-run: 0.1-0.3 degrees at every frame, 0.005 without it).
     redo = list(reg.done)
     switched, chains = dict(reg.switched), {(c.first, c.second): c for c in reg.chains}
+    spread = dict(reg.spread)
     views, links, patches = _register_again(dataset, views, unwrapper, own, timer, skipped,
-                                            reg.links, reg.done, redo, switched, chains)
+                                            reg.links, reg.done, redo, switched, chains, spread)
     with timer("refine"):
         views, links = _refine_views(views, patches, links, unwrapper.camera, own, set(redo))
     return replace(reg, views=views, links=links, switched=switched,
-                   chains=list(chains.values())), redo
+                   chains=list(chains.values()), spread=spread), redo
 
 
 def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],

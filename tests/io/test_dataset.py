@@ -160,6 +160,20 @@ def test_check_lists_every_problem(tmp_path: Path) -> None:
     assert "pair 00002 has no laser frame" in text
 
 
+def test_two_files_of_one_frame_are_bad_input(tmp_path: Path) -> None:
+    # laser_00001.png and laser_00001.tif: which is the frame, the names do not say
+    _tiny_dataset(tmp_path)
+    frames = tmp_path / "frames"
+    write_image(frames / "laser_00001.tif", read_image(frames / "laser_00001.png"))
+    errors = [str(p) for p in check_dataset(tmp_path) if p.severity == "error"]
+    assert errors == [f"error: {frames / 'laser_00001.png'}: the same frame as laser_00001.tif: "
+                      "keep one of the two files"]
+    with pytest.raises(DatasetError, match=r"laser_00001\.png: the same frame as laser_0000"):
+        open_dataset(tmp_path)
+    (frames / "laser_00001.png").unlink()
+    assert open_dataset(tmp_path).n_pairs == 3
+
+
 def test_laser_only_dataset_is_a_warning(tmp_path: Path) -> None:
     _tiny_dataset(tmp_path, led=False)
     problems = check_dataset(tmp_path)

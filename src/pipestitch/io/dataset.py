@@ -23,7 +23,7 @@ import numpy as np
 from pipestitch.camera import blank_frame
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
-from pipestitch.io.frame_files import frame_files
+from pipestitch.io.frame_files import frame_files, frame_twins
 from pipestitch.io.images import read_image
 from pipestitch.io.mask import read_mask
 from pipestitch.io.probe_toml import read_probe_toml
@@ -349,7 +349,9 @@ def open_dataset(root: str | Path, video: str | Path | None = None, *,
     frames_dir = root / "frames"
     if not frames_dir.is_dir():
         raise DatasetError(frames_dir, "frames/ folder not found")
-    found, _ = frame_files(frames_dir)
+    found, other = frame_files(frames_dir)
+    for path, kept in frame_twins(found, other):
+        raise DatasetError(path, TWIN_FRAME.format(other=kept.name))
     problems = _numbering_problems("laser", found["laser"], frames_dir)
     if problems:
         raise DatasetError(frames_dir, problems[0].message)
@@ -403,6 +405,7 @@ def _shows_nothing(frame: np.ndarray, kind: str) -> str:
     return blank_frame(frame) if float(np.ptp(frame)) == 0 else ""
 
 
+TWIN_FRAME = "the same frame as {other}: keep one of the two files"
 BLANK_CONSEQUENCE = {"laser": "no ring, the pair gets no pose",
                      "led": "the pose comes from the laser frame alone, not in the mosaic"}
 
@@ -414,7 +417,10 @@ def _check_frames(root: Path, config: ProbeConfig | None,
         yield Problem(frames_dir, "frames/ folder not found")
         return
     found, other = frame_files(frames_dir)
-    for path in other:
+    twins = frame_twins(found, other)
+    for path, kept in twins:
+        yield Problem(path, TWIN_FRAME.format(other=kept.name))
+    for path in sorted(set(other) - {p for p, _ in twins}):
         yield Problem(path, "not a frame name (expected laser_NNNNN.png or led_NNNNN.png)",
                       "warning")
     if not found["laser"]:

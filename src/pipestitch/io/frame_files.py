@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-__all__ = ["IMAGE_EXTENSIONS", "frame_files"]
+__all__ = ["IMAGE_EXTENSIONS", "frame_files", "frame_twins"]
 
 IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 _FRAME_RE = re.compile(r"^(laser|led)_(\d{5})(\.[A-Za-z]+)$")
@@ -28,14 +28,29 @@ def frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path
     tuple
         ({"laser": {index: path}, "led": {index: path}}, [other paths]). Of two files
         with one frame's name (``laser_00000.png`` and ``.tif``), the last in name order
-        is the frame.
+        is the frame and the others are in the other paths (:func:`frame_twins`).
     """
     found: dict[str, dict[int, Path]] = {"laser": {}, "led": {}}
     other = []
     for path in sorted(frames_dir.iterdir()):
         m = _FRAME_RE.match(path.name)
         if m and m.group(3).lower() in IMAGE_EXTENSIONS:
-            found[m.group(1)][int(m.group(2))] = path
+            kind, index = m.group(1), int(m.group(2))
+            if index in found[kind]:
+                other.append(found[kind][index])
+            found[kind][index] = path
         else:
             other.append(path)
     return found, other
+
+
+def frame_twins(found: dict[str, dict[int, Path]], other: list[Path]) -> list[tuple[Path, Path]]:
+    """(other file, the frame) for each other path that :func:`frame_files` set aside
+    because a later file has its frame's name: which of the two is the frame is not
+    said by the names (bad input)."""
+    twins = []
+    for path in other:
+        m = _FRAME_RE.match(path.name)
+        if m and m.group(3).lower() in IMAGE_EXTENSIONS:
+            twins.append((path, found[m.group(1)][int(m.group(2))]))
+    return twins

@@ -317,7 +317,8 @@ REFINEMENT_REJECTED = ("the LED refinement moved this pose where the declared pr
 
 REFINED_INFEASIBLE = ("the declared probe body cannot hold the pose and section measured "
                       "from the LED frames either (it would cross the wall by {clearance:.1f} "
-                      "mm): check probe.toml's [probe] body")
+                      "mm): check probe.toml's [probe] body and its [laser] plane (distance "
+                      "and normal)")
 
 
 def _unrefined_ovals_back(frames: list[FramePose], choices: list[Choice],

@@ -1127,16 +1127,53 @@ def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def correlation_factor(resid: np.ndarray) -> float:
+    """How many times fewer independent residuals a ring holds than points, from their
+    autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it stays
+    positive (and over at most a quarter of the points).
+
+    The points are in ray order. Neighbouring rays read overlapping pixels of the line,
+    and speckle, a smudge on the lens or an arc of faint line move whole stretches of
+    the ring together; the variance of a fit to n such residuals is this many times that
+    of n independent ones (the effective sample size of a correlated series).
+    """
+    n = resid.size
+    if n < 8:
+        return 1.0
+    mean = 0.0
+    for i in range(n):
+        mean += resid[i]
+    mean /= n
+    var = 0.0
+    for i in range(n):
+        var += (resid[i] - mean) ** 2
+    if var <= 0.0:
+        return 1.0
+    factor = 1.0
+    for k in range(1, n // 4):
+        c = 0.0
+        for i in range(n - k):
+            c += (resid[i] - mean) * (resid[i + k] - mean)
+        rho = c / var
+        if rho <= 0.0:
+            break
+        factor += 2.0 * rho
+    return factor
+
+
+@numba.njit(cache=True, error_model="numpy")
 def uncertainty(resid: np.ndarray, jtj: np.ndarray,
                 n_free: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """1-sigma of the free parameters and the pose's 4 x 4 information matrix.
 
-    From the plain (unweighted) J^T J and residuals; with the radius free (n_free 5)
-    it is marginalised out of the information (Schur complement). ``ok`` False
-    (sigma NaN) when the information is singular.
+    From the plain (unweighted) J^T J and residuals, the residual variance times
+    :func:`correlation_factor`; with the radius free (n_free 5) it is marginalised out
+    of the information (Schur complement). ``ok`` False (sigma NaN) when the information
+    is singular.
     """
     dof = max(1, resid.size - n_free)
-    info = jtj[:n_free, :n_free] / max(dot(resid, resid) / dof, 1e-12)
+    variance = max(dot(resid, resid) / dof, 1e-12) * correlation_factor(resid)
+    info = jtj[:n_free, :n_free] / variance
     pose_info = info[:4, :4].copy()
     if n_free == 5:   # loops, not np.outer and an array expression: less code to compile
         scale = max(info[4, 4], 1e-300)

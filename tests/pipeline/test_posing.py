@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipestitch.io.dataset import open_dataset, read_csv_columns
 from pipestitch.pipeline.posing import PoseSettings, estimate_poses, run_pose
@@ -140,3 +141,21 @@ def test_frames_the_odometer_puts_far_apart_are_not_compared_photometrically() -
     assert strips_overlap(first, second, {0: 0.0, 1: 19.0})
     assert not strips_overlap(first, second, {0: 0.0, 1: 20.0})
     assert strips_overlap(first, second, None) and strips_overlap(first, second, {0: 0.0})
+
+
+def test_poses_csv_std_counts_the_ring_residuals_correlation(tmp_path: Path,
+                                                             simulate_small) -> None:
+    # Neighbouring rays read overlapping pixels of the line: the ring's residuals are
+    # correlated and the written sigmas are wider than the fit's independent-point ones,
+    # by each hypothesis' own factor; the fit's decisions keep the latter.
+    root = simulate_small(tmp_path / "ds", "--pairs", "3", "--seed", "4")
+    run_pose(root, tmp_path / "out", show_progress=False)
+    rows = read_csv_columns(tmp_path / "out" / "poses.csv", ("alpha_std_deg", "radius_std_mm"))
+    frames, choices = estimate_poses(open_dataset(root), show_progress=False)
+    for k, (frame, choice) in enumerate(zip(frames, choices, strict=True)):
+        h = frame.fit.hypotheses[choice.chosen]
+        assert h.std_scale > 1.0
+        assert rows["alpha_std_deg"][k] == pytest.approx(
+            np.degrees(h.std["alpha"]) * h.std_scale, abs=6e-7)   # written to 6 decimals
+        assert rows["radius_std_mm"][k] == pytest.approx(h.std["radius_mm"] * h.std_scale,
+                                                         abs=6e-7)

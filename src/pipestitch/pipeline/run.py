@@ -406,9 +406,10 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
             lo, hi = min(lo, dep.min_radius_mm), max(hi, dep.max_radius_mm)
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, sec.ovality if h.section is not None else math.nan,
-                     lo, hi, 2 * h.std.get("radius_mm", math.nan), frame.fit.model,
+                     lo, hi, 2 * h.std.get("radius_mm", math.nan) * h.std_scale,
+                     frame.fit.model,
                      int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm),
-                     h.std.get("ovality", math.nan), axis, *departure])
+                     h.std.get("ovality", math.nan) * h.std_scale, axis, *departure])
     return rows
 
 

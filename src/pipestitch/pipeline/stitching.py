@@ -67,6 +67,7 @@ from pipestitch.mosaic.register import (
     Positions,
     measure_overlap_shift,
     measure_shift,
+    odometer_noise_mm,
     predict_motion,
     registration_image,
     shared_taper,
@@ -1056,12 +1057,23 @@ def _solved(dataset: Dataset, reg: _Registration) -> Positions:
     hypotheses differ by less than the odometer's noise, which would only blur z."""
     positions = solve_positions(dataset.n_pairs, reg.links, odometry_mm=dataset.odometry_mm,
                                 placed=reg.done)
-    doubted = {f: reg.spread[f] for i, j, src in positions.outliers if src == "odometer"
-               for f in (i, j) if f in reg.spread}
+    given_up = [(i, j) for i, j, src in positions.outliers if src == "odometer"]
+    doubted = {f: reg.spread[f] for pair in given_up for f in pair if f in reg.spread}
     if not doubted:
         return positions
-    return solve_positions(dataset.n_pairs, [_widened(ln, doubted) for ln in reg.links],
-                           odometry_mm=dataset.odometry_mm, placed=reg.done)
+    # The odometer's noise as the links measured it before any was widened (it is at
+    # least the links' median sigma, which the widened ones would inflate).
+    done = set(reg.done)
+    odometry = {f: v for f, v in dataset.odometry_mm.items() if f in done and np.isfinite(v)}
+    noise = odometer_noise_mm([ln for ln in reg.links if ln.i in done and ln.j in done],
+                              odometry)
+    again = solve_positions(dataset.n_pairs, [_widened(ln, doubted) for ln in reg.links],
+                            odometry_mm=dataset.odometry_mm, placed=reg.done,
+                            odometer_sigma_mm=noise)
+    placed = [np.isfinite(p.z_mm).sum() for p in (positions, again)]
+    kept_up = sum(src == "odometer" for _, _, src in again.outliers)
+    # kept only where it keeps more of the odometer and places no fewer frames
+    return again if kept_up < len(given_up) and placed[1] >= placed[0] else positions
 
 
 def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,

@@ -566,7 +566,7 @@ def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.nd
 
 # select_ring's and fit_frame's status
 FOUND, NEEDS_SAMPLES, NO_ELLIPSE, NOT_A_SECTION, LOW_COVERAGE, NO_RING = 0, 1, 2, 3, 4, 5
-SUMMARY_RMS, SUMMARY_OK, SUMMARY_SIGMA = 5, 6, 7   # columns of refine_frame's summary
+SUMMARY_RMS, SUMMARY_OK, SUMMARY_CORR, SUMMARY_SIGMA = 5, 6, 7, 8   # refine_frame's summary
 MIN_CANDIDATES = 12   # fewer ring candidates than this: no ring (status NO_RING)
 
 
@@ -1006,7 +1006,8 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     ``settings.loss_scale_mm``. Returns (summary, cost, rms_px, information
     (2, 4, 4)); row 0 of the summary is the optimum, row 1 its mirror, each the pose
     vector (5), then at SUMMARY_RMS its rms_mm, at SUMMARY_OK 1.0 where its sigma is
-    valid, and from SUMMARY_SIGMA the sigma of the n_free parameters.
+    valid, at SUMMARY_CORR its residuals' :func:`correlation_factor`, and from
+    SUMMARY_SIGMA the sigma of the n_free parameters.
     """
     n_free = settings.n_free
     n = kept.size
@@ -1044,6 +1045,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
             for j in range(4):
                 info[h, i, j] = pose_info[i, j]
         summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
+        summary[h, SUMMARY_CORR] = correlation_factor(r)
         for j in range(n_free):
             summary[h, SUMMARY_SIGMA + j] = sigma[j]
     return summary, cost, rms_px, info
@@ -1166,14 +1168,13 @@ def uncertainty(resid: np.ndarray, jtj: np.ndarray,
                 n_free: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """1-sigma of the free parameters and the pose's 4 x 4 information matrix.
 
-    From the plain (unweighted) J^T J and residuals, the residual variance times
-    :func:`correlation_factor`; with the radius free (n_free 5) it is marginalised out
-    of the information (Schur complement). ``ok`` False (sigma NaN) when the information
-    is singular.
+    From the plain (unweighted) J^T J and residuals, as if the residuals were
+    independent (:func:`correlation_factor` says by how much they are not); with the
+    radius free (n_free 5) it is marginalised out of the information (Schur
+    complement). ``ok`` False (sigma NaN) when the information is singular.
     """
     dof = max(1, resid.size - n_free)
-    variance = max(dot(resid, resid) / dof, 1e-12) * correlation_factor(resid)
-    info = jtj[:n_free, :n_free] / variance
+    info = jtj[:n_free, :n_free] / max(dot(resid, resid) / dof, 1e-12)
     pose_info = info[:4, :4].copy()
     if n_free == 5:   # loops, not np.outer and an array expression: less code to compile
         scale = max(info[4, 4], 1e-300)

@@ -84,11 +84,17 @@ class Hypothesis:
     rms_mm, rms_px : float
         RMS residual of the inliers, on the wall (mm) and in the image (px).
     std : dict
-        One-sigma uncertainty of each parameter (radians for angles, mm).
+        One-sigma uncertainty of each parameter (radians for angles, mm), as if the ring
+        points' residuals were independent (what the pose step's tests were made with).
     information : numpy.ndarray or None
         4 x 4 information matrix (inverse covariance) of (alpha, beta, dx, dy) from the
         ring, the radius marginalised out: what the ring says about the pose, for fusing
         with other evidence (:mod:`pipestitch.mosaic.refine`).
+    std_scale : float
+        How many times wider the uncertainty is, the residuals' correlation along the
+        ring counted (the square root of
+        :func:`pipestitch.pose._fit_kernels.correlation_factor`): the output files'
+        standard deviations are ``std`` times this.
     """
 
     pose: Pose
@@ -99,6 +105,7 @@ class Hypothesis:
     std: dict[str, float] = field(default_factory=dict)
     information: np.ndarray | None = field(default=None, compare=False)
     section: PipeSection | None = None
+    std_scale: float = 1.0
 
     @property
     def pipe_section(self) -> PipeSection:
@@ -552,11 +559,13 @@ def _hypotheses(summary: np.ndarray, cost: float, rms_px: float,
     # element by element, or a loop over the two, costs more here (right after a ring
     # extraction every distinct call is cold)
     a, b = summary.tolist()
-    rms, ok, sig = _k.SUMMARY_RMS, _k.SUMMARY_OK, _k.SUMMARY_SIGMA
+    rms, ok, sig, corr = _k.SUMMARY_RMS, _k.SUMMARY_OK, _k.SUMMARY_SIGMA, _k.SUMMARY_CORR
     return (Hypothesis(Pose(a[0], a[1], a[2], a[3]), a[4], cost, a[rms], rms_px,
-                       dict(zip(PARAMS, a[sig:], strict=False)) if a[ok] else {}, info[0]),
+                       dict(zip(PARAMS, a[sig:], strict=False)) if a[ok] else {}, info[0],
+                       std_scale=math.sqrt(a[corr])),
             Hypothesis(Pose(b[0], b[1], b[2], b[3]), b[4], cost, b[rms], rms_px,
-                       dict(zip(PARAMS, b[sig:], strict=False)) if b[ok] else {}, info[1]))
+                       dict(zip(PARAMS, b[sig:], strict=False)) if b[ok] else {}, info[1],
+                       std_scale=math.sqrt(b[corr])))
 
 
 def ring_rms_px(pose: Pose, radius: float, pixels: np.ndarray, uv: np.ndarray,

@@ -174,6 +174,16 @@ def test_two_files_of_one_frame_are_bad_input(tmp_path: Path) -> None:
     assert open_dataset(tmp_path).n_pairs == 3
 
 
+def test_a_repeated_frame_is_a_warning(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path)
+    frames = tmp_path / "frames"
+    (frames / "led_00002.png").write_bytes((frames / "led_00001.png").read_bytes())
+    problems = [str(p) for p in check_dataset(tmp_path)]
+    assert problems == [f"warning: {frames / 'led_00002.png'}: the same file as "
+                        "led_00001.png (a repeated frame: a stalled camera or a copy?)"]
+    assert open_dataset(tmp_path).n_pairs == 3
+
+
 def test_laser_only_dataset_is_a_warning(tmp_path: Path) -> None:
     _tiny_dataset(tmp_path, led=False)
     problems = check_dataset(tmp_path)

@@ -437,9 +437,29 @@ def _check_frames(root: Path, config: ProbeConfig | None,
                               "warning")
             else:
                 yield Problem(frames_dir, f"pair {i:05d} has no laser frame")
+    yield from _repeated_frames(found)
     if config is not None:
         paths = [found[k][i] for k in ("laser", "led") for i in sorted(found[k])]
         yield from _check_images(paths, (config.camera.width, config.camera.height), progress)
+
+
+def _repeated_frames(found: dict[str, dict[int, Path]]) -> Iterator[Problem]:
+    """Frames whose file is byte for byte the one of the pair before: a camera or a
+    conversion that repeated a frame (a probe standing still still has sensor noise).
+    The pair is processed as it is; z and roll come out the same as the one before."""
+    for files in found.values():
+        for i in sorted(files):
+            before = files.get(i - 1)
+            if before is not None and _same_bytes(before, files[i]):
+                yield Problem(files[i], f"the same file as {before.name} (a repeated frame: "
+                                        "a stalled camera or a copy?)", "warning")
+
+
+def _same_bytes(a: Path, b: Path) -> bool:
+    try:
+        return a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes()
+    except OSError:   # said where the file is read
+        return False
 
 
 def _check_truth(root: Path) -> Iterator[Problem]:

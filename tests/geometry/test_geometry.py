@@ -158,6 +158,25 @@ def test_rays_meet_a_wall_whose_radius_changes_along_the_pipe() -> None:
                                   ray_wall_distance(origin, dirs, section))
 
 
+def test_rays_meet_the_first_wall_where_it_widens() -> None:
+    # a step out to 1.3 times the radius between z 20 and 22 mm: a ray from z 0 that
+    # reaches the narrow wall before the step meets it there, not the wide wall beyond
+    section = PipeSection.circle(65.0)
+    profile = RadiusProfile(np.array([20.0, 22.0]), np.array([1.0, 1.3]))
+    rng = np.random.default_rng(1)
+    dirs = rng.normal(size=(5000, 3))
+    dirs[:, 2] = np.abs(dirs[:, 2])
+    origin = np.array([2.0, 1.0, 0.0])
+    s = ray_wall_distance(origin, dirs, section, profile)
+    # the first crossing by a fine march along each ray
+    steps = np.linspace(0.0, 200.0, 200001)[:, None]
+    for k in range(0, 5000, 250):
+        p = origin + steps * dirs[k] / np.linalg.norm(dirs[k])
+        out = np.hypot(p[:, 0], p[:, 1]) >= 32.5 * profile.at(p[:, 2])
+        first = steps[np.argmax(out), 0] / np.linalg.norm(dirs[k])
+        assert s[k] == pytest.approx(first, abs=2e-3 / np.linalg.norm(dirs[k]))
+
+
 @pytest.mark.parametrize("z, scale", [([0.0, 0.0], [1.0, 1.0]), ([0.0, 1.0], [1.0, 0.0]),
                                       ([0.0, 1.0], [1.0]), ([1.0, 0.0], [1.0, 1.0])])
 def test_a_radius_profile_refuses_what_is_no_wall(z, scale) -> None:

@@ -12,6 +12,7 @@ import pytest
 
 import pipestitch.pipeline.stitching as stitching
 from pipestitch.pipeline.run import run_dataset
+from pipestitch.pipeline.stitching import MosaicSettings
 
 
 @pytest.fixture(scope="module")
@@ -61,3 +62,12 @@ def test_a_reducer_leaves_z_and_tilt_true_and_nothing_to_warn(reducer, tmp_path,
     # all; and a ring on the sloping wall misleads its own fit (its prior is loosened)
     assert np.max(tilt) < 0.1 and np.median(tilt) < 0.02, tilt
     assert np.median(section_tilt) > 3 * np.median(tilt), section_tilt
+
+
+def test_without_the_refinement_the_walls_serve_the_stitch_only(reducer, tmp_path) -> None:
+    # refine_iterations 0: the ring's poses as they are, whatever walls are found
+    summary = run_dataset(reducer, tmp_path / "out", show_progress=False,
+                          settings=MosaicSettings(refine_iterations=0))
+    views = summary.mosaic.views
+    assert any(v.profile is not None for v in views.values())
+    assert not any(v.refined for v in views.values())

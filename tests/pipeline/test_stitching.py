@@ -11,11 +11,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import pipestitch.pipeline.stitching as stitching
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS, open_dataset, read_csv_columns
 from pipestitch.io.images import read_image
-from pipestitch.mosaic.register import Link, Positions
+from pipestitch.mosaic.register import Link, Positions, odometer_noise_mm, solve_positions
 from pipestitch.pipeline.stitching import (
     FrameView,
     MosaicSettings,
@@ -283,9 +284,19 @@ def test_an_undecided_frame_s_links_yield_to_the_odometer(monkeypatch) -> None:
         _solved(dataset, SimpleNamespace(links=agreeing, done=list(range(10)), spread=s)).z_mm
         for s in ({4: spread}, {}))
     np.testing.assert_array_equal(with_spread, without)
-    # every frame undecided, far apart in its two hypotheses: the odometer keeps the noise
-    # the links measured (widened links would raise its floor, their median sigma)
-    # (with that floor raised to ~20 mm the run drifted 1.4 mm); z then follows the
-    # odometer, whose readings are 0.3 mm noisy and whose scale is fitted (0.66 mm here)
+    # every frame undecided, far apart in its two hypotheses: the re-solve is given the
+    # odometer's noise as the unwidened links measured it (widened links would raise its
+    # floor, their median sigma)
+    # z then follows the odometer, whose readings are 0.3 mm noisy and whose scale is
+    # fitted (0.66 mm here)
     wide = {f: (20.0, 5.0) for f in range(10)}
     assert z_error(wide) < 1.0
+    calls = []
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("odometer_sigma_mm"))
+        return solve_positions(*args, **kwargs)
+
+    monkeypatch.setattr(stitching, "solve_positions", spy)
+    _solved(dataset, SimpleNamespace(links=links, done=list(range(10)), spread=wide))
+    assert calls == [None, pytest.approx(odometer_noise_mm(links, odometry))]

@@ -14,7 +14,7 @@ import numpy as np
 __all__ = ["PipeSection", "RadiusProfile", "theta_z_from_points"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RadiusProfile:
     """A wall whose section changes size along the pipe (a reducer, a long dent): the
     section is scaled about the axis by ``scale`` at axial positions ``z_mm``,

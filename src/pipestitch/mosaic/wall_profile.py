@@ -75,7 +75,8 @@ def frame_profiles(camera_z_mm: Mapping[int, float], radius_mm: Mapping[int, flo
     Returns
     -------
     dict
-        Frame -> profile in its own z (0 at its camera; scale 1 at its ring), for the
+        Frame -> profile in its own z (0 at its camera; scale 1 at its ring, or the
+        mean of the rings merged with it over its own radius there), for the
         frames whose window holds a ring differing from their own by more than
         ``SIGNIFICANCE`` times the difference's noise (and than that quarter step).
         Empty with fewer than 4 rings.

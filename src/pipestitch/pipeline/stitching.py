@@ -417,8 +417,19 @@ class _Pass1:
     switched: dict[int, bool] = field(default_factory=dict)
     patches: list[PatchShifts] = field(default_factory=list)
     chains: list[ChainLink] = field(default_factory=list)
-    # undecided frames: how far apart their two unwraps' links put them (dz mm, roll deg)
-    spread: dict[int, tuple[float, float]] = field(default_factory=dict)
+    # undecided frames: how far apart their two unwraps' links put them (dz mm, roll deg);
+    # None for a frame with two hypotheses that this pass decided
+    spread: dict[int, tuple[float, float] | None] = field(default_factory=dict)
+
+
+def _merge_spread(spread: dict[int, tuple[float, float]],
+                  found: Mapping[int, tuple[float, float] | None]) -> None:
+    """``spread`` updated with a pass's: a frame that pass decided is undecided no more."""
+    for frame, apart in found.items():
+        if apart is None:
+            spread.pop(frame, None)
+        else:
+            spread[frame] = apart
 
 
 def _widened(link: Link, spread: Mapping[int, tuple[float, float]]) -> Link:
@@ -599,9 +610,8 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
                 found = [_links_to(recent, c, own, reg.index, history, dataset.odometry_mm)
                          for c in reg.candidates]
             best = _better_hypothesis(found) if len(found) > 1 else None
-            spread = _mirror_spread(found) if len(found) > 1 and best is None else None
-            if spread is not None:
-                out.spread[reg.index] = spread
+            if len(found) > 1:
+                out.spread[reg.index] = _mirror_spread(found) if best is None else None
             if best is not None:
                 out.switched[reg.index] = best == 1
                 if best == 1:
@@ -754,7 +764,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         pass1 = _register(dataset, views, unwrapper, own, timer, show_progress, skipped,
                           patches=rounds > 0, flat=k >= rounds - 1)
         switched.update(pass1.switched)
-        spread.update(pass1.spread)
+        _merge_spread(spread, pass1.spread)
         chains.update(((c.first, c.second), c) for c in pass1.chains)
         links, done, levels, pairs = pass1.links, pass1.done, pass1.levels, pass1.pairs
         before = views
@@ -861,7 +871,7 @@ def _register_again(dataset: Dataset, views: dict[int, FrameView], unwrapper: _U
         switched.update(found.switched)
         chains.update(((c.first, c.second), c) for c in found.chains)
         new.extend(found.links)
-        spread.update(found.spread)
+        _merge_spread(spread, found.spread)
         patches.extend(found.patches)
     kept = [ln for ln in links
             if not (ln.i in run_of and run_of[ln.i] == run_of.get(ln.j))] + new
@@ -1100,12 +1110,16 @@ def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
               if np.isfinite(positions.z_mm[i]) and np.isfinite(positions.roll_deg[i])]
     for i in sorted(set(reg.done) - set(placed)):
         skipped[i] = why
+    for i in placed:   # placed now, after an earlier placing of the run had not
+        if skipped.get(i) == why:
+            del skipped[i]
     if not placed:
         raise StageError("no frame could be placed in the mosaic")
     return positions, placed
 
 
-def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) -> FrameView:
+def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float,
+             prior: np.ndarray | None) -> FrameView:
     """The view unwrapped onto ``profile``, its ring's prior loosened by what a ring on a
     sloping wall misleads its fit by.
 
@@ -1116,9 +1130,10 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) ->
     by b / d (d: the plane's distance from the camera). That is added to the prior's
     covariance (Woodbury: (I^-1 + S)^-1 = I - I (S^-1 + I)^-1 I); the photometric
     links then place the frame (a reducer's ring frames: 0.28 -> 0.01 degrees).
+    ``prior`` is the ring's information before any round loosened it.
     """
-    viewed = replace(view, profile=profile)
-    info = view.information
+    viewed = replace(view, profile=profile, information=prior)
+    info = prior
     if profile is None or info is None or not np.all(np.isfinite(info)):
         return viewed
     radius = view.section.mean_radius_mm
@@ -1132,6 +1147,13 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) ->
     return replace(viewed, information=0.5 * (loosened + loosened.T))
 
 
+def _same_wall(a: RadiusProfile | None, b: RadiusProfile | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.z_mm.shape == b.z_mm.shape and bool(np.all(a.z_mm == b.z_mm)
+                                                 and np.all(a.scale == b.scale))
+
+
 # Rounds of wall profiles and the registration of their frames: the profiles are placed
 # by the positions the previous round solved (a reducer: 0.94 -> 0.08 -> 0.02 mm).
 PROFILE_ROUNDS = 3
@@ -1140,12 +1162,15 @@ PROFILE_ROUNDS = 3
 def _with_wall_profiles(dataset: Dataset, reg: _Registration, positions: Positions,
                         unwrapper: _Unwrapper, own: WallGrid, window: tuple[float, float],
                         timer: StageTimer, skipped: dict[int, str], *, again: bool,
-                        given: Mapping[int, RadiusProfile]
+                        given: Mapping[int, RadiusProfile],
+                        priors: Mapping[int, tuple[np.ndarray | None, np.ndarray | None]]
                         ) -> tuple[_Registration, list[int]]:
     """The registration with each view's wall along its strip, where the rings of the
     frames placed there say the pipe's radius changes inside its window
     (:func:`frame_profiles`; else the caller's ``given`` one), and the frames measured
-    again. ``again``, when some wall changed, the links and poses of the run are
+    again. ``priors``: each view's and its mirror's ring information before any round
+    (each round loosens it afresh, :func:`_on_wall`). ``again``, when some wall
+    changed, the links and poses of the run are
     measured again on the strips unwrapped onto those walls (:func:`_register_again`:
     patch shifts about the links, then the refinement), so the positions solved from
     them follow."""
@@ -1154,10 +1179,19 @@ def _with_wall_profiles(dataset: Dataset, reg: _Registration, positions: Positio
     radius = {i: views[i].section.mean_radius_mm for i in z}
     profiles = {**given, **frame_profiles(z, radius, dataset.config.laser.plane_distance_mm,
                                           window, step_mm=own.mm_per_px_axial)}
-    if all(v.profile is profiles.get(i) for i, v in views.items()):
+    if all(_same_wall(v.profile, profiles.get(i)) for i, v in views.items()):
         return reg, []
     ahead = dataset.config.laser.plane_distance_mm
-    views = {i: _on_wall(v, profiles.get(i), ahead) for i, v in views.items()}
+
+    def on_wall(i: int, v: FrameView) -> FrameView:
+        first, second = priors.get(i, (v.information, None))
+        walled = _on_wall(v, profiles.get(i), ahead, first)
+        if v.alternative is None:
+            return walled
+        return replace(walled, alternative=_on_wall(v.alternative, profiles.get(i), ahead,
+                                                    second))
+
+    views = {i: on_wall(i, v) for i, v in views.items()}
     if not again:
         return replace(reg, views=views), []
     # Every frame, not only those given a wall: the refinement solves the run's tilts
@@ -1266,14 +1300,20 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     given = positions
     positions, placed = _placing(dataset, reg, given, skipped, timer)
     walls = {i: v.profile for i, v in views.items() if v.profile is not None}
-    for _ in range(PROFILE_ROUNDS if given is None and settings.mode == "ours" else 1):
-        reg, again = _with_wall_profiles(dataset, reg, positions, unwrapper, fine, window,
-                                         timer, skipped, again=given is None, given=walls)
-        if not again:
+    priors = {i: (v.information, v.alternative.information if v.alternative else None)
+              for i, v in reg.views.items()}
+    # measured again only where refined: without the refinement, the walls serve the stitch
+    measure = given is None and settings.refine_rounds > 0
+    for _ in range(PROFILE_ROUNDS if measure else 1):
+        reg, redone = _with_wall_profiles(dataset, reg, positions, unwrapper, fine, window,
+                                          timer, skipped, again=measure, given=walls,
+                                          priors=priors)
+        if not redone:
             break
         before, (positions, placed) = positions.z_mm, _placing(dataset, reg, given, skipped,
                                                                timer)
-        if not np.any(np.abs(positions.z_mm[again] - before[again]) >= fine.mm_per_px_axial / 4):
+        if not np.any(np.abs(positions.z_mm[redone] - before[redone])
+                      >= fine.mm_per_px_axial / 4):
             break   # the rings stand where the walls were placed: the profiles hold
     views, links = reg.views, reg.links
     canvas = Canvas(canvas_grid(positions.z_mm[placed], window,

@@ -1045,7 +1045,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
             for j in range(4):
                 info[h, i, j] = pose_info[i, j]
         summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
-        summary[h, SUMMARY_CORR] = correlation_factor(r)
+        summary[h, SUMMARY_CORR] = correlation_factor(r, u, v)
         for j in range(n_free):
             summary[h, SUMMARY_SIGMA + j] = sigma[j]
     return summary, cost, rms_px, info
@@ -1129,35 +1129,53 @@ def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def correlation_factor(resid: np.ndarray) -> float:
+def correlation_factor(resid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
     """How many times fewer independent residuals a ring holds than points, from their
-    autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it stays
-    positive (and over at most a quarter of the points).
+    autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it is
+    significant (above 2 / sqrt(n); at most a quarter of the points' lags).
 
-    The points are in ray order. Neighbouring rays read overlapping pixels of the line,
-    and speckle, a smudge on the lens or an arc of faint line move whole stretches of
-    the ring together; the variance of a fit to n such residuals is this many times that
-    of n independent ones (the effective sample size of a correlated series).
+    The points (plane coordinates ``u``, ``v``) are in ray order. Neighbouring rays read
+    overlapping pixels of the line, and speckle, a smudge on the lens or an arc of faint
+    line move whole stretches of the ring together; the variance of a fit to n such
+    residuals is about this many times that of n independent ones (the effective sample
+    size of a correlated series). The residuals' harmonics 0-2 around the ring are
+    removed first: a section the model does not hold (an oval fitted as a circle) leaves
+    a cos 2 theta pattern that the pose's parameters are orthogonal to.
     """
     n = resid.size
     if n < 8:
         return 1.0
-    mean = 0.0
+    basis = np.empty((n, 5))
     for i in range(n):
-        mean += resid[i]
-    mean /= n
-    var = 0.0
+        phi = np.arctan2(v[i], u[i])
+        basis[i, 0], basis[i, 1], basis[i, 2] = 1.0, np.cos(phi), np.sin(phi)
+        basis[i, 3], basis[i, 4] = np.cos(2 * phi), np.sin(2 * phi)
+    normal, rhs = np.zeros((5, 5)), np.zeros((5, 1))
     for i in range(n):
-        var += (resid[i] - mean) ** 2
+        for a in range(5):
+            rhs[a, 0] += basis[i, a] * resid[i]
+            for b in range(5):
+                normal[a, b] += basis[i, a] * basis[i, b]
+    for a in range(5):
+        normal[a, a] += 1e-9 * n
+    coef = solve(normal, rhs)
+    rest = np.empty(n)
+    for i in range(n):
+        fitted = 0.0
+        for a in range(5):
+            fitted += basis[i, a] * coef[a, 0]
+        rest[i] = resid[i] - fitted
+    var = dot(rest, rest)
     if var <= 0.0:
         return 1.0
+    floor = 2.0 / np.sqrt(n)
     factor = 1.0
     for k in range(1, n // 4):
         c = 0.0
         for i in range(n - k):
-            c += (resid[i] - mean) * (resid[i + k] - mean)
+            c += rest[i] * rest[i + k]
         rho = c / var
-        if rho <= 0.0:
+        if rho <= floor:
             break
         factor += 2.0 * rho
     return factor

@@ -200,5 +200,5 @@ def oval_at_zero_tilt(fit: PoseFit, camera: CameraModel) -> PoseFit:
     oval = Hypothesis(sf.pose, sf.section.mean_radius_mm, float("nan"), sf.rms_mm, rms_px,
                       {"dx_mm": float("nan"), "dy_mm": float("nan"),
                        "radius_mm": sf.radius_std_mm, "ovality": sf.ovality_std},
-                      sf.information, sf.section)
+                      sf.information, sf.section, std_scale=h.std_scale)   # same ring points
     return replace(fit, hypotheses=(oval, oval), model="oval/tilt-0")

@@ -192,6 +192,8 @@ class FrameView:
     oval: bool = False                     # the pose step fitted an oval section
     measured: SectionFit | None = field(default=None, compare=False)
     profile: RadiusProfile | None = field(default=None, compare=False)   # wall along z
+    # the ring's information before a wall's slope loosened it (:func:`_on_wall`)
+    ring_information: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -1118,8 +1120,7 @@ def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
     return positions, placed
 
 
-def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float,
-             prior: np.ndarray | None) -> FrameView:
+def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) -> FrameView:
     """The view unwrapped onto ``profile``, its ring's prior loosened by what a ring on a
     sloping wall misleads its fit by.
 
@@ -1129,11 +1130,11 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float,
     b = k R tan t: its centre, the probe's offset, is misplaced by up to b, or its tilt
     by b / d (d: the plane's distance from the camera). That is added to the prior's
     covariance (Woodbury: (I^-1 + S)^-1 = I - I (S^-1 + I)^-1 I); the photometric
-    links then place the frame (a reducer's ring frames: 0.28 -> 0.01 degrees).
-    ``prior`` is the ring's information before any round loosened it.
+    links then place the frame (a reducer's ring frames: 0.28 -> 0.01 degrees). Each
+    round loosens the ring's own information (``ring_information``), not the last one's.
     """
-    viewed = replace(view, profile=profile, information=prior)
-    info = prior
+    info = view.ring_information if view.ring_information is not None else view.information
+    viewed = replace(view, profile=profile, information=info, ring_information=info)
     if profile is None or info is None or not np.all(np.isfinite(info)):
         return viewed
     radius = view.section.mean_radius_mm
@@ -1162,15 +1163,12 @@ PROFILE_ROUNDS = 3
 def _with_wall_profiles(dataset: Dataset, reg: _Registration, positions: Positions,
                         unwrapper: _Unwrapper, own: WallGrid, window: tuple[float, float],
                         timer: StageTimer, skipped: dict[int, str], *, again: bool,
-                        given: Mapping[int, RadiusProfile],
-                        priors: Mapping[int, tuple[np.ndarray | None, np.ndarray | None]]
+                        given: Mapping[int, RadiusProfile]
                         ) -> tuple[_Registration, list[int]]:
     """The registration with each view's wall along its strip, where the rings of the
     frames placed there say the pipe's radius changes inside its window
     (:func:`frame_profiles`; else the caller's ``given`` one), and the frames measured
-    again. ``priors``: each view's and its mirror's ring information before any round
-    (each round loosens it afresh, :func:`_on_wall`). ``again``, when some wall
-    changed, the links and poses of the run are
+    again. ``again``, when some wall changed, the links and poses of the run are
     measured again on the strips unwrapped onto those walls (:func:`_register_again`:
     patch shifts about the links, then the refinement), so the positions solved from
     them follow."""
@@ -1184,12 +1182,10 @@ def _with_wall_profiles(dataset: Dataset, reg: _Registration, positions: Positio
     ahead = dataset.config.laser.plane_distance_mm
 
     def on_wall(i: int, v: FrameView) -> FrameView:
-        first, second = priors.get(i, (v.information, None))
-        walled = _on_wall(v, profiles.get(i), ahead, first)
+        walled = _on_wall(v, profiles.get(i), ahead)
         if v.alternative is None:
             return walled
-        return replace(walled, alternative=_on_wall(v.alternative, profiles.get(i), ahead,
-                                                    second))
+        return replace(walled, alternative=_on_wall(v.alternative, profiles.get(i), ahead))
 
     views = {i: on_wall(i, v) for i, v in views.items()}
     if not again:
@@ -1300,14 +1296,11 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     given = positions
     positions, placed = _placing(dataset, reg, given, skipped, timer)
     walls = {i: v.profile for i, v in views.items() if v.profile is not None}
-    priors = {i: (v.information, v.alternative.information if v.alternative else None)
-              for i, v in reg.views.items()}
     # measured again only where refined: without the refinement, the walls serve the stitch
     measure = given is None and settings.refine_rounds > 0
     for _ in range(PROFILE_ROUNDS if measure else 1):
         reg, redone = _with_wall_profiles(dataset, reg, positions, unwrapper, fine, window,
-                                          timer, skipped, again=measure, given=walls,
-                                          priors=priors)
+                                          timer, skipped, again=measure, given=walls)
         if not redone:
             break
         before, (positions, placed) = positions.z_mm, _placing(dataset, reg, given, skipped,

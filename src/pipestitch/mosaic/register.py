@@ -349,6 +349,9 @@ class Positions:
         odometer): their roll is interpolated, not measured.
     roll_reference : str
         "relative" (as above), or "imu" once the roll has been offset to an IMU's.
+    odometer_sigma_mm : float
+        The odometer's 1-sigma per increment the solve used (given or measured;
+        NaN without an odometer).
     """
 
     z_mm: np.ndarray
@@ -357,6 +360,7 @@ class Positions:
     outliers: list[tuple[int, int, str]]
     roll_guessed: list[int] = field(default_factory=list)
     roll_reference: str = "relative"
+    odometer_sigma_mm: float = float("nan")
 
 
 def _components(n: int, edges: Sequence[tuple[int, int]]) -> np.ndarray:
@@ -580,4 +584,5 @@ def solve_positions(n_frames: int, links: Sequence[Link], *,
     z_all = np.full(n_frames, np.nan)
     r_all = np.full(n_frames, np.nan)
     z_all[frames], r_all[frames] = z, roll
-    return Positions(z_all, r_all, scale, outliers, roll_guessed)
+    return Positions(z_all, r_all, scale, outliers, roll_guessed,
+                     odometer_sigma_mm=odometer_sigma_mm if odo_pairs else float("nan"))

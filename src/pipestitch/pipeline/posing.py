@@ -447,7 +447,7 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None,
     h = fit.hypotheses[choice.chosen]
     alt = fit.hypotheses[1 - choice.chosen]
     d, a = h.pose.as_degrees(), alt.pose.as_degrees()
-    std = {k: v * h.std_scale for k, v in h.std.items()}   # residuals' correlation counted
+    std = h.stated_std
     return [str(frame.index), _fmt(d["alpha_deg"]), _fmt(d["beta_deg"]), _fmt(d["dx_mm"]),
             _fmt(d["dy_mm"]), z, roll,
             _fmt(h.radius_mm), _fmt(h.section.ovality if h.section else math.nan),

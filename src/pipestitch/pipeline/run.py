@@ -394,7 +394,7 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
     """
     rows: list[list[object]] = []
     for frame, choice, h in _chosen(frames, choices):
-        sec = h.pipe_section
+        sec, std = h.pipe_section, h.stated_std
         lo, hi = sorted((sec.a_mm, sec.b_mm))
         major = math.degrees(sec.angle) + (0.0 if sec.a_mm >= sec.b_mm else 90.0)
         turn = roll.get(frame.index, math.nan)
@@ -406,10 +406,9 @@ def _profile_rows(frames: list[FramePose], choices: list[Choice], z: dict[int, f
             lo, hi = min(lo, dep.min_radius_mm), max(hi, dep.max_radius_mm)
         rows.append([frame.index, z.get(frame.index, math.nan) + plane_distance_mm,
                      2 * h.radius_mm, sec.ovality if h.section is not None else math.nan,
-                     lo, hi, 2 * h.std.get("radius_mm", math.nan) * h.std_scale,
-                     frame.fit.model,
+                     lo, hi, 2 * std.get("radius_mm", math.nan), frame.fit.model,
                      int(abs(2 * h.radius_mm - nominal_mm) <= tolerance_pct / 100 * nominal_mm),
-                     h.std.get("ovality", math.nan) * h.std_scale, axis, *departure])
+                     std.get("ovality", math.nan), axis, *departure])
     return rows
 
 

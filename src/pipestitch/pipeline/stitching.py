@@ -67,7 +67,6 @@ from pipestitch.mosaic.register import (
     Positions,
     measure_overlap_shift,
     measure_shift,
-    odometer_noise_mm,
     predict_motion,
     registration_image,
     shared_taper,
@@ -1075,13 +1074,9 @@ def _solved(dataset: Dataset, reg: _Registration) -> Positions:
         return positions
     # The odometer's noise as the links measured it before any was widened (it is at
     # least the links' median sigma, which the widened ones would inflate).
-    done = set(reg.done)
-    odometry = {f: v for f, v in dataset.odometry_mm.items() if f in done and np.isfinite(v)}
-    noise = odometer_noise_mm([ln for ln in reg.links if ln.i in done and ln.j in done],
-                              odometry)
     again = solve_positions(dataset.n_pairs, [_widened(ln, doubted) for ln in reg.links],
                             odometry_mm=dataset.odometry_mm, placed=reg.done,
-                            odometer_sigma_mm=noise)
+                            odometer_sigma_mm=positions.odometer_sigma_mm)
     placed = [np.isfinite(p.z_mm).sum() for p in (positions, again)]
     kept_up = sum(src == "odometer" for _, _, src in again.outliers)
     # kept only where it keeps more of the odometer and places no fewer frames
@@ -1089,7 +1084,8 @@ def _solved(dataset: Dataset, reg: _Registration) -> Positions:
 
 
 def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
-             skipped: dict[int, str], timer: StageTimer) -> tuple[Positions, list[int]]:
+             skipped: dict[int, str], timer: StageTimer,
+             imu_roll_deg: Mapping[int, float] | None) -> tuple[Positions, list[int]]:
     """The run's positions and the registered frames they place.
 
     The positions are solved from the registration links and the odometer, or are the
@@ -1104,7 +1100,7 @@ def _placing(dataset: Dataset, reg: _Registration, given: Positions | None,
     if given is None:
         with timer("register"):
             positions = _solved(dataset, reg)
-            positions = _roll_from_imu(positions, read_imu(dataset.root))
+            positions = _roll_from_imu(positions, imu_roll_deg)
         why = "not registered to the run (no common texture, no odometer)"
     else:
         positions, why = given, "no position given for the frame"
@@ -1294,7 +1290,8 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     reg = _registration_rounds(dataset, views, unwrapper, (coarse, fine), settings.refine_rounds,
                                timer, show_progress, skipped)
     given = positions
-    positions, placed = _placing(dataset, reg, given, skipped, timer)
+    imu = read_imu(dataset.root) if given is None else None   # once: placed up to 4 times
+    positions, placed = _placing(dataset, reg, given, skipped, timer, imu)
     walls = {i: v.profile for i, v in views.items() if v.profile is not None}
     # measured again only where refined: without the refinement, the walls serve the stitch
     measure = given is None and settings.refine_rounds > 0
@@ -1304,7 +1301,7 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
         if not redone:
             break
         before, (positions, placed) = positions.z_mm, _placing(dataset, reg, given, skipped,
-                                                               timer)
+                                                               timer, imu)
         if not np.any(np.abs(positions.z_mm[redone] - before[redone])
                       >= fine.mm_per_px_axial / 4):
             break   # the rings stand where the walls were placed: the profiles hold

@@ -108,6 +108,11 @@ class Hypothesis:
     std_scale: float = 1.0
 
     @property
+    def stated_std(self) -> dict[str, float]:
+        """``std`` times ``std_scale``: the standard deviations the output files state."""
+        return {k: v * self.std_scale for k, v in self.std.items()}
+
+    @property
     def pipe_section(self) -> PipeSection:
         """The fitted cross-section: an oval when one was fitted, else the circle."""
         return self.section if self.section is not None else PipeSection(self.radius_mm)

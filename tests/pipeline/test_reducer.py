@@ -62,6 +62,11 @@ def test_a_reducer_leaves_z_and_tilt_true_and_nothing_to_warn(reducer, tmp_path,
     # all; and a ring on the sloping wall misleads its own fit (its prior is loosened)
     assert np.max(tilt) < 0.1 and np.median(tilt) < 0.02, tilt
     assert np.median(section_tilt) > 3 * np.median(tilt), section_tilt
+    # the simulator's exposure is constant: the narrow stretch is brighter only because
+    # its wall is nearer the LEDs, which the shading says (it took 0.91 as an exposure)
+    assert profile["optics"]["exposure_step"] == 0.0
+    gains = [float(r["exposure_gain"]) for r in _rows(tmp_path / "out" / "poses.csv").values()]
+    assert np.max(np.abs(np.array(gains) - 1.0)) < 0.01, gains
 
 
 def test_without_the_refinement_the_walls_serve_the_stitch_only(reducer, tmp_path) -> None:

@@ -78,8 +78,9 @@ class UnwrapMaps:
         directions) times the cosine of the viewing angle on the wall; 0 where invisible.
     shading : numpy.ndarray
         float32 (n_rows, n_cols): irradiance from LEDs at the camera centre,
-        cos(viewing angle) · (radius / distance)², 1 for a wall seen squarely at one
-        radius; dividing a strip by it leaves albedo times the lens' vignetting.
+        cos(viewing angle) · (grid radius / distance)², 1 for a wall seen squarely at
+        the grid's radius (the run's: one reference for every strip); dividing a strip
+        by it leaves albedo times the lens' vignetting.
     """
 
     map_x: np.ndarray
@@ -147,8 +148,11 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
         cosine, distance = _line_of_sight(local, section, ring, z, scale)
         cosine = np.clip(cosine, 0, 1)
         resolution = _resolution(px[..., 0], px[..., 1]) / step
+        # Irradiance relative to a wall at the grid's radius, which every strip of a run
+        # shares: a frame in a narrower stretch (its own section smaller) sees its
+        # closer wall brighter, as the LEDs light it, not as an exposure change.
         fields = fields._replace(quality=resolution * cosine,
-                                 shading=cosine * (section.mean_radius_mm / distance) ** 2)
+                                 shading=cosine * (grid.radius_mm / distance) ** 2)
     return fields, z
 
 

@@ -65,12 +65,18 @@ def test_a_mask_outside_the_dataset_is_refused(dataset: Path) -> None:
         read_mask(dataset, read_probe_toml(dataset / "probe.toml"))
 
 
-def test_run_with_a_bad_mask_exits_2_before_the_work(dataset: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("command", ["run", "pose"])
+@pytest.mark.parametrize("image", [None, np.zeros((10, 10), np.uint8)])
+def test_run_and_pose_with_a_bad_mask_exit_2_before_the_work(dataset: Path, tmp_path: Path,
+                                                             command: str, image) -> None:
+    # `pose` does not use the mask, but a dataset that declares one it cannot read is
+    # bad input to every command alike (`pose` used to go on silently)
     from typer.testing import CliRunner
 
     from pipestitch.cli.app import app
 
-    _with_mask(dataset, np.zeros((10, 10), np.uint8))
-    result = CliRunner().invoke(app, ["run", str(dataset), "--out", str(tmp_path / "o"), "-q"])
-    assert result.exit_code == 2 and "mask.png" in result.output
+    _with_mask(dataset, image)
+    result = CliRunner().invoke(app, [command, str(dataset), "--out", str(tmp_path / "o"),
+                                      "-q"])
+    assert result.exit_code == 2 and "mask.png" in result.output, result.output
     assert not (tmp_path / "o" / "poses.csv").exists()

@@ -468,3 +468,32 @@ def test_leading_frames_are_counted_by_the_packets_refused_before_the_first_deco
     assert right.laser.tolist() == [-1, 0, 2, 4] and right.led.tolist() == [-1, 1, 3, 5]
     stray = pair_frames(is_laser, time_s, start_s=-1000.0, refused_before=2)
     assert stray.laser.tolist() == right.laser.tolist()
+
+
+def test_a_video_cut_short_is_said_so_and_names_itself_against_the_odometer(
+        tmp_path: Path) -> None:
+    """A file cut short (a copy or a recording that stopped) decodes to fewer frames than
+    its container declares: `check` warns of the frames missing at the end, and an
+    odometry.csv with rows for the lost pairs is an error that names the video and how
+    many pairs it holds (it used to blame odometry.csv alone)."""
+    whole = write_video(tmp_path / "v.mkv", _interleaved(12), codec="ffv1")
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 6 // 10])
+    with av.open(str(whole)) as full:
+        declared_s = full.duration / 1e6
+    decoded = VideoReader(cut).index
+    assert decoded.time_s.size < 24
+    lost = round(declared_s * 30) - decoded.time_s.size   # 30 frames/s: write_video's
+    assert any(f"about {lost} frame(s) missing at the end" in line
+               for line in decoded.undecodable), decoded.undecodable
+    assert not any("missing at the end" in line for line in VideoReader(whole).index.undecodable)
+    root = _dataset_root(tmp_path, W, H)
+    runner = CliRunner()
+    result = runner.invoke(app, ["check", str(root), "--video", str(cut), "--quiet"])
+    assert result.exit_code == 0 and "the file cut short?" in result.output, result.output
+    (root / "odometry.csv").write_text("frame,z_mm\n" + "".join(f"{k},{5.0 * k}\n"
+                                                                 for k in range(12)))
+    result = runner.invoke(app, ["check", str(root), "--video", str(cut), "--quiet"])
+    pairs = decoded.time_s.size // 2
+    assert result.exit_code == 2, result.output
+    assert f"the video cut.mkv holds {pairs} pair(s)" in " ".join(result.output.split())

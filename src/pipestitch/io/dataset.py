@@ -179,9 +179,10 @@ def read_csv_lines(path: Path, required: tuple[str, ...]
 
 
 def check_frame_column(path: Path, frames: np.ndarray, lines: np.ndarray,
-                       n_pairs: int | None = None) -> None:
+                       n_pairs: int | None = None, pairs_from: str = "") -> None:
     """Frame numbers of a per-frame CSV: whole numbers >= 0 (below ``n_pairs`` when
-    given), each listed once.
+    given), each listed once. ``pairs_from`` says where the pairs were counted (a
+    video cut short shows as rows beyond its pairs: the message names it).
 
     Raises
     ------
@@ -193,6 +194,7 @@ def check_frame_column(path: Path, frames: np.ndarray, lines: np.ndarray,
     if bad.size:
         k = int(bad[0])
         expected = "whole numbers >= 0" if n_pairs is None else f"integers in 0..{n_pairs - 1}"
+        expected += f": {pairs_from}" if pairs_from and n_pairs is not None else ""
         raise DatasetError(path, f"frame numbers must be {expected} (line {lines[k]}: "
                                  f"frame {frames[k]:g})")
     first_line: dict[int, int] = {}
@@ -203,13 +205,15 @@ def check_frame_column(path: Path, frames: np.ndarray, lines: np.ndarray,
         first_line[frame] = line
 
 
-def read_odometry(path: Path, n_pairs: int | None) -> tuple[dict[int, float], list[str]]:
+def read_odometry(path: Path, n_pairs: int | None, pairs_from: str = ""
+                  ) -> tuple[dict[int, float], list[str]]:
     """``odometry.csv``: z per frame, and the warnings about it.
 
     The one reader of the file (``open_dataset`` for every stage, ``check_dataset``).
     Warnings: frames without a row (their z comes from registration alone) and z that
     does not move one way along the run. ``n_pairs`` None (the frames are unknown):
-    frame numbers are not compared with the frames.
+    frame numbers are not compared with the frames; ``pairs_from``: where the pairs
+    were counted, for the message (:func:`check_frame_column`).
 
     Raises
     ------
@@ -221,7 +225,7 @@ def read_odometry(path: Path, n_pairs: int | None) -> tuple[dict[int, float], li
     frames, z = cols["frame"], cols["z_mm"]
     if not len(frames):
         raise DatasetError(path, "no rows (expected frame,z_mm per frame)")
-    check_frame_column(path, frames, lines, n_pairs)
+    check_frame_column(path, frames, lines, n_pairs, pairs_from)
     odometry = {int(f): float(v) for f, v in zip(frames, z, strict=True)}
     return odometry, _odometry_notes(odometry, n_pairs)
 
@@ -370,7 +374,10 @@ def _attach_odometry(dataset: Dataset | VideoDataset) -> None:
     path = dataset.root / ODOMETRY_FILE
     if not path.is_file():
         return
-    dataset.odometry_mm, dataset.odometry_notes = read_odometry(path, dataset.n_pairs)
+    source = (f"the video {dataset.reader.path.name}" if isinstance(dataset, VideoDataset)
+              else "frames/")
+    dataset.odometry_mm, dataset.odometry_notes = read_odometry(
+        path, dataset.n_pairs, f"{source} holds {dataset.n_pairs} pair(s)")
 
 
 def _open_video(root: Path, config: ProbeConfig, video: Path,

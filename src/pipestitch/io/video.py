@@ -377,6 +377,9 @@ class VideoReader:
         pts_arr = np.asarray(pts, dtype=np.int64)[order]
         base = float(self._stream.time_base or Fraction(1, 1))
         undecodable = tuple(_undecodable_line(pts_arr, base, p, reason) for p, reason in refused)
+        cut = _cut_short_line(pts_arr * base, self._container.start_time,
+                              self._container.duration)
+        undecodable += (cut,) if cut else ()
         for line in undecodable:
             logging.getLogger(__name__).warning("%s: %s", self.path, line)
         before = [p for p, _ in refused if p is not None and p < pts_arr[0]]
@@ -467,6 +470,33 @@ def _undecodable_line(pts: np.ndarray, time_base: float, refused_pts: int | None
              else f"between frames {after - 1} and {after}")
     return (f"the frame at {refused_pts * time_base:.3f} s ({where}) cannot be decoded "
             f"({reason}); skipped")
+
+
+CUT_SHORT_FRAMES = 2   # frames missing at the end before a video is said to be cut short
+
+
+def _cut_short_line(time_s: np.ndarray, start_us: int | None, duration_us: int | None
+                    ) -> str | None:
+    """The warning for a video whose frames end well before the length its container
+    declares (a file cut short: a copy or a recording that stopped); None otherwise.
+
+    ``start_us`` and ``duration_us`` are the container's (microseconds, PyAV's
+    ``start_time`` and ``duration``; None where it declares none). The frames' period is
+    their median step; frames missing at the end are only counted from
+    ``CUT_SHORT_FRAMES`` on, so that a container's rounded duration says nothing.
+    """
+    if duration_us is None or time_s.size < 2:
+        return None
+    period = float(np.median(np.diff(time_s)))
+    if not period > 0:
+        return None
+    declared_end = ((start_us or 0) + duration_us) / 1e6
+    decoded_end = float(time_s[-1]) + period
+    missing = int(round((declared_end - decoded_end) / period))
+    if missing < CUT_SHORT_FRAMES:
+        return None
+    return (f"the file declares {declared_end:.3f} s but its frames end at {decoded_end:.3f} s: "
+            f"about {missing} frame(s) missing at the end (the file cut short?)")
 
 
 # Lossless codecs of the PyAV wheel, with a container that holds them. FFVHuff

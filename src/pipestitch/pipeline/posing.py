@@ -33,6 +33,7 @@ from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
+from pipestitch.io.mask import read_mask
 from pipestitch.mosaic.photometric import (
     MAX_SHIFT_SHARE,
     StripPair,
@@ -486,7 +487,7 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
 def report_frame_messages(messages: Iterable[tuple[int, str]]) -> None:
     """Print one line per (frame, message) on stderr (frame -1: the whole run)."""
     for index, message in messages:
-        where = f"frame {index:05d}" if index >= 0 else "run"
+        where = f"frame {index:05d}" if index >= 0 else "dataset"
         console.print(f"[yellow]{where}[/]: {escape(message)}", highlight=False, soft_wrap=True)
 
 
@@ -509,9 +510,10 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 
     dataset = open_dataset(root, video=video)
-    imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
     notes = []
     try:
+        imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
+        read_mask(dataset.root, dataset.config)   # as is a declared mask missing or unfit
         # the ring points, read again only by the tilt-or-oval test, wait in a file
         with opencv_threads(1 if workers > 1 else 0), RingStore() as rings:  # _runtime/threads
             frames, choices = estimate_poses(dataset, show_progress=show_progress,

@@ -233,3 +233,23 @@ def test_a_line_thinner_than_the_sampling_resolves_is_searched_again_finer(
     rms = [float(np.sqrt(np.mean(distance_to_true_ring(r.camera, POSE, d.best())**2)))
            for d in (det, coarse)]
     assert rms[0] < rms[1]   # the thin line is centred better at half pixels
+
+
+def test_a_line_wider_than_expected_is_centred_over_its_measured_width(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A laser sheet about three times the usual thickness: the centroid's window spans
+    the line as measured, not as expected (a window of the expected width cuts the line
+    near its brightest sample and pulls the centre towards it, by speckle and noise).
+    Against the true ring: the same search with the expected width (the line's width
+    made unmeasurable, so the search falls back on the expected one) is ~3x worse."""
+    import pipestitch.pose.ring as ring
+
+    r = renderer("half", Optics(laser_sigma_mm=0.6))
+    laser = r.render_laser(POSE, np.random.default_rng(4))
+    measured = detect_ring(laser, r.camera)
+    monkeypatch.setattr(ring, "_line_sigma_px", lambda *args, **kwargs: float("nan"))
+    expected = detect_ring(laser, r.camera)
+    assert measured.line_sigma_px > 2.5 * expected.line_sigma_px
+    rms = [float(np.sqrt(np.mean(distance_to_true_ring(r.camera, POSE, d.best()) ** 2)))
+           for d in (measured, expected)]
+    assert rms[0] < 0.3 and rms[0] < 0.5 * rms[1], rms

@@ -224,7 +224,15 @@ def test_check_odometry_frames_beyond_the_laser_frames(tmp_path: Path) -> None:
     _tiny_dataset(tmp_path, n=3)
     (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,0.0\n4,20.0\n")
     problems = [str(p) for p in check_dataset(tmp_path)]
-    assert any("odometry.csv: frame numbers must be integers in 0..2" in p for p in problems)
+    # `check` words it as `pose` and `run` do: where the pairs were counted
+    assert any("odometry.csv: frame numbers must be integers in 0..2: frames/ holds 3 pair(s) "
+               "(line 3: frame 4)" in p for p in problems), problems
+    with pytest.raises(DatasetError, match=r"0\.\.2: frames/ holds 3 pair\(s\) \(line 3"):
+        open_dataset(tmp_path)
+    # a negative frame number is wrong whatever the pairs: they are not mentioned
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,0.0\n-1,20.0\n")
+    problems = [str(p) for p in check_dataset(tmp_path)]
+    assert any("integers in 0..2 (line 3: frame -1)" in p for p in problems), problems
 
 
 def test_missing_led_frame_is_per_pair(tmp_path: Path) -> None:

@@ -497,3 +497,32 @@ def test_a_video_cut_short_is_said_so_and_names_itself_against_the_odometer(
     pairs = decoded.time_s.size // 2
     assert result.exit_code == 2, result.output
     assert f"the video cut.mkv holds {pairs} pair(s)" in " ".join(result.output.split())
+
+
+def test_an_audio_track_longer_than_the_video_is_not_a_cut(tmp_path: Path) -> None:
+    """The container's length spans every stream: a recorder's voice track running on
+    after the video is no sign of a cut (only the video stream's own length, or the
+    container's when the video is all it holds, is compared with the frames)."""
+    from fractions import Fraction
+
+    path = tmp_path / "voice.mkv"
+    with av.open(str(path), "w", format="matroska") as out:
+        video = out.add_stream("ffv1", rate=30)
+        video.width, video.height, video.pix_fmt = W, H, "gray"
+        audio = out.add_stream("pcm_s16le", rate=8000)
+        for k, image in enumerate(_interleaved(6)):
+            frame = av.VideoFrame.from_ndarray(image, format="gray")
+            frame.pts, frame.time_base = k, Fraction(1, 30)
+            out.mux(video.encode(frame))
+        out.mux(video.encode())
+        for start in range(0, 8000, 1000):   # 1 s of silence against 0.4 s of video
+            sound = av.AudioFrame.from_ndarray(np.zeros((1, 1000), np.int16), format="s16",
+                                               layout="mono")
+            sound.sample_rate, sound.pts, sound.time_base = 8000, start, Fraction(1, 8000)
+            out.mux(audio.encode(sound))
+        out.mux(audio.encode())
+    with av.open(str(path)) as check:
+        assert check.duration / 1e6 > 0.9   # the container declares the audio's second
+    index = VideoReader(path).index
+    assert index.time_s.size == 12
+    assert not any("missing at the end" in line for line in index.undecodable), index.undecodable

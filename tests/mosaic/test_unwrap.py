@@ -155,3 +155,21 @@ def test_to_grey_of_integer_frames_is_the_cast_times_the_scale() -> None:
         expected = img.astype(np.float32) * np.float32(1.0 / np.iinfo(dtype).max)
         grey = to_grey(img)
         assert grey.dtype == np.float32 and np.array_equal(grey, expected)
+
+
+def test_shading_is_the_lit_walls_irradiance_relative_to_one_radius_for_the_run() -> None:
+    """A frame in a narrower stretch (a reducer) sees its nearer wall brighter: with the
+    LEDs at the camera centre on the axis, a wall point at radius r and axial distance z
+    gets cos/d² = r/d³ (d² = r² + z²). Two frames unwrapped onto the run's grid, one in
+    a 65 mm and one in a 61 mm section: their shadings stand in that ratio (each
+    normalised by its own section, the narrow one came out (30.5/32.5)² too dark and the
+    exposure solve took it for a darker exposure)."""
+    grid = WallGrid.window(R, 0.2, 4.0, 40.0)
+    wide, narrow = (unwrap_maps(CAMERA, Pose(), PipeSection(r), grid, with_quality=True)
+                    for r in (R, 30.5))
+    z = grid.z0_mm + np.arange(grid.n_cols) * grid.mm_per_px_axial
+    irradiance = {r: r / np.hypot(r, z) ** 3 for r in (R, 30.5)}
+    seen = (wide.quality > 0) & (narrow.quality > 0)
+    assert seen.mean() > 0.5
+    ratio = np.broadcast_to(irradiance[30.5] / irradiance[R], seen.shape)
+    np.testing.assert_allclose((narrow.shading / wide.shading)[seen], ratio[seen], rtol=2e-3)

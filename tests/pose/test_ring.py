@@ -253,3 +253,28 @@ def test_a_line_wider_than_expected_is_centred_over_its_measured_width(
     rms = [float(np.sqrt(np.mean(distance_to_true_ring(r.camera, POSE, d.best()) ** 2)))
            for d in (measured, expected)]
     assert rms[0] < 0.3 and rms[0] < 0.5 * rms[1], rms
+
+
+def test_the_wider_window_stops_half_way_to_another_ring_on_the_ray(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ghost of the ring 5 px outside it (a reflection, 0.8 as bright): the centroid's
+    window, as wide as the line measures, stops half way to the ghost's candidate on the
+    same ray; reaching across would pull the ring ~3x further off."""
+    import cv2
+
+    import pipestitch.pose.ring as ring
+
+    r = renderer("half", Optics())
+    laser = r.render_laser(POSE, np.random.default_rng(4)).astype(np.float32)
+    cx, cy = ring.ring_centre(r.camera)
+    f = 305.0 / 300.0   # the ring lies ~300 px from the centre: its ghost 5 px outside
+    ghost = cv2.warpAffine(laser, np.array([[f, 0, cx * (1 - f)], [0, f, cy * (1 - f)]],
+                                           np.float32), (laser.shape[1], laser.shape[0]))
+    frame = laser + 0.8 * ghost
+    stopped = detect_ring(frame, r.camera)
+    monkeypatch.setattr(ring, "_half_way_to_neighbours",
+                        lambda others, found, idx, apart: np.full(len(idx), np.inf))
+    across = detect_ring(frame, r.camera)
+    rms = [float(np.sqrt(np.mean(np.minimum(
+        distance_to_true_ring(r.camera, POSE, d.best()), 5.0) ** 2))) for d in (stopped, across)]
+    assert rms[0] < 0.6 and rms[1] > 2 * rms[0], rms

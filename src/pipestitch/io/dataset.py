@@ -194,7 +194,7 @@ def check_frame_column(path: Path, frames: np.ndarray, lines: np.ndarray,
     if bad.size:
         k = int(bad[0])
         expected = "whole numbers >= 0" if n_pairs is None else f"integers in 0..{n_pairs - 1}"
-        expected += f": {pairs_from}" if pairs_from and n_pairs is not None else ""
+        expected += f": {pairs_from}" if pairs_from and frames[k] >= top else ""
         raise DatasetError(path, f"frame numbers must be {expected} (line {lines[k]}: "
                                  f"frame {frames[k]:g})")
     first_line: dict[int, int] = {}
@@ -377,7 +377,12 @@ def _attach_odometry(dataset: Dataset | VideoDataset) -> None:
     source = (f"the video {dataset.reader.path.name}" if isinstance(dataset, VideoDataset)
               else "frames/")
     dataset.odometry_mm, dataset.odometry_notes = read_odometry(
-        path, dataset.n_pairs, f"{source} holds {dataset.n_pairs} pair(s)")
+        path, dataset.n_pairs, pairs_held(source, dataset.n_pairs))
+
+
+def pairs_held(source: str, n_pairs: int) -> str:
+    """Where a dataset's pairs were counted, for a message about frame numbers."""
+    return f"{source} holds {n_pairs} pair(s)"
 
 
 def _open_video(root: Path, config: ProbeConfig, video: Path,
@@ -520,17 +525,19 @@ def _json_kind(value: object) -> str:
     return next(name for kind, name in kinds if isinstance(value, kind))
 
 
-def check_odometry_and_imu(root: Path, n_pairs: int | None) -> list[Problem]:
+def check_odometry_and_imu(root: Path, n_pairs: int | None, pairs_from: str = ""
+                           ) -> list[Problem]:
     """odometry.csv and imu.csv read by the readers every stage uses: their errors, and
     the odometry warnings (missing rows, z not monotonic). ``n_pairs``: the number of
-    frame pairs, None when unknown (no frames)."""
+    frame pairs, None when unknown (no frames); ``pairs_from``: where they were counted
+    (:func:`read_odometry`)."""
     from pipestitch.io.imu import IMU_FILE, read_imu  # imu reads its CSV with this module
 
     problems = []
     odo = root / ODOMETRY_FILE
     if odo.is_file():
         try:
-            _, notes = read_odometry(odo, n_pairs)
+            _, notes = read_odometry(odo, n_pairs, pairs_from)
             problems.extend(Problem(odo, note, "warning") for note in notes)
         except DatasetError as exc:
             problems.append(Problem(odo, exc.problem))
@@ -574,7 +581,9 @@ def check_dataset(root: str | Path, *,
     frames_dir = root / "frames"
     lasers = frame_files(frames_dir)[0]["laser"] if frames_dir.is_dir() else {}
     # pairs as numbered (a gap in the numbering is reported with the frames)
-    problems.extend(check_odometry_and_imu(root, max(lasers) + 1 if lasers else None))
+    n_pairs = max(lasers) + 1 if lasers else None
+    problems.extend(check_odometry_and_imu(
+        root, n_pairs, pairs_held("frames/", n_pairs) if n_pairs else ""))
     if config is not None:
         try:
             read_mask(root, config)

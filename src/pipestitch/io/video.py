@@ -67,7 +67,8 @@ class FrameIndex:
     brightness: np.ndarray  # (F,) float, see frame_brightness
     width: int
     height: int
-    # One line per frame the decoder refused (its packet is damaged): not in the index.
+    # One line per frame the decoder refused (its packet is damaged): not in the index;
+    # and one when the frames end well before the file's declared length (cut short).
     undecodable: tuple[str, ...] = ()
     # Time of the recording's first frame, decodable or not (a refused packet's
     # timestamp can be earlier than the first decoded frame's); NaN when unknown.
@@ -281,7 +282,8 @@ class VideoReader:
     seeks to the preceding keyframe. Thread-safe (one decoder behind a lock).
     A frame whose packet the decoder refuses is left out of the index (frame numbers
     count the frames decoded) and reported: a warning when the video is opened, and
-    ``index.undecodable``.
+    ``index.undecodable`` (which also says when the frames end well before the length
+    the file declares for them: a file cut short).
 
     Parameters
     ----------
@@ -377,8 +379,8 @@ class VideoReader:
         pts_arr = np.asarray(pts, dtype=np.int64)[order]
         base = float(self._stream.time_base or Fraction(1, 1))
         undecodable = tuple(_undecodable_line(pts_arr, base, p, reason) for p, reason in refused)
-        cut = _cut_short_line(pts_arr * base, self._container.start_time,
-                              self._container.duration)
+        cut = _cut_short_line(pts_arr * base, *self._declared_span_s(base),
+                              sum(1 for p, _ in refused if p is not None and p > pts_arr[-1]))
         undecodable += (cut,) if cut else ()
         for line in undecodable:
             logging.getLogger(__name__).warning("%s: %s", self.path, line)
@@ -386,6 +388,18 @@ class VideoReader:
         return FrameIndex(pts_arr, pts_arr * base, np.asarray(bright)[order],
                           size[0], size[1], undecodable, min([int(pts_arr[0]), *before]) * base,
                           len(before))
+
+    def _declared_span_s(self, time_base: float) -> tuple[float | None, float | None]:
+        """(start, duration) in seconds the file declares for the video stream: the
+        stream's own where it has them, else the container's when the video is its only
+        stream (a container's length spans every stream: an audio track may outlast the
+        video); (None, None) when unknown."""
+        stream = self._stream
+        if stream.duration is not None:
+            return (stream.start_time or 0) * time_base, stream.duration * time_base
+        if len(self._container.streams) == 1 and self._container.duration is not None:
+            return (self._container.start_time or 0) / 1e6, self._container.duration / 1e6
+        return None, None
 
     @property
     def n_frames(self) -> int:
@@ -475,24 +489,26 @@ def _undecodable_line(pts: np.ndarray, time_base: float, refused_pts: int | None
 CUT_SHORT_FRAMES = 2   # frames missing at the end before a video is said to be cut short
 
 
-def _cut_short_line(time_s: np.ndarray, start_us: int | None, duration_us: int | None
-                    ) -> str | None:
-    """The warning for a video whose frames end well before the length its container
-    declares (a file cut short: a copy or a recording that stopped); None otherwise.
+def _cut_short_line(time_s: np.ndarray, start_s: float | None, duration_s: float | None,
+                    refused_after: int = 0) -> str | None:
+    """The warning for a video whose frames end well before the length the file
+    declares for them (a file cut short: a copy or a recording that stopped); None
+    otherwise.
 
-    ``start_us`` and ``duration_us`` are the container's (microseconds, PyAV's
-    ``start_time`` and ``duration``; None where it declares none). The frames' period is
-    their median step; frames missing at the end are only counted from
-    ``CUT_SHORT_FRAMES`` on, so that a container's rounded duration says nothing.
+    ``start_s`` and ``duration_s``: the video stream's declared span (seconds; None where
+    the file declares none, :meth:`VideoReader._declared_span_s`). The frames' period is
+    their median step; ``refused_after`` frames past the last decoded one were reported
+    as undecodable already and are not counted again; frames missing at the end are only
+    counted from ``CUT_SHORT_FRAMES`` on, so that a rounded duration says nothing.
     """
-    if duration_us is None or time_s.size < 2:
+    if duration_s is None or time_s.size < 2:
         return None
     period = float(np.median(np.diff(time_s)))
     if not period > 0:
         return None
-    declared_end = ((start_us or 0) + duration_us) / 1e6
+    declared_end = (start_s or 0.0) + duration_s
     decoded_end = float(time_s[-1]) + period
-    missing = int(round((declared_end - decoded_end) / period))
+    missing = int(round((declared_end - decoded_end) / period)) - refused_after
     if missing < CUT_SHORT_FRAMES:
         return None
     return (f"the file declares {declared_end:.3f} s but its frames end at {decoded_end:.3f} s: "

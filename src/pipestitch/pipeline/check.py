@@ -20,6 +20,7 @@ from pipestitch.io.dataset import (
     check_odometry_and_imu,
     count_frame_files,
     open_dataset,
+    pairs_held,
 )
 from pipestitch.pipeline.progress import console
 
@@ -45,7 +46,8 @@ def check_video(root: str | Path, video: str | Path) -> list[Problem]:
     try:
         _read_first_frame(dataset)   # a video's frames all have one size: one read checks it
         return ([Problem(Path(video), note, "warning") for note in dataset.notes]
-                + check_odometry_and_imu(Path(root), dataset.n_pairs))
+                + check_odometry_and_imu(Path(root), dataset.n_pairs, pairs_held(
+                    f"the video {Path(video).name}", dataset.n_pairs)))
     except PipestitchError as exc:
         return [_problem(exc, root)]
     finally:

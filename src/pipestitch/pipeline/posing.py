@@ -484,10 +484,11 @@ def write_poses_csv(path: Path, frames: list[FramePose], choices: list[Choice],
     return atomic_write_text(path, buffer.getvalue())
 
 
-def report_frame_messages(messages: Iterable[tuple[int, str]]) -> None:
-    """Print one line per (frame, message) on stderr (frame -1: the whole run)."""
+def report_frame_messages(messages: Iterable[tuple[int, str]], command: str = "run") -> None:
+    """Print one line per (frame, message) on stderr (frame -1: the whole dataset or run,
+    labelled with the ``command`` that reports it)."""
     for index, message in messages:
-        where = f"frame {index:05d}" if index >= 0 else "dataset"
+        where = f"frame {index:05d}" if index >= 0 else command
         console.print(f"[yellow]{where}[/]: {escape(message)}", highlight=False, soft_wrap=True)
 
 
@@ -528,7 +529,8 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + notes
-                          + [(f.index, m) for f in frames for m in (f.error, f.warning) if m])
+                          + [(f.index, m) for f in frames for m in (f.error, f.warning) if m],
+                          command="pose")
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm, imu)
     return PoseSummary(len(frames), sum(1 for f in frames if not f.fit.ok),
                        sum(1 for c in choices if c.ambiguous), path)

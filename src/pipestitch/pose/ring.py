@@ -358,7 +358,11 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # wider line (a thick or speckled one) near its brightest sample, pulling the
     # centre towards wherever that fell (ring-only tilt error 3.3 -> 2.2 deg on a
     # speckled line, 1.2 -> 0.8 deg on one 2.6 times as wide; docs/benchmarks.md).
-    radius = _centroid(polar, narrow, az_idx, idx, max(width, sigma) / step) * step + radii[0]
+    # At most the ridge filter's wide sigma (what the band's margin holds), and never
+    # past half way to another candidate of the same ray (a ghost ring, a glint).
+    line = min(max(width, sigma), 4 * sigma) / step
+    reach = _half_way_to_neighbours(order[az_idx], np.isfinite(top[az_idx]), idx, 3 * line)
+    radius = _centroid(polar, narrow, az_idx, idx, line, reach) * step + radii[0]
     phi = az_idx * (2 * np.pi / n_azimuths)
     pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
     return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank, snr=snr,
@@ -487,14 +491,27 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
     return divide_by_reflectance(polar, local, broad, 0.15, 0.15)
 
 
+def _half_way_to_neighbours(others: np.ndarray, found: np.ndarray, idx: np.ndarray,
+                            apart: float) -> np.ndarray:
+    """Per candidate, half the distance (samples) to the nearest other candidate of its
+    ray at least ``apart`` away (inf when there is none). ``others``: the ray's
+    candidate samples (n, count), ``found``: which of them are candidates, ``idx``: the
+    candidate's own sample. Maxima closer than ``apart`` (two line sigmas) are the
+    same line's (speckle, a flat top), not a neighbour."""
+    gap = np.abs(others - idx[:, None]).astype(float)
+    gap[~found | (gap < apart)] = np.inf
+    return np.floor(gap.min(axis=1) / 2)
+
+
 def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,
-              sigma_samples: float) -> np.ndarray:
+              sigma_samples: float, reach: np.ndarray | None = None) -> np.ndarray:
     """Sub-sample peak position: centroid of the profile above its local background.
 
-    The window spans +-3 sigma of the expected line; the background is the lower
-    of the window's two end values, so a sloping background (LED leakage, the
-    far-wall glow) is not mistaken for signal. Saturated (flat-topped) peaks are
-    handled correctly, which a parabola fit is not.
+    The window spans +-3 ``sigma_samples`` (the line's sigma), each candidate's cut to
+    +-``reach`` samples where given; the background is the lower of the window's two
+    end values, so a sloping background (LED leakage, the far-wall glow) is not
+    mistaken for signal. Saturated (flat-topped) peaks are handled correctly, which a
+    parabola fit is not.
     """
     half = max(2, int(np.ceil(3 * sigma_samples)))
     offsets = np.arange(-half, half + 1)
@@ -503,6 +520,8 @@ def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.n
     base = np.minimum(profile[:, :1], profile[:, -1:])
     peak = smooth[rows, idx][:, None]
     weight = np.clip(profile - (base + 0.3 * (peak - base)), 0, None)
+    if reach is not None:
+        weight *= np.abs(offsets)[None, :] <= np.maximum(reach, 2)[:, None]
     total = weight.sum(axis=1)
     shift = np.where(total > 0, (weight * offsets).sum(axis=1) / np.where(total > 0, total, 1), 0)
     return idx + shift

@@ -356,7 +356,7 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     width = width if math.isfinite(width) else sigma   # too few candidates: as searched
     # The centroid spans the line as measured: a window of the expected width cut a
     # wider line (a thick or speckled one) near its brightest sample, pulling the
-    # centre towards wherever that fell (ring-only tilt error 3.3 -> 2.2 deg on a
+    # centre towards wherever that fell (ring-only tilt error 3.3 -> 2.3 deg on a
     # speckled line, 1.2 -> 0.8 deg on one 2.6 times as wide; docs/benchmarks.md).
     # At most the ridge filter's wide sigma (what the band's margin holds), and never
     # past half way to another candidate of the same ray (a ghost ring, a glint).
@@ -496,8 +496,9 @@ def _half_way_to_neighbours(others: np.ndarray, found: np.ndarray, idx: np.ndarr
     """Per candidate, half the distance (samples) to the nearest other candidate of its
     ray at least ``apart`` away (inf when there is none). ``others``: the ray's
     candidate samples (n, count), ``found``: which of them are candidates, ``idx``: the
-    candidate's own sample. Maxima closer than ``apart`` (two line sigmas) are the
-    same line's (speckle, a flat top), not a neighbour."""
+    candidate's own sample. Maxima closer than ``apart`` (three line sigmas where
+    :func:`detect_ring` asks) are the same line's (speckle, a flat top), not a
+    neighbour."""
     gap = np.abs(others - idx[:, None]).astype(float)
     gap[~found | (gap < apart)] = np.inf
     return np.floor(gap.min(axis=1) / 2)

@@ -85,6 +85,16 @@ def test_demo_simulates_and_processes_a_run(tmp_path: Path) -> None:
     assert "report:" in result.output
     for name in ("poses.csv", "mosaic.png", "mosaic.json", "profile.csv", "report.html"):
         assert (tmp_path / "out" / name).is_file(), name
+    # the README's `./run-demo --out DIR` run again: the demo's own dataset is processed
+    # again (it was refused as a folder that "already holds frames")
+    poses = (tmp_path / "out" / "poses.csv").read_text()
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "made by an earlier demo" in result.output and "report:" in result.output
+    assert (tmp_path / "out" / "poses.csv").read_text() == poses
+    # another size is another demo: not the one in the folder, which is not overwritten
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--size", "full", "--quiet"])
+    assert result.exit_code == 2 and "already holds frames" in result.output, result.output
 
 
 def test_messages_with_brackets_are_printed_verbatim(small_dataset: Path, tmp_path: Path) -> None:

@@ -380,14 +380,35 @@ def demo(
         check_out_folder_path(out)
     root = out if out is not None else Path(tempfile.mkdtemp(prefix="pipestitch-demo-"))
     dataset = root / "dataset"
-    run = simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
-                           show_progress=not quiet)
+    reused = _earlier_demo(dataset, size)
+    if not reused:
+        simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
+                         show_progress=not quiet)
     problems = [p for p in run_check(dataset, show_progress=not quiet) if p.severity == "error"]
     if problems:
         _print_problems(problems)
         raise typer.Exit(1)
-    typer.echo(f"demo dataset: {dataset} ({len(run.poses)} pairs, checked OK)")
+    pairs = len(list((dataset / "frames").glob("laser_*")))
+    made = "made by an earlier demo, " if reused else ""
+    typer.echo(f"demo dataset: {dataset} ({pairs} pairs, {made}checked OK)")
     _print_run(run_dataset(dataset, root / "out", show_progress=not quiet))
+
+
+def _earlier_demo(dataset: Path, size: str) -> bool:
+    """True when ``dataset`` is what this demo simulates (an earlier `demo --out` into
+    the same folder): it is processed again rather than refused."""
+    import json
+
+    from pipestitch.camera import default_camera
+    from pipestitch.io.probe_toml import read_probe_toml
+
+    try:
+        made = json.loads((dataset / "truth" / "simulation.json").read_text(encoding="utf-8"))
+        width = read_probe_toml(dataset / "probe.toml").camera.width
+    except (OSError, ValueError, PipestitchError):
+        return False
+    return (isinstance(made, dict) and made.get("scenario") == "default"
+            and made.get("seed") == 0 and width == default_camera(size).width)
 
 
 app.command(name="batch")(_handle_errors(batch))

@@ -1038,6 +1038,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     summary, info = np.empty((2, SUMMARY_SIGMA + n_free)), np.empty((2, 4, 4))
     for j in range(5):   # element by element: slice assignments compile a shape check
         summary[0, j], summary[1, j] = x[j], mirror[j]
+    basis, normal = harmonic_basis(u, v)   # the same points for both hypotheses
     for h, (r, h_jtj) in enumerate(((resid, jtj), (m_resid, m_jtj))):
         summary[h, SUMMARY_RMS] = np.sqrt(dot(r, r) / r.size)
         sigma, pose_info, ok = uncertainty(r, h_jtj, n_free)
@@ -1045,7 +1046,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
             for j in range(4):
                 info[h, i, j] = pose_info[i, j]
         summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
-        summary[h, SUMMARY_CORR] = correlation_factor(r, u, v)
+        summary[h, SUMMARY_CORR] = correlation_factor_on(r, basis, normal)
         for j in range(n_free):
             summary[h, SUMMARY_SIGMA + j] = sigma[j]
     return summary, cost, rms_px, info
@@ -1129,6 +1130,28 @@ def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def harmonic_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Harmonics 0-2 of the points' angle about the plane's centre, (n, 5): 1, cos, sin,
+    cos 2, sin 2 (from u / r and v / r: no trigonometric call), and their normal
+    matrix (5, 5, with a ridge of 1e-9 n). One for both hypotheses of a frame."""
+    n = u.size
+    basis = np.empty((n, 5))
+    for i in range(n):
+        r = np.sqrt(u[i] * u[i] + v[i] * v[i])
+        c, s = (u[i] / r, v[i] / r) if r > 0.0 else (1.0, 0.0)
+        basis[i, 0], basis[i, 1], basis[i, 2] = 1.0, c, s
+        basis[i, 3], basis[i, 4] = c * c - s * s, 2.0 * s * c
+    normal = np.zeros((5, 5))
+    for i in range(n):
+        for a in range(5):
+            for b in range(5):
+                normal[a, b] += basis[i, a] * basis[i, b]
+    for a in range(5):
+        normal[a, a] += 1e-9 * n
+    return basis, normal
+
+
+@numba.njit(cache=True, error_model="numpy")
 def correlation_factor(resid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
     """How many times fewer independent residuals a ring holds than points, from their
     autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it is
@@ -1142,22 +1165,22 @@ def correlation_factor(resid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float
     removed first: a section the model does not hold (an oval fitted as a circle) leaves
     a cos 2 theta pattern that the pose's parameters are orthogonal to.
     """
+    if resid.size < 8:
+        return 1.0
+    basis, normal = harmonic_basis(u, v)
+    return correlation_factor_on(resid, basis, normal)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def correlation_factor_on(resid: np.ndarray, basis: np.ndarray, normal: np.ndarray) -> float:
+    """:func:`correlation_factor` with the points' :func:`harmonic_basis` given."""
     n = resid.size
     if n < 8:
         return 1.0
-    basis = np.empty((n, 5))
-    for i in range(n):
-        phi = np.arctan2(v[i], u[i])
-        basis[i, 0], basis[i, 1], basis[i, 2] = 1.0, np.cos(phi), np.sin(phi)
-        basis[i, 3], basis[i, 4] = np.cos(2 * phi), np.sin(2 * phi)
-    normal, rhs = np.zeros((5, 5)), np.zeros((5, 1))
+    rhs = np.zeros((5, 1))
     for i in range(n):
         for a in range(5):
             rhs[a, 0] += basis[i, a] * resid[i]
-            for b in range(5):
-                normal[a, b] += basis[i, a] * basis[i, b]
-    for a in range(5):
-        normal[a, a] += 1e-9 * n
     coef = solve(normal, rhs)
     rest = np.empty(n)
     for i in range(n):

@@ -372,7 +372,7 @@ def demo(
     """
     from pipestitch.pipeline.check import check_out_folder_path, run_check
     from pipestitch.pipeline.run import run_dataset
-    from pipestitch.pipeline.simulating import simulate_dataset
+    from pipestitch.pipeline.simulating import simulate_dataset, simulated_before
 
     if size not in ("full", "half"):
         raise _error(f"--size: expected full or half, got {size!r}", 2)
@@ -380,7 +380,7 @@ def demo(
         check_out_folder_path(out)
     root = out if out is not None else Path(tempfile.mkdtemp(prefix="pipestitch-demo-"))
     dataset = root / "dataset"
-    reused = _earlier_demo(dataset, size)
+    reused = simulated_before(dataset, "default", 0, size)
     if not reused:
         simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
                          show_progress=not quiet)
@@ -392,23 +392,6 @@ def demo(
     made = "made by an earlier demo, " if reused else ""
     typer.echo(f"demo dataset: {dataset} ({pairs} pairs, {made}checked OK)")
     _print_run(run_dataset(dataset, root / "out", show_progress=not quiet))
-
-
-def _earlier_demo(dataset: Path, size: str) -> bool:
-    """True when ``dataset`` is what this demo simulates (an earlier `demo --out` into
-    the same folder): it is processed again rather than refused."""
-    import json
-
-    from pipestitch.camera import default_camera
-    from pipestitch.io.probe_toml import read_probe_toml
-
-    try:
-        made = json.loads((dataset / "truth" / "simulation.json").read_text(encoding="utf-8"))
-        width = read_probe_toml(dataset / "probe.toml").camera.width
-    except (OSError, ValueError, PipestitchError):
-        return False
-    return (isinstance(made, dict) and made.get("scenario") == "default"
-            and made.get("seed") == 0 and width == default_camera(size).width)
 
 
 app.command(name="batch")(_handle_errors(batch))

@@ -18,11 +18,11 @@ from pipestitch.errors import DatasetError
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS
 from pipestitch.io.images import write_image
-from pipestitch.io.probe_toml import probe_config_for, write_probe_toml
+from pipestitch.io.probe_toml import probe_config_for, read_probe_toml, write_probe_toml
 from pipestitch.pipeline.progress import track
 from pipestitch.simulate.scenarios import PLANE_DISTANCE_MM, Scenario, SyntheticRun, build_run
 
-__all__ = ["simulate_dataset", "write_truth"]
+__all__ = ["simulate_dataset", "simulated_before", "write_truth"]
 
 
 def _csv(header: list[str], rows: list[list[object]]) -> str:
@@ -128,3 +128,19 @@ def simulate_dataset(scenario: Scenario, out: str | Path, *, seed: int = 0, size
             ["frame", "z_mm"], [[i, float(z)] for i, z in enumerate(run.odometry_mm)]))
     write_truth(run, out)
     return run
+
+
+def simulated_before(dataset: Path, scenario: str, seed: int, size: str) -> bool:
+    """True when ``dataset`` holds what :func:`simulate_dataset` makes of ``scenario`` at
+    ``seed`` and ``size`` (its truth/simulation.json and frame size say so): `demo --out
+    DIR` run again processes it again instead of refusing the folder."""
+    from pipestitch.camera import default_camera
+    from pipestitch.errors import PipestitchError
+
+    try:
+        made = json.loads((dataset / "truth" / "simulation.json").read_text(encoding="utf-8"))
+        width = read_probe_toml(dataset / "probe.toml").camera.width
+    except (OSError, ValueError, PipestitchError):
+        return False
+    return (isinstance(made, dict) and made.get("scenario") == scenario
+            and made.get("seed") == seed and width == default_camera(size).width)

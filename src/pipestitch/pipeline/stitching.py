@@ -1147,8 +1147,7 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) ->
 def _same_wall(a: RadiusProfile | None, b: RadiusProfile | None) -> bool:
     if a is None or b is None:
         return a is b
-    return a.z_mm.shape == b.z_mm.shape and bool(np.all(a.z_mm == b.z_mm)
-                                                 and np.all(a.scale == b.scale))
+    return np.array_equal(a.z_mm, b.z_mm) and np.array_equal(a.scale, b.scale)
 
 
 # Rounds of wall profiles and the registration of their frames: the profiles are placed

@@ -213,7 +213,7 @@ def _jpeg_under(fig: plt.Figure, ax: plt.Axes, rgb: np.ndarray) -> str:
     tight = fig.get_tightbbox(fig.canvas.get_renderer()).padded(pad)   # inches
     agg_pyplot().close(fig)
     picture = _crop(picture, tight, height)
-    ok, jpeg = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+    _, jpeg = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
     return "data:image/jpeg;base64," + base64.b64encode(jpeg.tobytes()).decode("ascii")
 
 

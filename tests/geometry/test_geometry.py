@@ -16,6 +16,7 @@ from pipestitch.geometry import (
     rays_to_wall,
     theta_z_from_points,
 )
+from pipestitch.geometry.rotations import rot_x, rot_y, rot_z
 
 
 def spec_transform(p: np.ndarray, a: float, b: float, dx: float, dy: float, g: float,
@@ -182,3 +183,19 @@ def test_rays_meet_the_first_wall_where_it_widens() -> None:
 def test_a_radius_profile_refuses_what_is_no_wall(z, scale) -> None:
     with pytest.raises(ValueError, match="RadiusProfile"):
         RadiusProfile(np.array(z), np.array(scale))
+
+
+@settings(max_examples=40, deadline=None)
+@given(angle=st.floats(-7.0, 7.0))
+def test_rotations_of_one_angle_match_the_array_path_and_the_closed_form(angle) -> None:
+    """A scalar angle takes the written-out path; an array of angles the vectorised
+    one: the same matrices, and the textbook ones."""
+    c, s = np.cos(angle), np.sin(angle)
+    closed = {rot_x: [[1, 0, 0], [0, c, -s], [0, s, c]],
+              rot_y: [[c, 0, s], [0, 1, 0], [-s, 0, c]],
+              rot_z: [[c, -s, 0], [s, c, 0], [0, 0, 1]]}
+    for rot, matrix in closed.items():
+        one = rot(angle)
+        assert one.shape == (3, 3) and one.dtype == np.float64
+        np.testing.assert_allclose(one, rot(np.array([angle, 0.0]))[0], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(one, matrix, rtol=0, atol=1e-15)

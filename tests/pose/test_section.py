@@ -8,7 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.pose.section import fit_section, oval_residuals, section_free_information
+from pipestitch.pose.section import (
+    fit_section,
+    oval_jacobian,
+    oval_residuals,
+    section_free_information,
+)
 
 D = 16.0
 
@@ -42,6 +47,23 @@ def test_residual_is_the_radial_distance_to_first_order() -> None:
     # 10 µm inside the wall, radially: r_mean (|q| / r(theta) - 1) = -10 µm · r_mean / r(theta),
     # within ±2.5 % of -10 µm at 5 % ovality (exact up to second order in the 10 µm).
     np.testing.assert_allclose(oval_residuals(x, inside), -0.01 * 32.5 / r_theta, rtol=1e-3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(a=st.floats(-0.1, 0.1), b=st.floats(-0.1, 0.1), dx=st.floats(-5, 5),
+       dy=st.floats(-5, 5), r=st.floats(20, 40), c=st.floats(-0.1, 0.1),
+       s=st.floats(-0.1, 0.1))
+def test_jacobian_is_the_residuals_derivative(a, b, dx, dy, r, c, s) -> None:
+    """The closed-form derivatives against central differences of the residuals."""
+    pose = Pose.from_degrees(3.0, -2.0, 1.5, -0.5)
+    points = laser_ring(pose, PipeSection.oval(65.0, 0.03, 0.4), D, n_points=90)
+    x = np.array([a, b, dx, dy, r, c, s])
+    steps = np.array([1e-7, 1e-7, 1e-6, 1e-6, 1e-6, 1e-7, 1e-7])
+    numeric = np.column_stack([
+        (oval_residuals(x + h * e, points) - oval_residuals(x - h * e, points)) / (2 * h)
+        for h, e in zip(steps, np.eye(7), strict=True)])
+    np.testing.assert_allclose(oval_jacobian(x, points), numeric, rtol=1e-6,
+                               atol=1e-6 * np.abs(numeric).max())
 
 
 def test_one_ring_cannot_separate_tilt_from_ovality() -> None:

@@ -6,12 +6,16 @@ array of points ``P`` (N, 3) rotates as ``P @ R.T``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["rot_x", "rot_y", "rot_z"]
 
 
 def _rot(angle: np.ndarray | float, i: int, j: int) -> np.ndarray:
+    if isinstance(angle, (float, int, np.floating, np.integer)):
+        return _rot_of(float(angle), i, j)
     a = np.asarray(angle, dtype=np.float64)
     c, s = np.cos(a), np.sin(a)
     out = np.zeros((*a.shape, 3, 3))
@@ -21,6 +25,15 @@ def _rot(angle: np.ndarray | float, i: int, j: int) -> np.ndarray:
     out[..., i, j] = -s
     out[..., j, i] = s
     return out
+
+
+def _rot_of(angle: float, i: int, j: int) -> np.ndarray:
+    """:func:`_rot` of one angle: written out (a pose's rotations are built hundreds of
+    thousands of times a run, and the array path's identity-and-fill costs 3x this)."""
+    c, s = math.cos(angle), math.sin(angle)
+    out = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    out[i][i], out[j][j], out[i][j], out[j][i] = c, c, -s, s
+    return np.array(out)
 
 
 def rot_x(angle: np.ndarray | float) -> np.ndarray:

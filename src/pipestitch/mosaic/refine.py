@@ -145,12 +145,13 @@ def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: W
     z = grid.z0_mm + nodes[:, 1] * grid.mm_per_px_axial
     wall = section.points(theta, z)
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
+    # the rays the strip's pixels were taken along: the same for every parameter
+    rays = camera.unproject(camera.project(local.to_probe(wall)))
     out = np.zeros((len(nodes), 2, 4))
     for k in range(4):
         params = np.array([local.alpha, local.beta, local.dx_mm, local.dy_mm])
         params[k] -= EPS[k]   # the strip's pose is off by +e from the truth
         truth = Pose(*params)
-        rays = camera.unproject(camera.project(local.to_probe(wall)))
         seen = rays_to_wall(rays, truth, section)
         th2, z2 = theta_z_from_points(seen)
         d_theta = (np.rad2deg(th2 - theta) + 180.0) % 360.0 - 180.0

@@ -29,7 +29,7 @@ from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, rot_x, rot_y
 from pipestitch.pose.fit import RESELECT_SIGMAS, Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
-__all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_residuals",
+__all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_jacobian", "oval_residuals",
            "section_free_information"]
 
 
@@ -82,15 +82,36 @@ def oval_residuals(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
     return r * (np.sqrt(np.maximum(qmq, 0.0)) - 1)
 
 
-def _numeric_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
-    steps = np.array([1e-6, 1e-6, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6])
-    cols = []
-    for k, h in enumerate(steps):
-        up, down = x.copy(), x.copy()
-        up[k] += h
-        down[k] -= h
-        cols.append((oval_residuals(up, points_mm) - oval_residuals(down, points_mm)) / (2 * h))
-    return np.column_stack(cols)
+def oval_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+    """The derivatives of :func:`oval_residuals` by x = (alpha, beta, dx, dy, r, c, s):
+    (N, 7).
+
+    With k = 1 - e²/4 and n = (1 + e²/4)|q|² - (c (qx² - qy²) + 2 s qx qy), the
+    residual is sqrt(n) / k - r (for r > 0, as the fit bounds it), so its derivatives
+    are closed: by the wall point q, which alpha, beta (through the rotation's
+    derivatives) and the offset move, and by r, c and s. Zero by q, c and s where n
+    is not positive (the residual's clamp).
+    """
+    a, b, c, s = x[0], x[1], x[5], x[6]
+    tilt_x, tilt_y = rot_x(a), rot_y(b)
+    d_tilt_x, d_tilt_y = rot_x(a + np.pi / 2), rot_y(b + np.pi / 2)
+    d_tilt_x[0, 0], d_tilt_y[1, 1] = 0.0, 0.0   # the derivative of the fixed axis' 1
+    q = points_mm @ (tilt_x @ tilt_y)[:2].T + x[2:4]
+    q_a = points_mm @ (d_tilt_x @ tilt_y)[:2].T
+    q_b = points_mm @ (tilt_x @ d_tilt_y)[:2].T
+    e2 = c * c + s * s
+    k = 1 - e2 / 4
+    qx, qy = q[:, 0], q[:, 1]
+    sq, diff, cross = qx * qx + qy * qy, qx * qx - qy * qy, qx * qy
+    n = (1 + e2 / 4) * sq - (c * diff + 2 * s * cross)
+    root = np.sqrt(np.maximum(n, 0.0))
+    half = 1.0 / (2 * k * np.where(root > 0, root, np.inf))   # d(sqrt(n) / k) / dn
+    g_x = half * (2 * (1 + e2 / 4) * qx - 2 * (c * qx + s * qy))
+    g_y = half * (2 * (1 + e2 / 4) * qy + 2 * (c * qy - s * qx))
+    d_c = half * (c / 2 * sq - diff) + np.where(root > 0, root, 0.0) * c / (2 * k * k)
+    d_s = half * (s / 2 * sq - 2 * cross) + np.where(root > 0, root, 0.0) * s / (2 * k * k)
+    return np.column_stack([g_x * q_a[:, 0] + g_y * q_a[:, 1], g_x * q_b[:, 0] + g_y * q_b[:, 1],
+                            g_x, g_y, np.full_like(qx, -1.0), d_c, d_s])
 
 
 def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
@@ -127,10 +148,13 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
     def fun(v: np.ndarray) -> np.ndarray:
         return oval_residuals(np.concatenate([tilt, v]), points_mm)
 
+    def jac(v: np.ndarray) -> np.ndarray:
+        return oval_jacobian(np.concatenate([tilt, v]), points_mm)[:, 2:]
+
     # Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
     bounds = ([-np.inf, -np.inf, 1e-3, -0.5, -0.5], [np.inf, np.inf, np.inf, 0.5, 0.5])
     x0[3:] = np.clip(x0[3:], -0.49, 0.49)
-    res = least_squares(fun, x0, loss="soft_l1", f_scale=noise_mm, method="trf",
+    res = least_squares(fun, x0, jac=jac, loss="soft_l1", f_scale=noise_mm, method="trf",
                         x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]), bounds=bounds)
     x = np.concatenate([tilt, res.x])
     resid, info = _information(x, points_mm)
@@ -148,7 +172,7 @@ def _information(x: np.ndarray, points_mm: np.ndarray) -> tuple[np.ndarray, np.n
     """The residuals at ``x`` (alpha, beta, dx, dy, r, c, s) and the 7 x 7 information
     of the parameters (Gauss-Newton, scaled by the residuals' variance)."""
     resid = oval_residuals(x, points_mm)
-    jac = _numeric_jacobian(x, points_mm)
+    jac = oval_jacobian(x, points_mm)
     dof = max(1, len(resid) - 5)
     return resid, jac.T @ jac / max(float(resid @ resid) / dof, 1e-12)
 

@@ -174,3 +174,25 @@ def test_a_coarse_mosaic_finds_its_holes_and_no_pixel_sized_blobs() -> None:
     found = find_defects(image, grid)
     assert [d.kind for d in found] == ["hole"]
     assert found[0].diameter_mm == pytest.approx(12.0, abs=0.25)   # half a pixel
+
+
+def test_background_beside_unseen_wall_is_the_seen_walls() -> None:
+    """The background's blocks that straddle unseen wall take the seen wall around
+    them for their unseen share: no dark (or bright) rim along a gap, on a wall whose
+    brightness ramps across it, whatever the gap's phase against the blocks."""
+    from pipestitch.measure.defects import _background
+
+    rng = np.random.default_rng(5)
+    rows, cols = 240, 400
+    level = np.linspace(80.0, 120.0, cols, dtype=np.float32)[None, :].repeat(rows, axis=0)
+    image = level * (1 + 0.02 * rng.standard_normal((rows, cols))).astype(np.float32)
+    for start in (101, 203, 306):                       # gaps at three phases of the 8-px blocks
+        image[:, start:start + 13 + start % 5] = np.nan
+    valid = np.isfinite(image)
+    background = _background(np.nan_to_num(image), valid, 41)
+    for start in (101, 203, 306):
+        rim = np.zeros_like(valid)
+        rim[:, start - 6:start] = rim[:, start + 13 + start % 5:start + 19 + start % 5] = True
+        rim &= valid
+        ratio = background[rim] / level[rim]
+        assert abs(float(np.median(ratio)) - 1) < 0.005   # 0.001 here; no fill: 0.01-0.025

@@ -8,6 +8,7 @@ import io
 
 import cv2
 import numpy as np
+import pytest
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
@@ -86,3 +87,19 @@ def test_track_figures_drawn_ahead_give_the_same_report() -> None:
     page = render_report(given)
     assert "base64,POSE" in page and "base64,PROFILE" in page
     assert drawn["pose"] not in page and drawn["profile"] not in page
+
+
+@pytest.mark.parametrize("shape", [(1513, 300), (500, 1), (2, 3000), (10, 10)])
+def test_mosaic_figure_of_any_shape_fits_a_page(shape: tuple[int, int]) -> None:
+    """A short run's tall mosaic keeps its aspect in a narrower figure; a mosaic a few
+    columns wide (or rows high) still gives a figure, at most 12 inches high."""
+    rng = np.random.default_rng(2)
+    mosaic = rng.integers(1, 256, shape, dtype=np.uint8)
+    data = ReportData("t", mosaic, 0.0, 0.1, 360 / shape[0], 65.0, _rows(3))
+    picture = _decoded(html._mosaic_figure(data))
+    assert picture is not None
+    assert picture.shape[0] <= html.MAX_FIGURE_HEIGHT_IN * html.FIGURE_DPI
+    if shape == (1513, 300):   # the image's own aspect: ~5 rows to a column
+        dark = np.flatnonzero((picture.mean(axis=2) < 250).any(axis=1))
+        tall = picture.shape[0] > 2.5 * picture.shape[1]
+        assert dark.size and tall

@@ -29,6 +29,7 @@ __all__ = ["FrameRow", "ReportData", "StandardsView", "agg_pyplot", "observation
            "prepare_plots", "render_report", "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
+MAX_FIGURE_HEIGHT_IN = 12.0   # the mosaic figure's height at most (its width is <= 16 in)
 OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
 MAX_LISTED = 200         # rows of a list (exceedances, problems) shown; the rest in its CSV
 BIN_M = 1.0              # the summary's section length along the pipe
@@ -160,8 +161,11 @@ def _mosaic_figure(data: ReportData) -> str:
     shown = img if scale == 1.0 else cv2.resize(img, None, fx=scale, fy=scale,
                                                 interpolation=cv2.INTER_AREA)
     theta_max = img.shape[0] * data.deg_per_px
-    width = min(16.0, 3 + shown.shape[1] / 120)
-    fig, ax = plt.subplots(figsize=(width, width * shown.shape[0] / shown.shape[1] + 0.8))
+    tall = shown.shape[0] / shown.shape[1]
+    # the image's own aspect, narrower where that is too tall for a page (a short run),
+    # squeezed only when even 3 inches' width is (a mosaic a few columns wide)
+    width = min(16.0, 3 + shown.shape[1] / 120, max(3.0, (MAX_FIGURE_HEIGHT_IN - 0.8) / tall))
+    fig, ax = plt.subplots(figsize=(width, min(MAX_FIGURE_HEIGHT_IN, width * tall + 0.8)))
     ax.set_xlim(data.z0_mm, data.z0_mm + img.shape[1] * data.mm_per_px)
     ax.set_ylim(theta_max, 0)
     ax.set_xlabel("z along the pipe (mm)")
@@ -213,7 +217,10 @@ def _jpeg_under(fig: plt.Figure, ax: plt.Axes, rgb: np.ndarray) -> str:
     tight = fig.get_tightbbox(fig.canvas.get_renderer()).padded(pad)   # inches
     agg_pyplot().close(fig)
     picture = _crop(picture, tight, height)
-    _, jpeg = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+    ok, jpeg = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+    if not ok:
+        raise ValueError(f"report: the mosaic figure of {picture.shape[1]} x "
+                         f"{picture.shape[0]} pixels could not be encoded as JPEG")
     return "data:image/jpeg;base64," + base64.b64encode(jpeg.tobytes()).decode("ascii")
 
 

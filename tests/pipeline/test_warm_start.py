@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
+
+import pytest
 
 from pipestitch.io import ahead
 from pipestitch.pipeline.run import run_dataset
-from pipestitch.pipeline.warm_start import decode_ahead
+from pipestitch.pipeline.warm_start import decode_ahead, loading_stages
 
 
 def test_a_run_with_frames_decoded_ahead_writes_the_same_outputs(tmp_path: Path,
@@ -31,3 +34,28 @@ def test_a_run_with_frames_decoded_ahead_writes_the_same_outputs(tmp_path: Path,
     for name in ("poses.csv", "profile.csv", "defects.csv", "mosaic.png"):
         assert (tmp_path / "ahead" / name).read_bytes() == (tmp_path / "plain" / name
                                                             ).read_bytes(), name
+
+
+def test_loading_stages_holds_the_collector_off_and_freezes_what_it_made() -> None:
+    """Inside: no collection; after: the collector as it was, and the objects the block
+    made (with everything else alive) out of later collections."""
+    was = gc.isenabled()
+    gc.enable()
+    try:
+        before = gc.get_freeze_count()
+        with loading_stages():
+            assert not gc.isenabled()
+            made = [{"k": [i]} for i in range(1000)]   # long-lived, as a module's tables
+        assert gc.isenabled()
+        assert gc.get_freeze_count() >= before + len(made)
+        with pytest.raises(RuntimeError), loading_stages():
+            raise RuntimeError("an import failed")
+        assert gc.isenabled()   # the collector back on when the block fails
+        gc.disable()
+        with loading_stages():
+            pass
+        assert not gc.isenabled()   # and left off when it was off
+    finally:
+        gc.unfreeze()
+        (gc.enable if was else gc.disable)()
+

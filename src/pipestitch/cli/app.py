@@ -232,9 +232,12 @@ def pose(
 
     Example: pipestitch pose data/test_piece --out out/test_piece
     """
-    from pipestitch.pipeline.check import check_workers
-    from pipestitch.pipeline.posing import run_pose
-    from pipestitch.pipeline.staging import check_out_folder
+    from pipestitch.pipeline.warm_start import loading_stages
+
+    with loading_stages():
+        from pipestitch.pipeline.check import check_workers
+        from pipestitch.pipeline.posing import run_pose
+        from pipestitch.pipeline.staging import check_out_folder
 
     check_out_folder(dataset, out)   # not inside the dataset, a folder that can be written
     check_workers(workers)
@@ -298,10 +301,13 @@ def _run(dataset: Path, out: Path, *, mm_per_px: float | None, unwrap: str, work
          tolerance_pct: float, video: Path | None, crown_deg: float | None,
          fine_registration: bool, quiet: bool) -> RunSummary:
     """`run`'s options checked, then the run (the stages are imported here)."""
-    from pipestitch.pipeline.check import check_finite, check_workers
-    from pipestitch.pipeline.run import run_dataset
-    from pipestitch.pipeline.staging import check_out_folder
-    from pipestitch.pipeline.stitching import MosaicSettings
+    from pipestitch.pipeline.warm_start import loading_stages
+
+    with loading_stages():
+        from pipestitch.pipeline.check import check_finite, check_workers
+        from pipestitch.pipeline.run import run_dataset
+        from pipestitch.pipeline.staging import check_out_folder
+        from pipestitch.pipeline.stitching import MosaicSettings
 
     try:
         make = MosaicSettings.fine if fine_registration else MosaicSettings
@@ -370,9 +376,12 @@ def demo(
 
     Example: pipestitch demo --out /tmp/pipestitch-demo
     """
-    from pipestitch.pipeline.check import check_out_folder_path, run_check
-    from pipestitch.pipeline.run import run_dataset
-    from pipestitch.pipeline.simulating import simulate_dataset, simulated_before
+    from pipestitch.pipeline.warm_start import loading_stages
+
+    with loading_stages():
+        from pipestitch.pipeline.check import check_out_folder_path, run_check
+        from pipestitch.pipeline.run import run_dataset
+        from pipestitch.pipeline.simulating import simulate_dataset, simulated_before
 
     if size not in ("full", "half"):
         raise _error(f"--size: expected full or half, got {size!r}", 2)

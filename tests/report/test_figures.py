@@ -91,8 +91,9 @@ def test_track_figures_drawn_ahead_give_the_same_report() -> None:
 
 @pytest.mark.parametrize("shape", [(1513, 300), (500, 1), (2, 3000), (10, 10)])
 def test_mosaic_figure_of_any_shape_fits_a_page(shape: tuple[int, int]) -> None:
-    """A short run's tall mosaic keeps its aspect in a narrower figure; a mosaic a few
-    columns wide (or rows high) still gives a figure, at most 12 inches high."""
+    """A short run's tall mosaic keeps its aspect; a mosaic a few columns wide (or rows
+    high) still gives a figure, at most MAX_FIGURE_HEIGHT_IN high (a JPEG, like
+    matplotlib's canvas, ends at 65500 pixels)."""
     rng = np.random.default_rng(2)
     mosaic = rng.integers(1, 256, shape, dtype=np.uint8)
     data = ReportData("t", mosaic, 0.0, 0.1, 360 / shape[0], 65.0, _rows(3))

@@ -29,7 +29,7 @@ __all__ = ["FrameRow", "ReportData", "StandardsView", "agg_pyplot", "observation
            "prepare_plots", "render_report", "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
-MAX_FIGURE_HEIGHT_IN = 12.0   # the mosaic figure's height at most (its width is <= 16 in)
+MAX_FIGURE_HEIGHT_IN = 40.0   # the mosaic figure's height at most (4400 px; its width is <= 16 in)
 OVALITY_FLAG_PCT = 1.0   # sections listed from this ASTM F1216 ovality (%)
 MAX_LISTED = 200         # rows of a list (exceedances, problems) shown; the rest in its CSV
 BIN_M = 1.0              # the summary's section length along the pipe
@@ -162,8 +162,8 @@ def _mosaic_figure(data: ReportData) -> str:
                                                 interpolation=cv2.INTER_AREA)
     theta_max = img.shape[0] * data.deg_per_px
     tall = shown.shape[0] / shown.shape[1]
-    # the image's own aspect, narrower where that is too tall for a page (a short run),
-    # squeezed only when even 3 inches' width is (a mosaic a few columns wide)
+    # the image's own aspect; narrower only where that would pass the height limit (a
+    # mosaic tens of times taller than wide), squeezed only when even 3 inches would
     width = min(16.0, 3 + shown.shape[1] / 120, max(3.0, (MAX_FIGURE_HEIGHT_IN - 0.8) / tall))
     fig, ax = plt.subplots(figsize=(width, min(MAX_FIGURE_HEIGHT_IN, width * tall + 0.8)))
     ax.set_xlim(data.z0_mm, data.z0_mm + img.shape[1] * data.mm_per_px)

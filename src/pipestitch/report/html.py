@@ -125,31 +125,10 @@ def prepare_plots() -> None:
 FIGURE_DPI = 110
 
 
-def _tight_bbox(fig: plt.Figure, dpi: float) -> Bbox:
-    """What ``bbox_inches="tight"`` would crop to, padded the same, from a layout pass
-    with the images clipped to their axes hidden: they do not reach past the axes, so
-    the box is the same, and each is resampled once (by the saving draw), not twice."""
-    from matplotlib import rcParams
-
-    images = [im for ax in fig.axes for im in ax.get_images()
-              if im.get_visible() and im.get_clip_on()]
-    fig.set_dpi(dpi)
-    for im in images:
-        im.set_visible(False)
-    try:
-        fig.draw_without_rendering()
-        bbox = fig.get_tightbbox(fig.canvas.get_renderer())
-    finally:
-        for im in images:
-            im.set_visible(True)
-    pad = rcParams["savefig.pad_inches"]
-    return bbox.padded(pad, pad)
-
-
 def _png(fig: plt.Figure) -> str:
-    """The plot as a PNG data URI, cropped as ``bbox_inches="tight"``."""
+    """The plot as a PNG data URI, cropped to its tight box (it holds no image)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches=_tight_bbox(fig, FIGURE_DPI))
+    fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight")
     agg_pyplot().close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 

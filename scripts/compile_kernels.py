@@ -37,16 +37,13 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 # any layout, a trailing "r" read-only; "Name(f8 i8)" a named tuple of the kernel's
 # module (its class ``Name``) with fields of those types.
 PLANE = "Plane(f8 f8:1r f8:2r)"
-FIT_SETTINGS = "FitSettings(f8 f8 f8 f8 i8 f8 i8 i8)"
+FIT_SETTINGS = "FitSettings(f8 f8 i8 f8 i8 i8)"
 KERNELS: tuple[tuple[str, str, str], ...] = (
-    ("pose._fit_kernels", "fit_pixels",
-     f"Candidates(f8:2 i8:1A i8:1A i8) RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) {PLANE}"
-     f" {FIT_SETTINGS} f8:2"),
-    # fit_pixels' refinement subtree as fit_frame calls it (compiled apart in parallel)
+    ("pose._fit_kernels", "fit_fields",   # Candidates, RayKernel, Plane, FitSettings
+     "f8:2 i8:1A i8:1A i8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8:1r f8:2r f8 f8 i8 f8 i8 i8 f8 f8:2"),
+    # fit_fields' refinement subtree as fit_frame calls it (compiled apart in parallel)
     ("pose._fit_kernels", "refine_frame", f"f8:1 f8:2 b1:1 i8 {PLANE} {FIT_SETTINGS}"),
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
-    ("pose._fit_kernels", "ring_scale",
-     f"Candidates(f8:2 i8:1A i8:1A i8) RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) {PLANE} i8"),
     ("pose._ring_kernels", "divide_by_reflectance", "f4:2 f4:2 f4:2 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
     ("camera.kernels", "rays_of", "RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) f8:2"),
@@ -70,7 +67,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
 )
-BIG = ("pose._fit_kernels", "fit_pixels")     # the big kernel tree: a process of its own
+BIG = ("pose._fit_kernels", "fit_fields")     # the big kernel tree: a process of its own
 FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the next one
 AFTER_BIG = ("mosaic._unwrap_kernels", "mask_strip")   # after the tree, to balance
 

@@ -15,9 +15,16 @@ import numpy as np
 import pytest
 
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
-from pipestitch.geometry import PipeSection, Pose, WallGrid
-from pipestitch.pose.fit import LaserPlane, fit_pose, frame_noise_mm, ring_scale_mm_per_px
-from pipestitch.pose.ring import detect_ring
+from pipestitch.geometry import PipeSection, Pose, WallGrid, laser_ring
+from pipestitch.pose.fit import (
+    FALLBACK_NOISE_MM,
+    RESCALE_RMS,
+    LaserPlane,
+    fit_pose,
+    frame_noise_mm,
+    ring_scale_mm_per_px,
+)
+from pipestitch.pose.ring import RingDetection, detect_ring
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 
 # An equidistant fisheye whose 90° circle is ~500 px: another maker's 1.3 MP probe.
@@ -132,3 +139,36 @@ def test_ring_fits_at_geometries_unlike_the_simulators(camera, diameter_mm: floa
               for h in fit.hypotheses]
     best = min(errors, key=lambda e: e[0])
     assert best[0] <= 0.5 and best[1] <= 0.005 * radius
+
+
+def _ring_detection(pose: Pose, jitter_px: float, line_sigma_px: float) -> RingDetection:
+    """The ring of ``pose`` (65 mm pipe, plane 16 mm ahead) seen through the half-size
+    lens, one candidate per ray, each moved by Gaussian noise of ``jitter_px`` across
+    and along; the detection says its line is ``line_sigma_px`` wide."""
+    cam = default_camera("half")
+    ring = laser_ring(pose, PipeSection(32.5), 16.0, n_points=1440)
+    pixels = cam.project(ring) + np.random.default_rng(7).normal(0, jitter_px, (1440, 2))
+    return RingDetection(pixels, np.arange(1440), np.zeros(1440, np.int64),
+                         np.full(1440, 50.0), 1440, 0.01, line_sigma_px)
+
+
+def test_point_noise_is_widened_when_the_ring_scatters_more_than_its_line_width() -> None:
+    """A ring whose points scatter four times more than its measured line width implies
+    is fitted with a noise widened from the fit's own residuals (the inliers' rms at most
+    RESCALE_RMS noise sigmas), and still finds the pose; a given noise is used as given;
+    a frame without a line width falls back to FALLBACK_NOISE_MM."""
+    cam, plane = default_camera("half"), LaserPlane.of(16.0, None)
+    pose = Pose.from_degrees(3.0, -2.0, 4.0, -3.0)
+    det = _ring_detection(pose, jitter_px=0.5, line_sigma_px=1.0)
+    prior = frame_noise_mm(det, cam, plane)
+    fit = fit_pose(det, cam, 16.0)
+    assert fit.ok and fit.n_points > 0.95 * 1440
+    assert fit.ring.noise_mm > 3.0 * prior
+    assert fit.hypotheses[0].rms_mm <= RESCALE_RMS * fit.ring.noise_mm
+    best = min(fit.hypotheses, key=lambda h: abs(h.pose.alpha - pose.alpha))
+    assert np.rad2deg(abs(best.pose.alpha - pose.alpha)) < 0.2
+    assert abs(best.pose.dx_mm - pose.dx_mm) < 0.1
+    given_noise = fit_pose(det, cam, 16.0, noise_mm=0.4)
+    assert given_noise.ok and given_noise.ring.noise_mm == 0.4
+    no_width = dataclasses.replace(det, line_sigma_px=float("nan"))
+    assert fit_pose(no_width, cam, 16.0).ring.noise_mm == FALLBACK_NOISE_MM

@@ -69,16 +69,30 @@ class Candidates(NamedTuple):
 
 
 class FitSettings(NamedTuple):
-    """What a frame's fit is given (:func:`fit_frame`); lengths on the plane, mm."""
+    """What a frame's fit is given (:func:`fit_scaled`); lengths on the plane, mm."""
 
-    gate_mm: float         # a candidate this close to the conic is on the ring
-    reselect_mm: float     # ... when the inliers are re-selected, one per ray
-    loss_scale_mm: float   # the soft-L1 loss's scale (the point noise)
+    noise_mm: float        # the point noise: loss scale, gates (NaN: from the frame)
     radius_mm: float       # the radius held when n_free is 4 (NaN when it is fitted)
     n_free: int            # parameters fitted: 4 (radius held) or 5
     min_coverage: float    # below this share of rays with a candidate: NO_RING
     min_hit: int           # fewer rays than this keeping a candidate: LOW_COVERAGE
     max_points: int        # kept ring points returned, subsampled to at most this
+
+
+# --- the point noise a frame is fitted with (lengths on the laser plane, mm) ------------
+# A ring point's noise across the line, per pixel of the line's own sigma (measured on
+# the frame: RingDetection.line_sigma_px): a line's centre is found to about a tenth of
+# its width on a textured wall. The gates and the robust loss's scale are multiples of
+# the point noise, mapped to the plane through the frame's pixel -> plane scale at the
+# ring (:func:`ring_scale`), and are widened from the fit's own residuals when the frame
+# is noisier (:func:`fit_scaled`). Module constants: numba compiles them in, and a change
+# here recompiles the kernels that read them.
+NOISE_PER_LINE_SIGMA = 0.12
+GATE_SIGMAS = 6.0        # a candidate within this many noise sigmas of the conic is the ring
+RESELECT_SIGMAS = 5.0    # ... when the inliers are re-selected, one per ray
+RESCALE_RMS = 2.0        # inliers' rms above this many sigmas: the noise was underestimated
+RESCALE_ROUNDS = 3
+FALLBACK_NOISE_MM = 0.05   # the point noise of a frame whose ring gives no scale
 
 
 # --- small dense linear algebra (2 x 2 to 6 x 6) ------------------------------------
@@ -579,14 +593,14 @@ def select_ring(rays: np.ndarray, candidates: Candidates, plane: Plane, settings
     ``rays`` are the unit rays of the N candidates (then of any further pixels:
     ``uv`` holds the plane coordinates of all, :func:`rays_to_plane`).
     :func:`initial_conic` on the candidates that meet the plane (gate
-    ``settings.gate_mm``), else :func:`ransac_conic` with ``uniforms`` (status
-    NEEDS_SAMPLES when they are empty: call again with them), then :func:`reselect`
-    (gate ``settings.reselect_mm``); status NO_ELLIPSE when no conic with >= 12
+    ``GATE_SIGMAS`` of ``settings.noise_mm``), else :func:`ransac_conic` with
+    ``uniforms`` (status NEEDS_SAMPLES when they are empty: call again with them), then
+    :func:`reselect` (gate ``RESELECT_SIGMAS`` of it); status NO_ELLIPSE when no conic with >= 12
     inliers exists. ``starts`` are the conic's closed-form poses (:func:`conic_poses`;
     status NOT_A_SECTION when it has none) and ``rays hit`` the number of azimuths
     with a kept candidate.
     """
-    azimuth, rank, threshold = candidates.azimuth, candidates.rank, settings.gate_mm
+    azimuth, rank, threshold = candidates.azimuth, candidates.rank, GATE_SIGMAS * settings.noise_mm
     uv, valid = rays_to_plane(rays, plane)
     idx = np.flatnonzero(valid[:azimuth.size])
     # the candidates that meet the plane, gathered in one loop (numba's fancy indexing
@@ -606,7 +620,8 @@ def select_ring(rays: np.ndarray, candidates: Candidates, plane: Plane, settings
         dist = np.empty(0)   # of another conic
     if not ok or np.count_nonzero(inliers) < 12:
         return uv, kept, none, 0, NO_ELLIPSE
-    keep, coef, scale = reselect(pts, az, inliers, coef, scale, settings.reselect_mm, dist)
+    keep, coef, scale = reselect(pts, az, inliers, coef, scale,
+                                 RESELECT_SIGMAS * settings.noise_mm, dist)
     hit = np.zeros(az.max() + 1, np.bool_)
     for i in range(idx.size):
         if keep[i]:
@@ -1003,7 +1018,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     then of candidates[::stride] moved one column, then one row (:func:`step_query`,
     for :func:`px_rms`). The least squares (:func:`refine_both`) fits the first
     ``settings.n_free`` parameters of ``start`` with the loss scale
-    ``settings.loss_scale_mm``. Returns (summary, cost, rms_px, information
+    ``settings.noise_mm``. Returns (summary, cost, rms_px, information
     (2, 4, 4)); row 0 of the summary is the optimum, row 1 its mirror, each the pose
     vector (5), then at SUMMARY_RMS its rms_mm, at SUMMARY_OK 1.0 where its sigma is
     valid, at SUMMARY_CORR its residuals' :func:`correlation_factor`, and from
@@ -1017,7 +1032,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     for i in range(idx.size):
         u[i], v[i] = uv[idx[i], 0], uv[idx[i], 1]
     x, cost, resid, jtj, mirror, m_resid, m_jtj = refine_both(start, u, v, plane, n_free,
-                                                              settings.loss_scale_mm)
+                                                              settings.noise_mm)
     # px RMS on the kept points of the subsample the steps were taken at: candidate
     # k * stride, its residual (the kept points' running count) and its two steps
     pts, res = np.empty((m, 2)), np.empty(m)
@@ -1038,7 +1053,9 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     summary, info = np.empty((2, SUMMARY_SIGMA + n_free)), np.empty((2, 4, 4))
     for j in range(5):   # element by element: slice assignments compile a shape check
         summary[0, j], summary[1, j] = x[j], mirror[j]
-    basis, normal = harmonic_basis(u, v)   # the same points for both hypotheses
+    # the mirror's residuals are the optimum's (the same conic: equal to ~1e-14 mm), so
+    # their correlation along the ring is one figure for both
+    corr = correlation_factor_on(resid, *harmonic_basis(u, v))
     for h, (r, h_jtj) in enumerate(((resid, jtj), (m_resid, m_jtj))):
         summary[h, SUMMARY_RMS] = np.sqrt(dot(r, r) / r.size)
         sigma, pose_info, ok = uncertainty(r, h_jtj, n_free)
@@ -1046,7 +1063,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
             for j in range(4):
                 info[h, i, j] = pose_info[i, j]
         summary[h, SUMMARY_OK] = 1.0 if ok else 0.0
-        summary[h, SUMMARY_CORR] = correlation_factor_on(r, basis, normal)
+        summary[h, SUMMARY_CORR] = corr
         for j in range(n_free):
             summary[h, SUMMARY_SIGMA + j] = sigma[j]
     return summary, cost, rms_px, info
@@ -1056,11 +1073,13 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
 def fit_frame(rays: np.ndarray, stride: int, candidates: Candidates, plane: Plane,
               settings: FitSettings, uniforms: np.ndarray) -> tuple:
     """A frame's whole fit in one call: :func:`select_ring`, then :func:`refine_frame`
-    from the first closed-form start, then :func:`ring_subsample` of the kept points.
+    from the first closed-form start, then :func:`ring_subsample` of the kept points,
+    with the point noise ``settings.noise_mm``.
 
     One entry from Python instead of three: right after a ring extraction every entry's
     argument handling and code are cold, and cost more than the arithmetic. ``rays``
-    and ``stride`` are the unit rays of :func:`ring_query`'s pixels and its stride;
+    and ``stride`` are the unit rays of :func:`ring_query`'s pixels (rows after them
+    are not read) and its stride;
     ``settings.radius_mm`` replaces the start's radius when ``settings.n_free`` is 4
     (held); ``settings.min_hit`` rays must keep a candidate (else status LOW_COVERAGE);
     ``uniforms`` are RANSAC's samples (:func:`select_ring`).
@@ -1094,20 +1113,126 @@ def no_fit(status: int, hit: int, n_free: int) -> tuple:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings: FitSettings,
-               uniforms: np.ndarray) -> tuple:
-    """:func:`ring_query`, the camera's rays of the query and :func:`fit_frame`: one entry.
+def fit_query(candidates: Candidates) -> tuple[np.ndarray, int, float, np.ndarray]:
+    """Every pixel a frame's fit unprojects, and the detection's coverage, in one call.
 
-    For cameras with a compiled unprojection (``camera``: its ``ray_kernel``), so that
-    a frame enters compiled code once. Returns (detection coverage, :func:`fit_frame`'s
-    tuple); status NO_RING without unprojecting when fewer than 12 candidates or less
-    than ``settings.min_coverage`` of the rays have one.
+    Returns (pixels, stride, coverage, mask): :func:`ring_query`'s pixels, then
+    :func:`across_query`'s (where the frame's pixel -> plane scale is measured: the
+    last 2M rows, M the mask's length), the stride and coverage of
+    :func:`ring_query`, and the mask of :func:`across_query`.
     """
     query, stride, found = ring_query(candidates)
-    if candidates.pixels.shape[0] < MIN_CANDIDATES or found < settings.min_coverage:
-        return found, no_fit(NO_RING, 0, settings.n_free)
-    rays = rays_of(camera, query)
-    return found, fit_frame(rays, stride, candidates, plane, settings, uniforms)
+    across, valid = across_query(candidates, RING_SCALE_POINTS)
+    n = query.shape[0]
+    out = np.empty((n + across.shape[0], 2))
+    for i in range(n):
+        out[i, 0], out[i, 1] = query[i, 0], query[i, 1]
+    for i in range(across.shape[0]):
+        out[n + i, 0], out[n + i, 1] = across[i, 0], across[i, 1]
+    return out, stride, found, valid
+
+
+@numba.njit(cache=True, error_model="numpy")
+def has_ring(candidates: Candidates, coverage: float, settings: FitSettings) -> bool:
+    """Whether a frame has enough candidates to fit (else status NO_RING): at least
+    ``MIN_CANDIDATES``, on at least ``settings.min_coverage`` of the rays."""
+    return (candidates.pixels.shape[0] >= MIN_CANDIDATES
+            and coverage >= settings.min_coverage)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _with_noise(settings: FitSettings, noise_mm: float) -> FitSettings:
+    """``settings`` with the point noise ``noise_mm``."""
+    return FitSettings(noise_mm, settings.radius_mm, settings.n_free, settings.min_coverage,
+                       settings.min_hit, settings.max_points)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_scaled(rays: np.ndarray, stride: int, valid: np.ndarray, candidates: Candidates,
+               plane: Plane, settings: FitSettings, line_sigma_px: float,
+               uniforms: np.ndarray) -> tuple:
+    """A frame's fit with its point noise: (noise, :func:`fit_frame`'s tuple).
+
+    ``rays`` are the unit rays of :func:`fit_query`'s pixels (``stride`` and the mask
+    ``valid`` are its). With ``settings.noise_mm`` finite the frame is fitted with that
+    noise. With NaN the noise is the frame's own: ``NOISE_PER_LINE_SIGMA`` of the
+    line's measured sigma (``line_sigma_px``) times the ring's pixel -> plane scale
+    (:func:`median_step` of the last rays; ``FALLBACK_NOISE_MM`` when there is none).
+    A fit with too few inliers (LOW_COVERAGE, NO_ELLIPSE) is then tried once more with
+    a three times wider noise, and while the inliers' rms exceeds ``RESCALE_RMS``
+    noise sigmas (their scatter fills the gate: the frame is noisier than its line
+    width says) the fit is repeated, at most ``RESCALE_ROUNDS`` times, with the noise
+    set from that rms (1.3 x: the gate truncates the scatter). A fit that returns
+    NEEDS_SAMPLES is returned at once: the caller calls again with RANSAC's samples.
+
+    One compiled entry for all of it: right after a ring extraction every entry from
+    Python is cold, and the frame's scale and the rescaling rounds reuse the rays.
+    """
+    noise = settings.noise_mm
+    if np.isfinite(noise):
+        return noise, fit_frame(rays, stride, candidates, plane, settings, uniforms)
+    scale = np.nan
+    if valid.size > 0:
+        scale = median_step(rays[rays.shape[0] - 2 * valid.size:], valid, plane)
+    noise = NOISE_PER_LINE_SIGMA * line_sigma_px * scale
+    if not np.isfinite(noise):   # no candidate meets the plane: nothing to scale by
+        noise = FALLBACK_NOISE_MM
+        return noise, fit_frame(rays, stride, candidates, plane, _with_noise(settings, noise),
+                                uniforms)
+    out = fit_frame(rays, stride, candidates, plane, _with_noise(settings, noise), uniforms)
+    if out[0] == LOW_COVERAGE or out[0] == NO_ELLIPSE:
+        wider = fit_frame(rays, stride, candidates, plane,
+                          _with_noise(settings, 3.0 * noise), uniforms)
+        if wider[0] == FOUND or wider[0] == NEEDS_SAMPLES:
+            noise, out = 3.0 * noise, wider
+    for _ in range(RESCALE_ROUNDS):
+        if out[0] != FOUND or out[3][0, SUMMARY_RMS] <= RESCALE_RMS * noise:
+            break
+        wider_noise = 1.3 * out[3][0, SUMMARY_RMS]
+        wider = fit_frame(rays, stride, candidates, plane, _with_noise(settings, wider_noise),
+                          uniforms)
+        if wider[0] == NEEDS_SAMPLES:
+            return wider_noise, wider
+        if wider[0] != FOUND:
+            break
+        noise, out = wider_noise, wider
+    return noise, out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings: FitSettings,
+               line_sigma_px: float, uniforms: np.ndarray) -> tuple:
+    """:func:`fit_query`, the camera's rays of it and :func:`fit_scaled`: one entry.
+
+    For cameras with a compiled unprojection (``camera``: its ``ray_kernel``), so that
+    a frame enters compiled code once. Returns (detection coverage, noise,
+    :func:`fit_frame`'s tuple); status NO_RING (noise NaN) without unprojecting when
+    :func:`has_ring` says so.
+    """
+    query, stride, found, valid = fit_query(candidates)
+    if not has_ring(candidates, found, settings):
+        return found, np.nan, no_fit(NO_RING, 0, settings.n_free)
+    noise, out = fit_scaled(rays_of(camera, query), stride, valid, candidates, plane, settings,
+                            line_sigma_px, uniforms)
+    return found, noise, out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def fit_fields(pixels: np.ndarray, azimuth: np.ndarray, rank: np.ndarray, n_azimuths: int,
+               kind: int, a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
+               index: np.ndarray, distance_mm: float, normal: np.ndarray, basis: np.ndarray,
+               noise_mm: float, radius_mm: float, n_free: int, min_coverage: float,
+               min_hit: int, max_points: int, line_sigma_px: float,
+               uniforms: np.ndarray) -> tuple:
+    """:func:`fit_pixels` with its named tuples passed field by field, in their order
+    (:class:`Candidates`, :class:`pipestitch.camera.base.RayKernel`, :class:`Plane`,
+    :class:`FitSettings`): the entry from Python. Numba's dispatcher types a named
+    tuple in Python code, ~25 µs a call for these four right after a ring extraction
+    (their code cold), arrays and numbers in compiled code (measured: ~5 µs)."""
+    return fit_pixels(Candidates(pixels, azimuth, rank, n_azimuths),
+                      RayKernel(kind, a, b, c, d, index), Plane(distance_mm, normal, basis),
+                      FitSettings(noise_mm, radius_mm, n_free, min_coverage, min_hit,
+                                  max_points), line_sigma_px, uniforms)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -1129,25 +1254,40 @@ def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
 def harmonic_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Harmonics 0-2 of the points' angle about the plane's centre, (n, 5): 1, cos, sin,
     cos 2, sin 2 (from u / r and v / r: no trigonometric call), and their normal
-    matrix (5, 5, with a ridge of 1e-9 n). One for both hypotheses of a frame."""
+    matrix (5, 5, with a ridge of 1e-9 n). One for both hypotheses of a frame.
+
+    The normal matrix's 15 sums are scalars in one loop (vectorised; a loop over the
+    5 x 5 entries of each point took five times as long)."""
     n = u.size
     basis = np.empty((n, 5))
+    s1 = s2 = s3 = s4 = s11 = s12 = s13 = s14 = s22 = s23 = s24 = s33 = s34 = s44 = 0.0
     for i in range(n):
         r = np.sqrt(u[i] * u[i] + v[i] * v[i])
         c, s = (u[i] / r, v[i] / r) if r > 0.0 else (1.0, 0.0)
-        basis[i, 0], basis[i, 1], basis[i, 2] = 1.0, c, s
-        basis[i, 3], basis[i, 4] = c * c - s * s, 2.0 * s * c
-    normal = np.zeros((5, 5))
-    for i in range(n):
-        for a in range(5):
-            for b in range(5):
-                normal[a, b] += basis[i, a] * basis[i, b]
-    for a in range(5):
-        normal[a, a] += 1e-9 * n
+        c2, s2_ = c * c - s * s, 2.0 * s * c
+        basis[i, 0], basis[i, 1], basis[i, 2], basis[i, 3], basis[i, 4] = 1.0, c, s, c2, s2_
+        s1 += c
+        s2 += s
+        s3 += c2
+        s4 += s2_
+        s11 += c * c
+        s12 += c * s
+        s13 += c * c2
+        s14 += c * s2_
+        s22 += s * s
+        s23 += s * c2
+        s24 += s * s2_
+        s33 += c2 * c2
+        s34 += c2 * s2_
+        s44 += s2_ * s2_
+    ridge = 1e-9 * n
+    normal = np.array([[n + ridge, s1, s2, s3, s4], [s1, s11 + ridge, s12, s13, s14],
+                       [s2, s12, s22 + ridge, s23, s24], [s3, s13, s23, s33 + ridge, s34],
+                       [s4, s14, s24, s34, s44 + ridge]])
     return basis, normal
 
 

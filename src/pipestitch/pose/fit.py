@@ -54,19 +54,16 @@ __all__ = [
 ]
 
 PARAMS = ("alpha", "beta", "dx_mm", "dy_mm", "radius_mm")
-# A ring point's noise across the line, per pixel of the line's own sigma (measured on
-# the frame: RingDetection.line_sigma_px): a line's centre is found to about a tenth of
-# its width on a textured wall. The robust scale and the inlier gates follow from it
-# through the frame's pixel -> plane scale at the ring (ring_scale_mm_per_px), and are
-# widened from the fit's own residuals when the frame is noisier (fit_pose).
-NOISE_PER_LINE_SIGMA = 0.12
-GATE_SIGMAS = 6.0        # a candidate within this many noise sigmas of the conic is the ring
-RESELECT_SIGMAS = 5.0    # ... when the inliers are re-selected, one per ray
-RESCALE_RMS = 2.0        # inliers' rms above this many sigmas: the noise was underestimated
-RESCALE_ROUNDS = 3
+# The point noise a frame is fitted with, its gates and their widening (fit_pose): the
+# kernels' constants, documented there (pose/_fit_kernels.py).
+NOISE_PER_LINE_SIGMA = _k.NOISE_PER_LINE_SIGMA
+GATE_SIGMAS = _k.GATE_SIGMAS
+RESELECT_SIGMAS = _k.RESELECT_SIGMAS
+RESCALE_RMS = _k.RESCALE_RMS
+RESCALE_ROUNDS = _k.RESCALE_ROUNDS
+FALLBACK_NOISE_MM = _k.FALLBACK_NOISE_MM
 RANSAC_TRIALS = 200   # at most; fewer once the best inlier ratio makes a clean sample sure
 KEPT_POINTS = 720     # a frame's ring inliers kept for later fits (RingPoints), at most
-FALLBACK_NOISE_MM = 0.05   # the point noise of a frame whose ring gives no scale
 
 
 @dataclass(frozen=True, slots=True)
@@ -351,14 +348,10 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
     plane = LaserPlane.of(plane_distance_mm, plane_normal)
     radius = np.nan if fit_radius else float(nominal_radius_mm)
-    candidates = _candidates(detection)
+    noise = math.nan if noise_mm is None else float(noise_mm)
     try:
-        if noise_mm is not None:
-            noise = float(noise_mm)
-            out = _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
-        else:
-            noise, out = _fit_scaled(candidates, detection.line_sigma_px, camera, plane, seed,
-                                     min_coverage, radius)
+        noise, out = _fit(_candidates(detection), detection.line_sigma_px, camera, plane,
+                          noise, seed, min_coverage, radius)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=detection.coverage)
@@ -387,16 +380,8 @@ def ring_scale_mm_per_px(detection: RingDetection, camera: CameraModel,
     neighbouring candidates, in azimuth order): the direction in which the detector
     localises the line. NaN when no candidate meets the plane.
     """
-    return _ring_scale(_candidates(detection), camera, plane, n_points)
-
-
-def _ring_scale(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlane,
-                n_points: int = _k.RING_SCALE_POINTS) -> float:
-    """:func:`ring_scale_mm_per_px` of the kernels' candidates: one compiled call for a
-    camera with a compiled unprojection (right after a ring extraction, the same steps
-    as numpy expressions cost ~0.1 ms of cold calls a frame, measured), else the
-    camera's ``unproject`` between two."""
     on_plane = _kernel_plane(plane)
+    candidates = _candidates(detection)
     kernel = getattr(camera, "ray_kernel", None)
     if kernel is not None:
         return _k.ring_scale(candidates, kernel, on_plane, n_points)
@@ -414,49 +399,12 @@ def _candidates(detection: RingDetection) -> _k.Candidates:
 
 def frame_noise_mm(detection: RingDetection, camera: CameraModel, plane: LaserPlane) -> float:
     """A frame's prior ring-point noise on the laser plane (mm): ``NOISE_PER_LINE_SIGMA``
-    of the measured line width, through :func:`ring_scale_mm_per_px`."""
-    return _frame_noise(_candidates(detection), detection.line_sigma_px, camera, plane)
-
-
-def _frame_noise(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
-                 plane: LaserPlane) -> float:
-    """:func:`frame_noise_mm` of the kernels' candidates and the line's sigma (px)."""
-    scale = _ring_scale(candidates, camera, plane)
+    of the measured line width, through :func:`ring_scale_mm_per_px` (the noise
+    :func:`fit_pose` starts from; NaN without a scale or a width)."""
+    scale, sigma_px = ring_scale_mm_per_px(detection, camera, plane), detection.line_sigma_px
     if not (math.isfinite(scale) and math.isfinite(sigma_px)):
         return math.nan
     return NOISE_PER_LINE_SIGMA * sigma_px * scale
-
-
-def _fit_scaled(candidates: _k.Candidates, sigma_px: float, camera: CameraModel,
-                plane: LaserPlane, seed: int, min_coverage: float,
-                radius: float) -> tuple[float, KernelFit]:
-    """(noise, the fit) with the noise taken from the frame (its candidates and the
-    line's measured sigma, px).
-
-    Starts from :func:`frame_noise_mm`; a fit with too few inliers is tried once more
-    with a three times wider gate, and while the inliers' rms exceeds
-    ``RESCALE_RMS`` noise sigmas (their scatter fills the gate: the frame is noisier
-    than its line width says) the fit is repeated with the noise set from that rms
-    (1.3 x: the gate truncates the scatter).
-    """
-    noise = _frame_noise(candidates, sigma_px, camera, plane)
-    if not math.isfinite(noise):   # no candidate meets the plane: nothing to fit
-        noise = FALLBACK_NOISE_MM
-        return noise, _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
-    out = _fit_kernel(candidates, camera, plane, noise, seed, min_coverage, radius)
-    if out.status in (_k.LOW_COVERAGE, _k.NO_ELLIPSE):
-        wider = _fit_kernel(candidates, camera, plane, 3.0 * noise, seed, min_coverage, radius)
-        if wider.status == _k.FOUND:
-            noise, out = 3.0 * noise, wider
-    for _ in range(RESCALE_ROUNDS):
-        if out.status != _k.FOUND or out.rms_mm <= RESCALE_RMS * noise:
-            break
-        scale = 1.3 * out.rms_mm
-        wider = _fit_kernel(candidates, camera, plane, scale, seed, min_coverage, radius)
-        if wider.status != _k.FOUND:
-            break
-        noise, out = scale, wider
-    return noise, out
 
 
 @functools.lru_cache(maxsize=64)
@@ -492,17 +440,21 @@ class KernelFit(NamedTuple):
         return float(self.summary[0, _k.SUMMARY_RMS]) if self.status == _k.FOUND else math.nan
 
 
-def _fit_kernel(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlane,
-                noise_mm: float, seed: int, min_coverage: float, radius: float) -> KernelFit:
-    """The fit kernel's result for a frame (:class:`KernelFit`).
+def _fit(candidates: _k.Candidates, sigma_px: float, camera: CameraModel, plane: LaserPlane,
+         noise_mm: float, seed: int, min_coverage: float, radius: float) -> tuple[float,
+                                                                                  KernelFit]:
+    """(noise, the fit kernel's result) for a frame (:class:`KernelFit`).
 
-    What is unprojected (:func:`pipestitch.pose._fit_kernels.ring_query`): the candidates,
-    then every ``stride``-th one moved one column, then one row
-    (:func:`pipestitch.pose._fit_kernels.step_query`: one unprojection for all, as each call
-    has a fixed cost; before the fit it is not known which candidates are the ring, and
-    on a ring without outliers these are the points :func:`ring_rms_px` takes of the
-    inliers). A camera with a compiled unprojection (``ray_kernel``) is unprojected
-    inside the one kernel call (:func:`pipestitch.pose._fit_kernels.fit_pixels`), any other
+    ``noise_mm`` NaN takes the noise from the frame: its candidates and the line's
+    measured sigma ``sigma_px``, widened from the fit's residuals
+    (:func:`pipestitch.pose._fit_kernels.fit_scaled`). What is unprojected
+    (:func:`pipestitch.pose._fit_kernels.fit_query`): the candidates, then every
+    ``stride``-th one moved one column, then one row (before the fit it is not known
+    which candidates are the ring, and on a ring without outliers these are the points
+    :func:`ring_rms_px` takes of the inliers), then the points the frame's pixel ->
+    plane scale is measured at: one unprojection for all, as each call has a fixed
+    cost. A camera with a compiled unprojection (``ray_kernel``) is unprojected inside
+    the one kernel call (:func:`pipestitch.pose._fit_kernels.fit_fields`), any other
     through its ``unproject``.
 
     Selection: a first conic directly when the strongest candidates agree (most frames
@@ -517,30 +469,30 @@ def _fit_kernel(candidates: _k.Candidates, camera: CameraModel, plane: LaserPlan
     settings = _fit_settings(noise_mm, min_coverage, radius, candidates.n_azimuths)
     on_plane = _kernel_plane(plane)
     kernel = getattr(camera, "ray_kernel", None)
+    sigma = float(sigma_px)
 
-    def run(uniforms: np.ndarray) -> tuple[float, tuple]:
+    def run(uniforms: np.ndarray) -> tuple[float, float, tuple]:
         if kernel is not None:
-            return _k.fit_pixels(candidates, kernel, on_plane, settings, uniforms)
-        query, stride, found = _k.ring_query(candidates)
-        if len(candidates.pixels) < _k.MIN_CANDIDATES or found < settings.min_coverage:
-            return found, _k.no_fit(_k.NO_RING, 0, settings.n_free)
+            return _k.fit_fields(*candidates, *kernel, *on_plane, *settings, sigma, uniforms)
+        query, stride, found, valid = _k.fit_query(candidates)
+        if not _k.has_ring(candidates, found, settings):
+            return found, math.nan, _k.no_fit(_k.NO_RING, 0, settings.n_free)
         rays = _as_points(camera.unproject(query))
-        return found, _k.fit_frame(rays, stride, candidates, on_plane, settings, uniforms)
+        return found, *_k.fit_scaled(rays, stride, valid, candidates, on_plane, settings,
+                                     sigma, uniforms)
 
-    found, out = run(np.empty((0, 5)))
+    found, noise, out = run(np.empty((0, 5)))
     if out[0] == _k.NEEDS_SAMPLES:
-        found, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
-    return KernelFit(found, *out)
+        found, noise, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
+    return noise, KernelFit(found, *out)
 
 
 def _fit_settings(noise_mm: float, min_coverage: float, radius: float,
                   n_azimuths: int) -> _k.FitSettings:
-    """The fit kernel's settings for a frame with point noise ``noise_mm`` (its loss
-    scale; the gates are ``GATE_SIGMAS`` and ``RESELECT_SIGMAS`` of it); ``radius``
-    NaN fits the radius, else holds it. Python floats and ints: one compiled signature."""
-    noise = float(noise_mm)
-    return _k.FitSettings(gate_mm=GATE_SIGMAS * noise, reselect_mm=RESELECT_SIGMAS * noise,
-                          loss_scale_mm=noise, radius_mm=float(radius),
+    """The fit kernel's settings for a frame with point noise ``noise_mm`` (NaN: from
+    the frame); ``radius`` NaN fits the radius, else holds it. Python floats and ints:
+    one compiled signature."""
+    return _k.FitSettings(noise_mm=float(noise_mm), radius_mm=float(radius),
                           n_free=4 if radius == radius else 5,
                           min_coverage=float(min_coverage),
                           min_hit=_min_rays(min_coverage, n_azimuths), max_points=KEPT_POINTS)

@@ -14,12 +14,13 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 
-BASE = {"errors", "jsonsafe", "_runtime"}        # importable from anywhere
+BASE = {"errors", "jsonsafe", "_runtime", "imaging"}   # importable from anywhere
 PURE = BASE | {"camera", "geometry"}
 ALLOWED = {
     "_runtime": set(),
     "errors": set(),
     "jsonsafe": set(),
+    "imaging": set(),
     "camera": {"errors", "_runtime"},
     "geometry": {"camera", "errors"},
     "config": PURE,

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pipestitch.imaging import gaussian_blur
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
     mask_strip,
@@ -88,9 +89,13 @@ def test_local_contrast_is_value_over_local_mean() -> None:
     contrast, support = local_contrast(values, 3.0)
     valid = np.isfinite(values)
     filled = np.where(valid, values, 0).astype(np.float32)
-    blur = [cv2.GaussianBlur(a, (0, 0), 3.0, borderType=cv2.BORDER_REFLECT)
-            for a in (valid.astype(np.float32), filled)]
-    local = blur[1] / np.maximum(blur[0], np.float32(1e-6))
-    want = np.where(valid, filled / np.maximum(local, np.float32(1e-6)) - 1, 0)
-    np.testing.assert_array_equal(contrast, want.astype(np.float32))
-    np.testing.assert_array_equal(support, blur[0])
+    # the compiled contrast is the expression on the blurs exactly; the blurs are
+    # OpenCV's GaussianBlur to float32 rounding (pipestitch.imaging)
+    for blur_of, tol in ((lambda a: gaussian_blur(a, 3.0, border=cv2.BORDER_REFLECT), 0.0),
+                         (lambda a: cv2.GaussianBlur(a, (0, 0), 3.0,
+                                                     borderType=cv2.BORDER_REFLECT), 2e-6)):
+        blur = [blur_of(a) for a in (valid.astype(np.float32), filled)]
+        local = blur[1] / np.maximum(blur[0], np.float32(1e-6))
+        want = np.where(valid, filled / np.maximum(local, np.float32(1e-6)) - 1, 0)
+        np.testing.assert_allclose(contrast, want.astype(np.float32), rtol=0, atol=tol)
+        np.testing.assert_allclose(support, blur[0], rtol=0, atol=tol)

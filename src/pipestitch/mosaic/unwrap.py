@@ -26,6 +26,7 @@ import numpy as np
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
+from pipestitch.imaging import gaussian_blur
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
     contrast_of,
@@ -247,8 +248,8 @@ def local_contrast_and_mean(values: np.ndarray, sigma_px: float = 6.0
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`local_contrast` and the local mean it divides by (float32 each)."""
     filled, valid = fill_invalid(np.asarray(values, np.float32))
-    support = cv2.GaussianBlur(valid, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
-    local = cv2.GaussianBlur(filled, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    support = gaussian_blur(valid, sigma_px, border=cv2.BORDER_REFLECT)
+    local = gaussian_blur(filled, sigma_px, border=cv2.BORDER_REFLECT)
     contrast = contrast_of(filled, valid, support, local)   # makes ``local`` the mean
     return contrast, support, local
 

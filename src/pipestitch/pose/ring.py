@@ -25,6 +25,7 @@ import numpy as np
 
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
+from pipestitch.imaging import gaussian_blur
 from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
@@ -461,10 +462,10 @@ def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:
 
 
 def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian blur along each ray (axis 1) only; OpenCV's separable filter is fast."""
-    k = 2 * int(np.ceil(4 * sigma)) + 1
-    return cv2.GaussianBlur(polar, (k, 1), sigmaX=sigma, sigmaY=0,
-                            borderType=cv2.BORDER_REPLICATE)
+    """Gaussian blur along each ray (axis 1) only, over +-4 sigma
+    (:func:`pipestitch.imaging.gaussian_blur`)."""
+    return gaussian_blur(polar, sigma, along_rows=True, taps=2 * int(np.ceil(4 * sigma)) + 1,
+                         border=cv2.BORDER_REPLICATE)
 
 
 def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,

@@ -51,7 +51,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("camera.ocam", "_pixels", "f8:2 f8:1 f8:1"),
     ("camera.ocam", "ray_loop", "f8:2 f8:1 f8:1 f8"),
     ("mosaic._unwrap_kernels", "upsample_masked", "f4:3 i8 i8 i8 f8"),
-    ("mosaic._unwrap_kernels", "mask_strip", "f4:2 f4:2 f4:2 f4:2 f8 b1:2"),
+    ("mosaic._unwrap_kernels", "mask_strip", "f4:2 f4:2 f4:2 f4:2 f8 u1:2 i8"),
     ("mosaic._unwrap_kernels", "fill_invalid", "f4:2"),
     ("mosaic._unwrap_kernels", "contrast_of", "f4:2 f4:2 f4:2 f4:2"),
     ("mosaic._noise_kernels", "contrast_fields", "f4:2 f4:2 f4:2 f8 f8 i8"),

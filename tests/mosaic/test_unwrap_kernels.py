@@ -62,6 +62,7 @@ def test_upsampled_maps_are_bilinear_and_masked_where_any_node_is_invalid(
 
 
 def test_strip_mask_uses_the_nearest_pixel_as_cv2_remap_does() -> None:
+    # 30 columns: the packed mask's last byte holds 6 pixels and 2 pad bits
     occluded = RNG.random((20, 30)) < 0.3
     # Half-integer coordinates (rounded to even), out of the frame, and invisible nodes.
     map_x = (RNG.integers(-4, 66, (15, 17)) / 2).astype(np.float32)
@@ -74,11 +75,11 @@ def test_strip_mask_uses_the_nearest_pixel_as_cv2_remap_does() -> None:
                        borderMode=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
     bad = ~np.isfinite(values) | (quality < 0.4) | hidden | (map_x < 0)
     got = values.copy()
-    weight = mask_strip(got, map_x, map_y, quality, 0.4, occluded)
+    weight = mask_strip(got, map_x, map_y, quality, 0.4, np.packbits(occluded, axis=1), 30)
     np.testing.assert_array_equal(np.isnan(got), bad)
     np.testing.assert_array_equal(weight, np.where(bad, 0, quality))
     got = values.copy()   # no occluder mask: only invisible, missing and poor nodes
-    mask_strip(got, map_x, map_y, quality, 0.4, np.zeros((0, 0), bool))
+    mask_strip(got, map_x, map_y, quality, 0.4, np.zeros((0, 0), np.uint8), 0)
     np.testing.assert_array_equal(np.isnan(got),
                                   (map_x < 0) | ~np.isfinite(values) | (quality < 0.4))
 

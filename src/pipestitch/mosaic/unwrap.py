@@ -231,7 +231,7 @@ def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: 
                        borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
     hidden = np.zeros((0, 0), bool) if occluded is None else np.asarray(occluded, bool)
     weight = mask_strip(values, maps.map_x, maps.map_y, maps.quality, float(min_resolution),
-                        hidden)
+                        np.packbits(hidden, axis=1), hidden.shape[1])
     return Strip(values, weight, maps.shading)
 
 

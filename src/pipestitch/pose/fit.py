@@ -434,15 +434,10 @@ class KernelFit(NamedTuple):
     ring_uv: np.ndarray       # the kept points (subsampled), plane coordinates, float32
     ring_pixels: np.ndarray   # ... and their image pixels
 
-    @property
-    def rms_mm(self) -> float:
-        """The optimum's wall rms (mm); NaN without a fit."""
-        return float(self.summary[0, _k.SUMMARY_RMS]) if self.status == _k.FOUND else math.nan
-
 
 def _fit(candidates: _k.Candidates, sigma_px: float, camera: CameraModel, plane: LaserPlane,
-         noise_mm: float, seed: int, min_coverage: float, radius: float) -> tuple[float,
-                                                                                  KernelFit]:
+         noise_mm: float, seed: int, min_coverage: float,
+         radius: float) -> tuple[float, KernelFit]:
     """(noise, the fit kernel's result) for a frame (:class:`KernelFit`).
 
     ``noise_mm`` NaN takes the noise from the frame: its candidates and the line's

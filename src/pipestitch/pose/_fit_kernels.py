@@ -1264,30 +1264,32 @@ def harmonic_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray
     5 x 5 entries of each point took five times as long)."""
     n = u.size
     basis = np.empty((n, 5))
-    s1 = s2 = s3 = s4 = s11 = s12 = s13 = s14 = s22 = s23 = s24 = s33 = s34 = s44 = 0.0
+    # sums over the points: x_ of x, x_y of x times y
+    c_ = s_ = c2_ = s2_ = c_c = c_s = c_c2 = c_s2 = s_s = s_c2 = s_s2 = c2_c2 = c2_s2 = 0.0
+    s2_s2 = 0.0
     for i in range(n):
         r = np.sqrt(u[i] * u[i] + v[i] * v[i])
         c, s = (u[i] / r, v[i] / r) if r > 0.0 else (1.0, 0.0)
-        c2, s2_ = c * c - s * s, 2.0 * s * c
-        basis[i, 0], basis[i, 1], basis[i, 2], basis[i, 3], basis[i, 4] = 1.0, c, s, c2, s2_
-        s1 += c
-        s2 += s
-        s3 += c2
-        s4 += s2_
-        s11 += c * c
-        s12 += c * s
-        s13 += c * c2
-        s14 += c * s2_
-        s22 += s * s
-        s23 += s * c2
-        s24 += s * s2_
-        s33 += c2 * c2
-        s34 += c2 * s2_
-        s44 += s2_ * s2_
+        c2, s2 = c * c - s * s, 2.0 * s * c
+        basis[i, 0], basis[i, 1], basis[i, 2], basis[i, 3], basis[i, 4] = 1.0, c, s, c2, s2
+        c_ += c
+        s_ += s
+        c2_ += c2
+        s2_ += s2
+        c_c += c * c
+        c_s += c * s
+        c_c2 += c * c2
+        c_s2 += c * s2
+        s_s += s * s
+        s_c2 += s * c2
+        s_s2 += s * s2
+        c2_c2 += c2 * c2
+        c2_s2 += c2 * s2
+        s2_s2 += s2 * s2
     ridge = 1e-9 * n
-    normal = np.array([[n + ridge, s1, s2, s3, s4], [s1, s11 + ridge, s12, s13, s14],
-                       [s2, s12, s22 + ridge, s23, s24], [s3, s13, s23, s33 + ridge, s34],
-                       [s4, s14, s24, s34, s44 + ridge]])
+    normal = np.array([[n + ridge, c_, s_, c2_, s2_], [c_, c_c + ridge, c_s, c_c2, c_s2],
+                       [s_, c_s, s_s + ridge, s_c2, s_s2], [c2_, c_c2, s_c2, c2_c2 + ridge, c2_s2],
+                       [s2_, c_s2, s_s2, c2_s2, s2_s2 + ridge]])
     return basis, normal
 
 

@@ -127,9 +127,9 @@ def mask_strip(values: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, quality
     ``INTER_NEAREST`` does) is occluded or outside the frame. ``occluded_bits`` is the
     occluder mask of a frame ``width`` pixels wide packed eight pixels to a byte along
     its rows (``numpy.packbits(mask, axis=1)``: a 1224 x 1024 mask in 157 kB, which the
-    cache holds while a strip's rays read it in their scattered order; the unpacked
-    1.2 MB was read from further out, ten times slower, measured); an empty one skips
-    that last test.
+    cache holds better while a strip's rays read it in their scattered order: in a
+    60-pair run the test took 0.16 s of CPU on the 1.2 MB mask, 0.10 s packed); an
+    empty one skips that last test.
     """
     weight = np.empty(values.shape, np.float32)
     q_min = F32(min_quality)

@@ -5,7 +5,7 @@ For kernels of more than 9 taps, ``cv2.filter2D`` with the same one-row kernel, 
 the same one-column kernel, gives the same blur in about half the time (OpenCV 4.x on
 one core, measured: 1440 x 600, sigma 6, 49 taps: 5.95 -> 3.19 ms; along the rows only,
 1440 x 876, sigma 8, 65 taps: 7.50 -> 3.01 ms); the two differ by float32 rounding (a
-few 1e-7 of the values: the sums are accumulated in another order). Small kernels stay
+few 1e-7 of the values). Small kernels stay
 with ``GaussianBlur``, whose symmetric small-kernel code is as fast or faster (5 taps:
 0.37 against 0.43 ms). Kernels of 130 taps or more also stay with it: ``filter2D``
 switches to a DFT for them.

@@ -64,6 +64,9 @@ def test_jacobian_is_the_residuals_derivative(a, b, dx, dy, r, c, s) -> None:
         for h, e in zip(steps, np.eye(7), strict=True)])
     np.testing.assert_allclose(oval_jacobian(x, points), numeric, rtol=1e-6,
                                atol=1e-6 * np.abs(numeric).max())
+    # the fit with its tilt held takes the other five columns, computed alone
+    np.testing.assert_array_equal(oval_jacobian(x, points, tilt=False),
+                                  oval_jacobian(x, points)[:, 2:])
 
 
 def test_one_ring_cannot_separate_tilt_from_ovality() -> None:

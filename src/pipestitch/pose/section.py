@@ -82,9 +82,9 @@ def oval_residuals(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
     return r * (np.sqrt(np.maximum(qmq, 0.0)) - 1)
 
 
-def oval_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+def oval_jacobian(x: np.ndarray, points_mm: np.ndarray, *, tilt: bool = True) -> np.ndarray:
     """The derivatives of :func:`oval_residuals` by x = (alpha, beta, dx, dy, r, c, s):
-    (N, 7).
+    (N, 7); without the ``tilt`` columns (alpha, beta) (N, 5), for a fit that holds it.
 
     With k = 1 - e²/4 and n = (1 + e²/4)|q|² - (c (qx² - qy²) + 2 s qx qy), the
     residual is sqrt(n) / k - r (for r > 0, as the fit bounds it), so its derivatives
@@ -94,11 +94,7 @@ def oval_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
     """
     a, b, c, s = x[0], x[1], x[5], x[6]
     tilt_x, tilt_y = rot_x(a), rot_y(b)
-    d_tilt_x, d_tilt_y = rot_x(a + np.pi / 2), rot_y(b + np.pi / 2)
-    d_tilt_x[0, 0], d_tilt_y[1, 1] = 0.0, 0.0   # the derivative of the fixed axis' 1
     q = points_mm @ (tilt_x @ tilt_y)[:2].T + x[2:4]
-    q_a = points_mm @ (d_tilt_x @ tilt_y)[:2].T
-    q_b = points_mm @ (tilt_x @ d_tilt_y)[:2].T
     e2 = c * c + s * s
     k = 1 - e2 / 4
     qx, qy = q[:, 0], q[:, 1]
@@ -110,8 +106,15 @@ def oval_jacobian(x: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
     g_y = half * (2 * (1 + e2 / 4) * qy + 2 * (c * qy - s * qx))
     d_c = half * (c / 2 * sq - diff) + np.where(root > 0, root, 0.0) * c / (2 * k * k)
     d_s = half * (s / 2 * sq - 2 * cross) + np.where(root > 0, root, 0.0) * s / (2 * k * k)
+    rest = [g_x, g_y, np.full_like(qx, -1.0), d_c, d_s]
+    if not tilt:
+        return np.column_stack(rest)
+    d_tilt_x, d_tilt_y = rot_x(a + np.pi / 2), rot_y(b + np.pi / 2)
+    d_tilt_x[0, 0], d_tilt_y[1, 1] = 0.0, 0.0   # the derivative of the fixed axis' 1
+    q_a = points_mm @ (d_tilt_x @ tilt_y)[:2].T
+    q_b = points_mm @ (tilt_x @ d_tilt_y)[:2].T
     return np.column_stack([g_x * q_a[:, 0] + g_y * q_a[:, 1], g_x * q_b[:, 0] + g_y * q_b[:, 1],
-                            g_x, g_y, np.full_like(qx, -1.0), d_c, d_s])
+                            *rest])
 
 
 def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
@@ -149,7 +152,7 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
         return oval_residuals(np.concatenate([tilt, v]), points_mm)
 
     def jac(v: np.ndarray) -> np.ndarray:
-        return oval_jacobian(np.concatenate([tilt, v]), points_mm)[:, 2:]
+        return oval_jacobian(np.concatenate([tilt, v]), points_mm, tilt=False)
 
     # Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
     bounds = ([-np.inf, -np.inf, 1e-3, -0.5, -0.5], [np.inf, np.inf, np.inf, 0.5, 0.5])

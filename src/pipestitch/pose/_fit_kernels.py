@@ -634,7 +634,8 @@ def select_ring(rays: np.ndarray, candidates: Candidates, plane: Plane, settings
 
 @numba.njit(cache=True, error_model="numpy")
 def ring_query(candidates: Candidates) -> tuple[np.ndarray, int, float]:
-    """What a fit unprojects, and the detection's coverage, in one call.
+    """The ring's part of what a fit unprojects (:func:`fit_query`), and the detection's
+    coverage, in one call.
 
     Returns (:func:`step_query` of the pixels at ``stride``, ``stride``, coverage):
     ``stride`` subsamples the rays' strongest candidates to ~128 for the px RMS

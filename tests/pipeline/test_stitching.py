@@ -19,6 +19,7 @@ from pipestitch.io.images import read_image
 from pipestitch.mosaic.register import Link, Positions, odometer_noise_mm, solve_positions
 from pipestitch.pipeline.stitching import (
     FrameView,
+    MosaicResult,
     MosaicSettings,
     _mirror_spread,
     _solved,
@@ -121,12 +122,11 @@ def test_only_the_frames_redone_are_refined_again(eight_pairs: Path, monkeypatch
                if 4 in (a.i, a.j))
 
 
-def test_a_redone_frame_with_a_mirror_hypothesis_is_chosen_again(eight_pairs: Path,
-                                                                 monkeypatch) -> None:
-    """Frame 4 as above, with a second hypothesis 3 degrees off the other way: the frames
-    around it (2 registered frames on each side) are registered again as in a full
-    round, the hypothesis nearer the truth is chosen, and its pose is refined as near
-    the truth as without the choice."""
+def _mosaic_with_alternative(root: Path, monkeypatch, off_deg: tuple[float, float]
+                             ) -> tuple[MosaicResult, list[list[int]], Pose]:
+    """Frame 4 as in :func:`_frame_4_off`, with a second hypothesis ``off_deg`` (alpha,
+    beta) from its starting pose: the mosaic, the frames of each registration pass and
+    frame 4's true pose."""
     import pipestitch.pipeline.stitching as stitching
 
     passes: list[list[int]] = []
@@ -137,14 +137,37 @@ def test_a_redone_frame_with_a_mirror_hypothesis_is_chosen_again(eight_pairs: Pa
         return register(dataset, views, *args, **kwargs)
 
     monkeypatch.setattr(stitching, "_register", counted)
-    views, start = _frame_4_off(eight_pairs)
-    far = replace(views[4].pose, alpha=views[4].pose.alpha + np.deg2rad(3.0))
-    start[4] = replace(start[4], alternative=FrameView(far, views[4].section))
-    result = build_mosaic(open_dataset(eight_pairs), start, MosaicSettings(),
-                          show_progress=False)
-    assert passes == [list(range(8)), [2, 3, 4, 5, 6]]
+    views, start = _frame_4_off(root)
+    pose = start[4].pose
+    other = replace(pose, alpha=pose.alpha + np.deg2rad(off_deg[0]),
+                    beta=pose.beta + np.deg2rad(off_deg[1]))
+    start[4] = replace(start[4], alternative=FrameView(other, views[4].section))
+    result = build_mosaic(open_dataset(root), start, MosaicSettings(), show_progress=False)
+    return result, passes, views[4].pose
+
+
+def test_a_redone_frame_whose_mirror_registration_decided_keeps_its_choice(
+        eight_pairs: Path, monkeypatch) -> None:
+    """Frame 4 as above, with a second hypothesis 5 degrees off the other way (3 from the
+    truth): the first round chooses the nearer one, so the redo measures frame 4's
+    links again by their patch shifts alone, without registering it and its neighbours
+    with both hypotheses again, and its pose is refined as near the truth as without
+    the choice."""
+    result, passes, truth = _mosaic_with_alternative(eight_pairs, monkeypatch, (5.0, 0.0))
+    assert passes == [list(range(8))]
     assert result.switched.get(4) is False
-    assert _tilt_deg(result.views[4].pose, views[4].pose) < 0.03
+    assert _tilt_deg(result.views[4].pose, truth) < 0.03
+
+
+def test_a_redone_frame_whose_mirror_is_undecided_is_registered_again(
+        eight_pairs: Path, monkeypatch) -> None:
+    """Frame 4 as above, with a second hypothesis 0.02 degrees from the first, which no
+    registration can tell apart: the frames around it (2 registered frames on each
+    side) are registered again as in a full round, and its pose is refined as near the
+    truth as without a second hypothesis."""
+    result, passes, truth = _mosaic_with_alternative(eight_pairs, monkeypatch, (0.0, 0.02))
+    assert passes == [list(range(8)), [2, 3, 4, 5, 6]]
+    assert _tilt_deg(result.views[4].pose, truth) < 0.03
 
 
 def test_a_camera_whose_exposure_steps_is_stitched_at_one_brightness(tmp_path,

@@ -1,7 +1,11 @@
-"""Compiled conversion of a float mosaic to 8 bits with no-data kept at 0 (numba).
+"""Compiled image loops (numba): a float mosaic to 8 bits with no-data kept at 0, and a
+PNG's scanlines unfiltered.
 
-Why hand-written: one pass instead of numpy's four temporaries over a mosaic that can
-be hundreds of megapixels (``cv2.convertScaleAbs`` has no NaN-to-0 rule).
+Why hand-written: the mosaic's conversion is one pass instead of numpy's four
+temporaries over a mosaic that can be hundreds of megapixels (``cv2.convertScaleAbs``
+has no NaN-to-0 rule). No library unfilters a PNG's inflated scanlines on their own
+(libpng and libspng do it inside their decoders, a byte at a time through row
+callbacks); :mod:`pipestitch.io.png` says why the frames are decoded that way.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -29,3 +33,83 @@ def scaled_uint8(image: np.ndarray, scale: float) -> np.ndarray:
             else:
                 out[i, j] = 0
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def png_unfilter(raw: np.ndarray, n_rows: int, row_bytes: int, pixel_bytes: int,
+                 out: np.ndarray) -> bool:
+    """Undo a PNG's per-scanline filters (PNG spec, section 9: None, Sub, Up, Average,
+    Paeth) of ``raw`` (the inflated image data: each of ``n_rows`` scanlines one filter
+    byte then ``row_bytes`` bytes) into ``out`` (``n_rows * row_bytes`` bytes), with
+    ``pixel_bytes`` bytes a pixel (at least 1). False, ``out`` part-written, at a filter
+    byte above 4. Each filter has its own loop; for single-byte pixels the byte to the
+    left is carried in a register instead of read back from ``out`` (a store and a load
+    in every step of the row's dependency chain: 3.8x slower)."""
+    for y in range(n_rows):
+        kind = raw[y * (row_bytes + 1)]
+        src, dst = y * (row_bytes + 1) + 1, y * row_bytes
+        if kind == 0 or (kind == 2 and y == 0):
+            for x in range(row_bytes):
+                out[dst + x] = raw[src + x]
+        elif kind == 1:
+            _sub_row(raw, src, out, dst, row_bytes, pixel_bytes)
+        elif kind == 2:
+            for x in range(row_bytes):
+                out[dst + x] = np.uint8(raw[src + x] + out[dst - row_bytes + x])
+        elif kind == 3:
+            _average_row(raw, src, out, dst, row_bytes, pixel_bytes, y > 0)
+        elif kind == 4:
+            _paeth_row(raw, src, out, dst, row_bytes, pixel_bytes, y > 0)
+        else:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sub_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
+             step: int) -> None:
+    """A Sub-filtered row: each byte plus the one ``step`` to its left."""
+    if step == 1:
+        left = np.uint8(0)
+        for x in range(n):
+            left = np.uint8(raw[src + x] + left)
+            out[dst + x] = left
+        return
+    for x in range(n):
+        out[dst + x] = raw[src + x] if x < step else np.uint8(raw[src + x] + out[dst + x - step])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _average_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
+                 step: int, has_above: bool) -> None:
+    """An Average-filtered row: each byte plus the floored mean of its left and upper
+    neighbours (0 outside the image)."""
+    left = np.int32(0)
+    for x in range(n):
+        above = np.int32(out[dst - n + x]) if has_above else np.int32(0)
+        if step > 1:
+            left = np.int32(out[dst + x - step]) if x >= step else np.int32(0)
+        value = np.uint8((np.int32(raw[src + x]) + ((left + above) >> 1)) & 255)
+        out[dst + x] = value
+        left = np.int32(value)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _paeth_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
+               step: int, has_above: bool) -> None:
+    """A Paeth-filtered row: each byte plus whichever of its left, upper and upper-left
+    neighbours (0 outside the image) is nearest left + upper - upper-left, ties in that
+    order."""
+    left = corner = np.int32(0)
+    for x in range(n):
+        above = np.int32(out[dst - n + x]) if has_above else np.int32(0)
+        if step > 1:
+            inside = x >= step
+            left = np.int32(out[dst + x - step]) if inside else np.int32(0)
+            corner = np.int32(out[dst - n + x - step]) if inside and has_above else np.int32(0)
+        p = left + above - corner
+        pa, pb, pc = abs(p - left), abs(p - above), abs(p - corner)
+        predicted = left if pa <= pb and pa <= pc else (above if pb <= pc else corner)
+        value = np.uint8((np.int32(raw[src + x]) + predicted) & 255)
+        out[dst + x] = value
+        left, corner = np.int32(value), above

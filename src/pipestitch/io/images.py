@@ -4,8 +4,9 @@ A frame's size is read from its header before its pixels are decoded (PNG's IHDR
 TIFF's first page tags, a JPEG's frame header), so a file that declares a size other
 than the camera's, or more pixels than ``MAX_PIXELS``, is refused at the cost of reading
 a few bytes, whatever it would take to decode: a small file declaring 30000 x 30000
-pixels never becomes a gigabyte of memory. Other formats are decoded by OpenCV within
-its own pixel limit.
+pixels never becomes a gigabyte of memory. PNGs in the layouts cameras write are
+decoded by :mod:`pipestitch.io.png` (the same pixels, in less than half the time);
+other files by OpenCV within its own pixel limit.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tifffile
 from pipestitch.errors import DatasetError
 from pipestitch.io import ahead
 from pipestitch.io.atomic import atomic_write_bytes
+from pipestitch.io.png import decode_png
 
 __all__ = ["MAX_PIXELS", "decoded_bytes_bound", "image_header", "read_image", "write_image"]
 
@@ -127,6 +129,9 @@ def _decoded(path: Path, size: tuple[int, int] | None) -> np.ndarray:
     declared = image_header(data)
     if declared is not None:
         _check_declared(path, declared, size)
+    img = decode_png(data)   # the layouts cameras write, faster; else None (io/png.py)
+    if img is not None:
+        return img
     try:
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:   # e.g. beyond OpenCV's own pixel limit

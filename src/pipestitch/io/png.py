@@ -56,7 +56,8 @@ def decode_png(data: bytes | np.ndarray) -> np.ndarray | None:
     numpy.ndarray or None
         uint8 or uint16, (H, W) grey or (H, W, 3|4) BGR(A); None as said.
     """
-    found = _image_chunks(memoryview(data).cast("B"))
+    array = np.ascontiguousarray(data) if isinstance(data, np.ndarray) else data
+    found = _image_chunks(memoryview(array).cast("B"))
     if found is None:
         return None
     (width, height, depth, colour), stream = found

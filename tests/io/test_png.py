@@ -126,6 +126,7 @@ def _left_to_opencv() -> dict[str, bytes]:
         "no IEND": good[:-12],
         "unknown filter": _png((30, 20, 8, 0, 0), b"\x05" + rows[1:]),
         "short data": _png((30, 20, 8, 0, 0), rows[:-31]),
+        "long data": _png((30, 20, 8, 0, 0), rows + bytes(31)),
         "not a zlib stream": good.replace(zlib.compress(rows), b"\x00" * 40).replace(
             good[idat - 4:idat], struct.pack(">I", 40)),
         "not a PNG": _encoded(grey.astype(np.uint8)).replace(b"PNG", b"PNX", 1),
@@ -138,7 +139,8 @@ def test_other_layouts_and_malformed_files_are_left_to_opencv(case: str) -> None
     assert decode_png(_left_to_opencv()[case]) is None
 
 
-@pytest.mark.parametrize("case", ["palette", "grey and alpha", "transparency", "interlaced"])
+@pytest.mark.parametrize("case", ["palette", "grey and alpha", "transparency", "interlaced",
+                                  "long data"])
 def test_read_image_gives_opencv_s_pixels_for_layouts_left_to_it(case: str,
                                                                    tmp_path: Path) -> None:
     path = tmp_path / "frame.png"

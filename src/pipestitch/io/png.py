@@ -3,11 +3,12 @@ its time.
 
 Why hand-written: decoding is the floor under a run's time (every frame is read at
 least once), and OpenCV inflates a PNG with zlib and unfilters it through libpng's row
-callbacks: 6.5 ms for a 1224 x 1024 grey frame on a 2-core machine, of which inflating
-is 4 ms. ISA-L's inflate (``isal``, which releases the GIL) takes 1.6 ms and a compiled
-unfilter (:func:`pipestitch.io._image_kernels.png_unfilter`) 0.5 ms, 2.6 ms in all
+callbacks: 7.0 ms for a 1224 x 1024 grey frame on a 2-core machine, of which inflating
+is 4 ms. ISA-L's inflate (``isal``, which releases the GIL) takes 2.2 ms and a compiled
+unfilter (:func:`pipestitch.io._image_kernels.png_unfilter`) 0.35 ms, 2.8 ms in all
 (docs/benchmarks.md). No decoder library we found is faster than OpenCV's here
-(imagecodecs' libpng and libspng take 6.8 and 7.3 ms).
+(imagecodecs' libpng and libspng take 6.8 and 7.3 ms). The stream is inflated to the
+image's size and a byte more at most, whatever it holds.
 
 Only the layouts cameras write are decoded here: 8- or 16-bit grey, RGB or RGBA, not
 interlaced, whose chunks are the image's own (IHDR, IDAT, IEND) or ancillary ones that
@@ -64,11 +65,12 @@ def decode_png(data: bytes | np.ndarray) -> np.ndarray | None:
     channels = CHANNELS[colour]
     pixel_bytes = channels * depth // 8
     row_bytes = width * pixel_bytes
-    try:
-        raw = isal_zlib.decompress(stream)
+    size = height * (row_bytes + 1)
+    try:   # one byte more than the image's at most: a stream that inflates to more ...
+        raw = isal_zlib.decompressobj().decompress(stream, size + 1)
     except Exception:   # not a zlib stream, or a truncated one: OpenCV's verdict
         return None
-    if len(raw) != height * (row_bytes + 1):
+    if len(raw) != size:   # ... or to less is OpenCV's to judge
         return None
     out = np.empty(height * row_bytes, np.uint8)
     if not png_unfilter(np.frombuffer(raw, np.uint8), height, row_bytes, pixel_bytes, out):

@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image, PngImagePlugin
 
 from pipestitch.errors import DatasetError
@@ -75,6 +77,22 @@ def test_every_filter_and_layout_decodes_as_opencv_does(kind: str, shape: tuple[
     assert got is not None and got.dtype == dtype
     np.testing.assert_array_equal(got, _opencv(data))
     np.testing.assert_array_equal(got, img)   # lossless: the image written, in BGR(A)
+
+
+@settings(max_examples=60, deadline=None)
+@given(rows=st.integers(1, 24), cols=st.integers(1, 24), channels=st.sampled_from([1, 3, 4]),
+       wide=st.booleans(), kind=st.sampled_from(FILTERS), seed=st.integers(0, 2**31))
+def test_random_pixels_decode_as_opencv_does(rows: int, cols: int, channels: int, wide: bool,
+                                             kind: str, seed: int) -> None:
+    """Noise of the whole range, where every predictor wraps around."""
+    dtype = np.uint16 if wide else np.uint8
+    shape = (rows, cols) + ((channels,) if channels > 1 else ())
+    img = np.random.default_rng(seed).integers(0, np.iinfo(dtype).max, shape, endpoint=True,
+                                                dtype=dtype)
+    data = _encoded(img, cv2.IMWRITE_PNG_FILTER, getattr(cv2, f"IMWRITE_PNG_FILTER_{kind}"))
+    got = decode_png(data)
+    assert got is not None
+    np.testing.assert_array_equal(got, _opencv(data))
 
 
 @pytest.mark.parametrize("mode", ["L", "I;16", "RGB", "RGBA"])

@@ -29,8 +29,6 @@ import cv2
 import numpy as np
 from isal import isal_zlib
 
-from pipestitch.io._image_kernels import png_unfilter
-
 __all__ = ["decode_png"]
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -72,6 +70,10 @@ def decode_png(data: bytes | np.ndarray) -> np.ndarray | None:
         return None
     if len(raw) != size:   # ... or to less is OpenCV's to judge
         return None
+    # numba, imported here: reading the images module stays light (io/ahead.py's thread
+    # reads it while the command's own imports load numba)
+    from pipestitch.io._image_kernels import png_unfilter
+
     out = np.empty(height * row_bytes, np.uint8)
     if not png_unfilter(np.frombuffer(raw, np.uint8), height, row_bytes, pixel_bytes, out):
         return None

@@ -24,6 +24,7 @@ the pixels, and the errors, are OpenCV's.
 from __future__ import annotations
 
 import struct
+import sys
 
 import cv2
 import numpy as np
@@ -77,9 +78,12 @@ def decode_png(data: bytes | np.ndarray) -> np.ndarray | None:
     out = np.empty(height * row_bytes, np.uint8)
     if not png_unfilter(np.frombuffer(raw, np.uint8), height, row_bytes, pixel_bytes, out):
         return None
-    pixels = out.view(">u2").astype(np.uint16) if depth == 16 else out
+    # in place from here: a frame's bytes are held twice at most (the stream and these)
+    pixels = out.view(np.uint16) if depth == 16 else out
+    if depth == 16 and sys.byteorder == "little":
+        pixels.byteswap(inplace=True)   # PNG's samples are big-endian
     image = pixels.reshape((height, width) if channels == 1 else (height, width, channels))
-    return cv2.cvtColor(image, TO_OPENCV[channels]) if channels > 1 else image
+    return cv2.cvtColor(image, TO_OPENCV[channels], dst=image) if channels > 1 else image
 
 
 def _image_chunks(buffer: memoryview) -> tuple[tuple[int, int, int, int], bytes] | None:

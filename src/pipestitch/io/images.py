@@ -21,14 +21,13 @@ import tifffile
 from pipestitch.errors import DatasetError
 from pipestitch.io import ahead
 from pipestitch.io.atomic import atomic_write_bytes
+from pipestitch.io.png import SIGNATURE as PNG_SIGNATURE
 from pipestitch.io.png import decode_png
 
 __all__ = ["MAX_PIXELS", "decoded_bytes_bound", "image_header", "read_image", "write_image"]
 
 MAX_PIXELS = 2**27   # 134 Mpx: 10x a 12 MP sensor; larger frames are refused unread
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}   # frame headers, not tables
-_PNG = b"\x89PNG\r\n\x1a\n"
-_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}   # IHDR colour type -> channels
 # IHDR colour type -> channels of OpenCV's IMREAD_UNCHANGED decoding (palette as BGR,
 # grey with alpha as BGRA)
 _PNG_DECODED_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 4, 6: 4}
@@ -43,7 +42,7 @@ def image_header(data: bytes | np.ndarray) -> tuple[int, int] | None:
     PNG, TIFF and JPEG are read; None for other formats (or a header too short to tell).
     """
     head = bytes(data[:33]) if isinstance(data, bytes) else data[:33].tobytes()
-    if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
+    if head.startswith(PNG_SIGNATURE) and head[12:16] == b"IHDR" and len(head) >= 24:
         return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
     if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
         try:
@@ -81,7 +80,7 @@ def decoded_bytes_bound(data: bytes | np.ndarray, declared: tuple[int, int]) -> 
     colour type), a bound for other formats."""
     head = bytes(data[:26]) if isinstance(data, bytes) else data[:26].tobytes()
     pixels = declared[0] * declared[1]
-    if head.startswith(_PNG) and len(head) >= 26:
+    if head.startswith(PNG_SIGNATURE) and len(head) >= 26:
         return (pixels * _PNG_DECODED_CHANNELS.get(head[25], 4)
                 * (2 if head[24] == 16 else 1))
     return pixels * (_JPEG_BYTES_BOUND if head[:2] == b"\xff\xd8" else _OTHER_BYTES_BOUND)

@@ -6,8 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipestitch import imaging
-from pipestitch.imaging import gaussian_blur, kernel_taps
+from pipestitch.imaging import blur, gaussian_blur, kernel_taps
 
 BORDERS = [cv2.BORDER_REFLECT_101, cv2.BORDER_REFLECT, cv2.BORDER_REPLICATE]
 
@@ -36,7 +35,7 @@ def test_long_float32_kernels_take_filter2d_and_others_gaussian_blur(
     rest and for other types (whose result is then GaussianBlur's exactly)."""
     calls = []
     real = cv2.filter2D
-    monkeypatch.setattr(imaging.cv2, "filter2D", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(blur.cv2, "filter2D", lambda *a, **k: calls.append(1) or real(*a, **k))
     img = np.random.default_rng(1).random((40, 50)).astype(np.float32)
     gaussian_blur(img, 6.0)
     assert kernel_taps(6.0) == 49 and len(calls) == 2

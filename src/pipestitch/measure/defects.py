@@ -48,6 +48,7 @@ from skimage import measure
 
 from pipestitch.geometry.clock import clock_hhmm
 from pipestitch.geometry.wall_grid import WallGrid
+from pipestitch.imaging import mad_sigma
 from pipestitch.measure.outline import RimOutline, rim_outline
 
 __all__ = ["Defect", "background_mm", "clock_position", "find_defects"]
@@ -218,7 +219,7 @@ def find_defects(image: np.ndarray, grid: WallGrid, *,
     # The noise from every other row and column (a quarter of the nodes: the same
     # robust sigma to ~0.1 %, for a quarter of the time).
     values = contrast[::2, ::2][trusted[::2, ::2]]
-    sigma = 1.4826 * float(np.median(np.abs(values - np.median(values)))) if values.size else 0
+    sigma = mad_sigma(values) if values.size else 0
     dark = float(np.clip(NOISE_SIGMAS * sigma, MIN_CONTRAST, MAX_THRESHOLD))
     bright = max(NOISE_SIGMAS * sigma, MIN_CONTRAST)
     mask = trusted & ((contrast < -dark) | (contrast > bright))

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from pipestitch.geometry import WallGrid
+from pipestitch.imaging import median
 from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight, shaded_albedo
 from pipestitch.mosaic.unwrap import Strip
 
@@ -189,7 +190,7 @@ class Canvas:
         both = (weight[::s, ::s] > 0.2) & (have > 0.5) & (mine > 1e-6)
         if np.count_nonzero(both) * s * s < GAIN_MIN_NODES:
             return 1.0
-        ratio = np.median(self.total[::s, cols][:, ::s][both] / (have[both] * mine[both]))
+        ratio = median(self.total[::s, cols][:, ::s][both] / (have[both] * mine[both]))
         if not (math.isfinite(ratio) and ratio > 0) or abs(math.log(ratio)) <= math.log1p(
                 GAIN_DEADBAND):
             return 1.0   # (no ratio: the canvas holds black there, as a frame of no light)

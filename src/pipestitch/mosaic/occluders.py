@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from pipestitch.camera.frames import to_grey
+from pipestitch.imaging import MAD_TO_SIGMA, median
 from pipestitch.mosaic._occluder_kernels import quantile_over_frames
 
 __all__ = ["FULL_SCALES", "defect_pixels", "full_scale", "noise_variance", "occluder_mask",
@@ -124,7 +125,7 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
     virtual = len(stack) * NEARLY_ALL + (1 - NEARLY_ALL) - 1
     ratio = quantile_over_frames(ratios, virtual, False)[0]
     level, typical = quantile_over_frames(stack, virtual, True)
-    scale = float(np.median(typical[typical > 0])) if np.any(typical > 0) else 1.0
+    scale = float(median(typical[typical > 0])) if np.any(typical > 0) else 1.0
     mask = (ratio < relative) | (level < absolute * scale)
     if len(frames) >= MIN_STATIC_FRAMES:
         mask |= static_pixels(stack, typical)
@@ -167,7 +168,7 @@ def defect_pixels(frames: Sequence[np.ndarray], occluded: np.ndarray | None = No
         if occluded is not None:
             seen &= ~occluded
         sample = np.abs(resid[::4, ::4][seen[::4, ::4]])
-        spread = 1.4826 * float(np.median(sample)) if sample.size else 0.0
+        spread = MAD_TO_SIGMA * float(median(sample)) if sample.size else 0.0
         quantum = 1.0 / np.iinfo(frame.dtype).max if frame.dtype.kind in "ui" else 1.0 / 255
         limit = max(DEFECT_SIGMAS * spread, DEFECT_QUANTA * quantum)
         if above is None:
@@ -206,7 +207,7 @@ def noise_variance(stack: np.ndarray, level: np.ndarray, *, bins: int = 16) -> n
     for lo, hi in pairwise(edges):
         sel = valid & (level >= lo) & (level <= hi)
         if np.count_nonzero(sel) >= 100:
-            centres.append(float(np.median(level[sel])))
+            centres.append(float(median(level[sel])))
             noise.append(float(np.percentile(local[sel], 10)))
     if len(centres) < 2:
         return none

@@ -21,7 +21,7 @@ import numpy as np
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid
-from pipestitch.imaging import gaussian_blur
+from pipestitch.imaging import gaussian_blur, nanmedian
 from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
 
@@ -53,7 +53,7 @@ def _contrast(strip: np.ndarray) -> np.ndarray:
     filled = np.where(valid, strip, 0).astype(np.float32)
     weight = gaussian_blur(valid.astype(np.float32), 6.0)
     local = gaussian_blur(filled, 6.0) / np.maximum(weight, 1e-6)
-    med = np.nanmedian(strip) if valid.any() else 0.0
+    med = nanmedian(strip) if valid.any() else 0.0
     contrast = filled / np.maximum(local, 1e-6) - 1
     # Very dark nodes are the laser holder arm, the mirror assembly or holes: they do
     # not move with the wall, so they are masked (with a margin) rather than compared.

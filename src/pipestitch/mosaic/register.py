@@ -25,6 +25,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
 from pipestitch.geometry import WallGrid
+from pipestitch.imaging import mad_sigma
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
@@ -459,7 +460,7 @@ def odometer_noise_mm(links: Sequence[Link], odometry_mm: Mapping[int, float]) -
     dz, inc, link_sigma = np.array(checks).T
     scale = float(np.median([d / i for d, i, _ in moved]))
     resid = dz - scale * inc
-    spread = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    spread = mad_sigma(resid)
     return max(spread, float(np.median(link_sigma)), _count_noise_mm(list(steps.values())))
 
 

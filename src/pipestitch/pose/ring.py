@@ -25,7 +25,7 @@ import numpy as np
 
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
-from pipestitch.imaging import gaussian_blur
+from pipestitch.imaging import gaussian_blur, mad_sigma
 from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
@@ -339,7 +339,7 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # into a candidate, while a 12-bit sensor's noise in a 16-bit file is still its own.
     sample = ridge[::3, ::3]
     quantum = 1.0 / np.iinfo(part.dtype).max if part.dtype.kind in "ui" else 1.0 / 255
-    noise = max(1.4826 * float(np.median(np.abs(sample - np.median(sample)))), 0.25 * quantum)
+    noise = max(mad_sigma(sample), 0.25 * quantum)
     # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
     # the noise and above a fraction of the typical ring response of this frame.
     strongest = np.max(ridge, axis=1)

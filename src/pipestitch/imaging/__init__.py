@@ -1,0 +1,13 @@
+"""Numerical helpers on images and large arrays, as OpenCV and numpy give them, faster.
+
+* :mod:`~pipestitch.imaging.blur`: Gaussian blurs of float32 images through OpenCV's
+  fastest route for their size;
+* :mod:`~pipestitch.imaging.medians`: numpy's medians from one partition instead of two.
+
+Imports no pipestitch package (OpenCV and numpy only): any layer may import it.
+"""
+
+from pipestitch.imaging.blur import gaussian_blur, kernel_taps
+from pipestitch.imaging.medians import MAD_TO_SIGMA, mad_sigma, median, nanmedian
+
+__all__ = ["MAD_TO_SIGMA", "gaussian_blur", "kernel_taps", "mad_sigma", "median", "nanmedian"]

@@ -44,7 +44,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     # fit_fields' refinement subtree as fit_frame calls it (compiled apart in parallel)
     ("pose._fit_kernels", "refine_frame", f"f8:1 f8:2 b1:1 i8 {PLANE} {FIT_SETTINGS}"),
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
-    ("pose._ring_kernels", "divide_by_reflectance", "f4:2 f4:2 f4:2 f8 f8"),
+    ("pose._ring_kernels", "flatten_by_reflectance", "f4:2 f4:2 i8 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
     ("camera.kernels", "rays_of", "RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) f8:2"),
     ("camera.ocam", "_rho_of_points", "f8:2 f8:1 f8:1 f8:1 f8:1 i8:1"),

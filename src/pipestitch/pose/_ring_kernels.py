@@ -2,7 +2,9 @@
 reflectance and the strongest ridge peaks along each ray.
 
 Why hand-written: both run on whole polar frames, once per laser frame; as numpy
-expressions each allocates several frame-sized temporaries.
+expressions each allocates several frame-sized temporaries, and the division by the
+reflectance needs its broad mean (two box blurs) first: fused, a row's samples are
+read once while they are in the cache.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -15,24 +17,58 @@ import numpy as np
 F32 = np.float32
 
 
-@numba.njit(cache=True, nogil=True)
-def divide_by_reflectance(polar: np.ndarray, local: np.ndarray, broad: np.ndarray,
-                          floor: float, min_relative: float) -> np.ndarray:
+ROWS = 4   # rays whose box sums run side by side (independent additions)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor: float,
+                           min_relative: float) -> np.ndarray:
     """``polar / max(local / broad, min_relative)`` where the wall is bright enough, else 0.
 
-    Bright enough: ``local > floor·broad`` and ``broad > 0``. float32 throughout, as
-    the numpy expression it replaces.
+    ``broad`` is ``local``'s mean over ``box`` (odd) samples along each row, taken
+    twice: ``cv2.blur`` with a (box, 1) kernel and ``BORDER_REPLICATE``, twice, as
+    OpenCV computes it for float32 (running sums in float64, each mean rounded to
+    float32). Bright enough: ``local > floor·broad`` and ``broad > 0``; the division
+    in float32, as the numpy expression. One pass over the rows, ``ROWS`` at a time,
+    instead of two blurs and a division over the whole polar frame (4.3 against 2.0
+    ms for 1440 x 876 samples).
     """
+    n_rows, n = polar.shape
     out = np.empty(polar.shape, np.float32)
+    once = np.empty((ROWS, n), np.float32)
+    broad = np.empty((ROWS, n), np.float32)
     f, m = F32(floor), F32(min_relative)
-    for i in range(polar.shape[0]):
-        for j in range(polar.shape[1]):
-            b, v = broad[i, j], local[i, j]
-            if v > f * b and b > F32(0):
-                out[i, j] = polar[i, j] / max(v / b, m)
-            else:
-                out[i, j] = F32(0)
+    for first in range(0, n_rows, ROWS):
+        count = min(ROWS, n_rows - first)
+        _box_means(local, first, count, box // 2, once)
+        _box_means(once, 0, count, box // 2, broad)
+        for r in range(count):
+            for j in range(n):
+                b, v = broad[r, j], local[first + r, j]
+                bright = v > f * b and b > F32(0)
+                out[first + r, j] = polar[first + r, j] / max(v / b, m) if bright else F32(0)
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _box_means(src: np.ndarray, first: int, count: int, half: int, dst: np.ndarray) -> None:
+    """Rows ``first .. first + count - 1`` of ``src``: the mean over ``2 half + 1``
+    samples about each, the border replicated, into ``dst[:count]`` (float64 running
+    sums: add the sample entering, subtract the one leaving)."""
+    n = src.shape[1]
+    scale = 1.0 / (2 * half + 1)
+    total = np.zeros(ROWS)
+    for k in range(-half, half + 1):
+        at = min(max(k, 0), n - 1)
+        for r in range(count):
+            total[r] += src[first + r, at]
+    for r in range(count):
+        dst[r, 0] = total[r] * scale
+    for j in range(1, n):
+        enter, leave = min(j + half, n - 1), max(j - half - 1, 0)
+        for r in range(count):
+            total[r] += np.float64(src[first + r, enter]) - np.float64(src[first + r, leave])
+            dst[r, j] = total[r] * scale
 
 
 @numba.njit(cache=True, nogil=True)

@@ -26,7 +26,7 @@ import numpy as np
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
 from pipestitch.imaging import gaussian_blur, mad_sigma
-from pipestitch.pose._ring_kernels import divide_by_reflectance, ridge_peaks
+from pipestitch.pose._ring_kernels import flatten_by_reflectance, ridge_peaks
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
            "prepare_laser_frame", "ring_band_px", "ring_centre", "row_percentile"]
@@ -486,10 +486,8 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
                                                                 np.float32))
     local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     # A broad local mean: two passes of a 40-px box along the ray (~ a Gaussian of 16 px).
-    box = (2 * round(BROAD_BOX_PX / step_px / 2) + 1, 1)
-    broad = cv2.blur(cv2.blur(local, box, borderType=cv2.BORDER_REPLICATE), box,
-                     borderType=cv2.BORDER_REPLICATE)
-    return divide_by_reflectance(polar, local, broad, 0.15, 0.15)
+    box = 2 * round(BROAD_BOX_PX / step_px / 2) + 1
+    return flatten_by_reflectance(polar, local, box, 0.15, 0.15)
 
 
 def _half_way_to_neighbours(others: np.ndarray, found: np.ndarray, idx: np.ndarray,

@@ -15,7 +15,9 @@ The section is parametrised by its mean radius r and the ovality vector
 major axis: smooth through the circle, where phi is undefined. The wall is
 q^T M q = 1 with M = [(1 + e²/4) I - [[c, s], [s, -c]]] / (r² (1 - e²/4)²) for
 semi-axes r (1 ± e/2); the residual r (sqrt(q^T M q) - 1) is the radial distance
-to first order. Fitted by ``scipy.optimize.least_squares`` (soft-L1).
+to first order. Fitted with a soft-L1 loss by a compiled Levenberg-Marquardt loop
+(:mod:`pipestitch.pose._section_kernels`), ``scipy.optimize.least_squares`` where the
+solution would leave the parameters' bounds.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from scipy.optimize import least_squares
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, rot_x, rot_y
+from pipestitch.pose._section_kernels import fit_oval_offset
 from pipestitch.pose.fit import RESELECT_SIGMAS, Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
 __all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_jacobian", "oval_residuals",
@@ -148,18 +151,8 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
         x0 = np.array([pose.dx_mm, pose.dy_mm, radius_mm, 0.0, 0.0])
     tilt = np.array([pose.alpha, pose.beta])
 
-    def fun(v: np.ndarray) -> np.ndarray:
-        return oval_residuals(np.concatenate([tilt, v]), points_mm)
-
-    def jac(v: np.ndarray) -> np.ndarray:
-        return oval_jacobian(np.concatenate([tilt, v]), points_mm, tilt=False)
-
-    # Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
-    bounds = ([-np.inf, -np.inf, 1e-3, -0.5, -0.5], [np.inf, np.inf, np.inf, 0.5, 0.5])
     x0[3:] = np.clip(x0[3:], -0.49, 0.49)
-    res = least_squares(fun, x0, jac=jac, loss="soft_l1", f_scale=noise_mm, method="trf",
-                        x_scale=np.array([1.0, 1.0, 1.0, 0.01, 0.01]), bounds=bounds)
-    x = np.concatenate([tilt, res.x])
+    x = np.concatenate([tilt, _fit_offset_and_section(points_mm, tilt, x0, noise_mm)])
     resid, info = _information(x, points_mm)
     cov = np.linalg.pinv(info[2:, 2:])
     e = float(np.hypot(x[5], x[6]))
@@ -169,6 +162,34 @@ def fit_section(points_mm: np.ndarray, pose: Pose, radius_mm: float, *,
     return SectionFit(Pose(pose.alpha, pose.beta, float(x[2]), float(x[3])),
                       _section(*x[4:]), ovality_std, float(np.sqrt(max(cov[2, 2], 0.0))),
                       float(np.sqrt(np.mean(resid**2))), resid, pose_info)
+
+
+# Ovality components within ±0.5 (50 %, far past any pipe): the model needs e < 2.
+SECTION_BOUNDS = np.array([[-np.inf, -np.inf, 1e-3, -0.5, -0.5],
+                           [np.inf, np.inf, np.inf, 0.5, 0.5]])
+SECTION_X_SCALE = np.array([1.0, 1.0, 1.0, 0.01, 0.01])   # dx, dy, r (mm); c, s
+
+
+def _fit_offset_and_section(points_mm: np.ndarray, tilt: np.ndarray, x0: np.ndarray,
+                            noise_mm: float) -> np.ndarray:
+    """(dx, dy, r, c, s) of :func:`fit_section`: the compiled robust solve
+    (:func:`pipestitch.pose._section_kernels.fit_oval_offset`), or where that leaves
+    the bounds or does not converge, ``scipy.optimize.least_squares`` with them (the
+    same soft-L1 cost)."""
+    rotated = np.ascontiguousarray(points_mm @ (rot_x(tilt[0]) @ rot_y(tilt[1]))[:2].T)
+    x, converged = fit_oval_offset(rotated, np.asarray(x0, np.float64), float(noise_mm),
+                                   SECTION_X_SCALE, SECTION_BOUNDS)
+    if converged:
+        return x
+
+    def fun(v: np.ndarray) -> np.ndarray:
+        return oval_residuals(np.concatenate([tilt, v]), points_mm)
+
+    def jac(v: np.ndarray) -> np.ndarray:
+        return oval_jacobian(np.concatenate([tilt, v]), points_mm, tilt=False)
+
+    return least_squares(fun, x0, jac=jac, loss="soft_l1", f_scale=noise_mm, method="trf",
+                         x_scale=SECTION_X_SCALE, bounds=tuple(SECTION_BOUNDS)).x
 
 
 def _information(x: np.ndarray, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

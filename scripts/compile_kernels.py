@@ -68,6 +68,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
     ("io._image_kernels", "png_unfilter", "u1:1r i8 i8 i8 u1:1"),
+    ("io._image_kernels", "png_paeth_filter", "u1:2r i8"),
 )
 BIG = ("pose._fit_kernels", "fit_fields")     # the big kernel tree: a process of its own
 FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the next one

@@ -1,11 +1,13 @@
 """Compiled image loops (numba): a float mosaic to 8 bits with no-data kept at 0, and a
-PNG's scanlines unfiltered.
+PNG's scanlines unfiltered and filtered.
 
 Why hand-written: the mosaic's conversion is one pass instead of numpy's four
 temporaries over a mosaic that can be hundreds of megapixels (``cv2.convertScaleAbs``
 has no NaN-to-0 rule). No library unfilters a PNG's inflated scanlines on their own
 (libpng and libspng do it inside their decoders, a byte at a time through row
-callbacks); :mod:`pipestitch.io.png` says why the frames are decoded that way.
+callbacks), nor filters them apart from compressing them (libpng chooses a filter for
+every row by trying each); :mod:`pipestitch.io.png` says why the frames are decoded,
+and the mosaic's PNGs encoded, that way.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -114,3 +116,26 @@ def _paeth_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
         value = np.uint8((np.int32(raw[src + x]) + predicted) & 255)
         out[dst + x] = value
         left, corner = np.int32(value), above
+
+
+@numba.njit(cache=True, nogil=True)
+def png_paeth_filter(image: np.ndarray, pixel_bytes: int) -> np.ndarray:
+    """A PNG's scanlines of the 8-bit ``image`` (rows, row bytes), each Paeth-filtered
+    (PNG spec, section 9.4): a filter byte 4, then each byte minus whichever of its
+    left, upper and upper-left neighbours (``pixel_bytes`` to the left; 0 outside the
+    image) is nearest left + upper - upper-left, ties in that order. What
+    :func:`png_unfilter` undoes."""
+    n_rows, n = image.shape
+    out = np.empty((n_rows, n + 1), np.uint8)
+    for y in range(n_rows):
+        out[y, 0] = 4
+        for x in range(n):
+            left = np.int32(image[y, x - pixel_bytes]) if x >= pixel_bytes else np.int32(0)
+            above = np.int32(image[y - 1, x]) if y > 0 else np.int32(0)
+            corner = (np.int32(image[y - 1, x - pixel_bytes]) if y > 0 and x >= pixel_bytes
+                      else np.int32(0))
+            p = left + above - corner
+            pa, pb, pc = abs(p - left), abs(p - above), abs(p - corner)
+            predicted = left if pa <= pb and pa <= pc else (above if pb <= pc else corner)
+            out[y, x + 1] = np.uint8((np.int32(image[y, x]) - predicted) & 255)
+    return out

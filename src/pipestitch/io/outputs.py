@@ -21,8 +21,9 @@ import numpy as np
 
 from pipestitch.errors import DatasetError
 from pipestitch.io._image_kernels import scaled_uint8
-from pipestitch.io.atomic import atomic_write_text
+from pipestitch.io.atomic import atomic_write_bytes, atomic_write_text
 from pipestitch.io.images import read_image, write_image
+from pipestitch.io.png import encode_png
 from pipestitch.jsonsafe import json_safe
 
 __all__ = ["DEFECT_COLUMNS", "PROFILE_COLUMNS", "intensity_scale", "mosaic_from_uint8",
@@ -68,7 +69,10 @@ def mosaic_from_uint8(image_u8: np.ndarray) -> np.ndarray:
 
 
 def write_mosaic_png(path: Path, image_u8: np.ndarray) -> Path:
-    """Write the 8-bit mosaic atomically."""
+    """Write the 8-bit mosaic atomically (a grey one by :func:`pipestitch.io.png.encode_png`,
+    a colour one, BGR, by OpenCV)."""
+    if image_u8.ndim == 2:
+        return atomic_write_bytes(path, encode_png(image_u8))
     return write_image(path, image_u8)
 
 

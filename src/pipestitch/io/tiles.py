@@ -7,7 +7,8 @@ as a streaming stitcher produces them) and writes
   holds its reduced levels as SubIFDs (the layout QuPath, napari, Bio-Formats and
   ``tifffile.imread(path, level=k)`` read), and
 * optionally a Deep Zoom tile folder (``mosaic.dzi`` + ``mosaic_files/<level>/
-  <col>_<row>.png``) for the static viewer (report/viewer.py).
+  <col>_<row>.png``, :func:`pipestitch.io.png.encode_png`) for the static viewer
+  (report/viewer.py).
 
 Blocks are cut into tile columns as they arrive; each full tile column is written out
 (DZI tiles at once; TIFF tiles compressed at once to a scratch file, because TIFF stores
@@ -42,6 +43,7 @@ import tifffile
 from isal import isal_zlib
 
 from pipestitch.io.atomic import atomic_path, atomic_write_text
+from pipestitch.io.png import encode_png
 
 __all__ = ["DZI_NAME", "PyramidInfo", "PyramidWriter", "level_shapes", "read_column_blocks",
            "read_dzi",
@@ -156,12 +158,7 @@ class _Level:
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
-    # Colour tiles are given as RGB; OpenCV writes BGR.
-    img = image[..., ::-1] if image.ndim == 3 else image
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise OSError(f"{path}: OpenCV could not encode the tile")
-    path.write_bytes(buf.tobytes())
+    path.write_bytes(encode_png(image))   # colour tiles are given, and stored, as RGB
 
 
 def _check_block(col0: int, block: np.ndarray, expected_col: int,

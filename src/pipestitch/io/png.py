@@ -24,9 +24,8 @@ The mosaic's 8-bit PNGs (the viewer's tiles, ``mosaic.png``) are written by
 :func:`encode_png`: every scanline Paeth-filtered by a compiled loop
 (:func:`pipestitch.io._image_kernels.png_paeth_filter`) and deflated by ISA-L at level
 1. OpenCV's encoder (libpng and zlib at level 1, a filter chosen for each row by
-trying all five) took 1.1-1.5 ms for a 256 x 256 tile of a mosaic; this one a fifth
-of that, and its files came out 3-7 % smaller on four scenarios' mosaics (a texture's
-rows are best predicted from their upper-left neighbourhood; docs/benchmarks.md).
+trying all five) took 1.1-1.5 ms for a 256 x 256 tile of a mosaic; this one 0.15 ms,
+and its files came out 3-7 % smaller on four scenarios' mosaics (docs/benchmarks.md).
 """
 
 from __future__ import annotations

@@ -81,7 +81,7 @@ def _halve(strip: np.ndarray) -> np.ndarray:
         (padded.shape[0] // 2, padded.shape[1] // 2) + strip.shape[2:])
 
 
-DEFLATE_LEVEL = 2   # ISA-L's levels are 0-3; 2 and 3 give the same size here, 1 ~0.5 % more
+DEFLATE_LEVEL = 2   # ISA-L's levels are 0-3: 3 gave no fewer bytes, 1 up to 2 % more
 
 
 class _TileStore:

@@ -34,9 +34,12 @@ __all__ = ["HEAP_BUFFER_MB", "TRIM_EVERY", "every_n", "keep_buffers_in_heap",
 
 T = TypeVar("T")
 # Frames between two hand-backs within a pass: a trim costs a few ms and the page
-# faults of re-touching what it returned, against ~0.07 MB a frame of free heap the
-# resident size otherwise gains through a pass (measured at 1000 pairs).
-TRIM_EVERY = 50
+# faults of re-touching what it returned (the kernel zeroes each page again), against
+# ~0.07 MB a frame of free heap the resident size otherwise gains through a pass
+# (measured at 1000 pairs). Every 50 frames: 0.86-0.90 M page faults at 1000 pairs,
+# 95-97 s of CPU; every 250: 0.28-0.30 M, 89 s, the peak ~15 MB higher and as flat in
+# the run's length (docs/benchmarks.md).
+TRIM_EVERY = 250
 # Buffers up to this size are served from the heap (glibc's mmap threshold; 32 MB is the
 # most its own adaptive threshold reaches on 64-bit systems), which is trimmed only by
 # release_free_memory (glibc's trim threshold set far above any run).

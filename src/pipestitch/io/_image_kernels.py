@@ -102,7 +102,7 @@ def _paeth_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
                step: int, has_above: bool) -> None:
     """A Paeth-filtered row: each byte plus whichever of its left, upper and upper-left
     neighbours (0 outside the image) is nearest left + upper - upper-left, ties in that
-    order."""
+    order (:func:`_paeth`)."""
     left = corner = np.int32(0)
     for x in range(n):
         above = np.int32(out[dst - n + x]) if has_above else np.int32(0)
@@ -110,21 +110,26 @@ def _paeth_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
             inside = x >= step
             left = np.int32(out[dst + x - step]) if inside else np.int32(0)
             corner = np.int32(out[dst - n + x - step]) if inside and has_above else np.int32(0)
-        p = left + above - corner
-        pa, pb, pc = abs(p - left), abs(p - above), abs(p - corner)
-        predicted = left if pa <= pb and pa <= pc else (above if pb <= pc else corner)
-        value = np.uint8((np.int32(raw[src + x]) + predicted) & 255)
+        value = np.uint8((np.int32(raw[src + x]) + _paeth(left, above, corner)) & 255)
         out[dst + x] = value
         left, corner = np.int32(value), above
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _paeth(left: np.int32, above: np.int32, corner: np.int32) -> np.int32:
+    """The Paeth predictor: whichever of ``left``, ``above`` and ``corner`` is nearest
+    left + above - corner, ties in that order."""
+    p = left + above - corner
+    pa, pb, pc = abs(p - left), abs(p - above), abs(p - corner)
+    return left if pa <= pb and pa <= pc else (above if pb <= pc else corner)
 
 
 @numba.njit(cache=True, nogil=True)
 def png_paeth_filter(image: np.ndarray, pixel_bytes: int) -> np.ndarray:
     """A PNG's scanlines of the 8-bit ``image`` (rows, row bytes), each Paeth-filtered
-    (PNG spec, section 9.4): a filter byte 4, then each byte minus whichever of its
-    left, upper and upper-left neighbours (``pixel_bytes`` to the left; 0 outside the
-    image) is nearest left + upper - upper-left, ties in that order. What
-    :func:`png_unfilter` undoes."""
+    (PNG spec, section 9.4): a filter byte 4, then each byte minus the :func:`_paeth`
+    prediction from its left, upper and upper-left neighbours (``pixel_bytes`` to the
+    left; 0 outside the image). What :func:`png_unfilter` undoes."""
     n_rows, n = image.shape
     out = np.empty((n_rows, n + 1), np.uint8)
     for y in range(n_rows):
@@ -134,8 +139,5 @@ def png_paeth_filter(image: np.ndarray, pixel_bytes: int) -> np.ndarray:
             above = np.int32(image[y - 1, x]) if y > 0 else np.int32(0)
             corner = (np.int32(image[y - 1, x - pixel_bytes]) if y > 0 and x >= pixel_bytes
                       else np.int32(0))
-            p = left + above - corner
-            pa, pb, pc = abs(p - left), abs(p - above), abs(p - corner)
-            predicted = left if pa <= pb and pa <= pc else (above if pb <= pc else corner)
-            out[y, x + 1] = np.uint8((np.int32(image[y, x]) - predicted) & 255)
+            out[y, x + 1] = np.uint8((np.int32(image[y, x]) - _paeth(left, above, corner)) & 255)
     return out

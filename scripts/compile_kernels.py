@@ -52,6 +52,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("camera.ocam", "_pixels", "f8:2 f8:1 f8:1"),
     ("camera.ocam", "ray_loop", "f8:2 f8:1 f8:1 f8"),
     ("mosaic._unwrap_kernels", "upsample_masked", "f4:3 i8 i8 i8 f8"),
+    ("mosaic._unwrap_kernels", "node_points", "f8:2 f8:1 f8:1 f8:1 f8:1"),
+    ("mosaic._unwrap_kernels", "node_fields", "f8:2 i8 i8 i8 b1 f8:2 f8:2 f8:1 f8:1 f8:1 f8"),
     ("mosaic._unwrap_kernels", "mask_strip", "f4:2 f4:2 f4:2 f4:2 f8 u1:2 i8"),
     ("mosaic._unwrap_kernels", "fill_invalid", "f4:2"),
     ("mosaic._unwrap_kernels", "contrast_of", "f4:2 f4:2 f4:2 f4:2"),

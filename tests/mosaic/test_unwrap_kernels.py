@@ -8,13 +8,16 @@ import cv2
 import numpy as np
 import pytest
 
+from pipestitch.camera import CameraModel, default_camera
+from pipestitch.camera.opencv_fisheye import OpenCVFisheyeModel
+from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.imaging import gaussian_blur
 from pipestitch.mosaic._unwrap_kernels import (
     MapFields,
     mask_strip,
     upsample_maps,
 )
-from pipestitch.mosaic.unwrap import local_contrast
+from pipestitch.mosaic.unwrap import _node_fields, local_contrast
 
 RNG = np.random.default_rng(7)
 
@@ -100,3 +103,68 @@ def test_local_contrast_is_value_over_local_mean() -> None:
         want = np.where(valid, filled / np.maximum(local, np.float32(1e-6)) - 1, 0)
         np.testing.assert_allclose(contrast, want.astype(np.float32), rtol=0, atol=tol)
         np.testing.assert_allclose(support, blur[0], rtol=0, atol=tol)
+
+
+def _node_fields_numpy(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,
+                       step: int, profile: RadiusProfile | None) -> MapFields:
+    """The nodes' fields as numpy expressions: every node's wall point, its pixel, the
+    gradients of the pixels over the node grid and the line of sight."""
+    local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
+    n_r = -(-(grid.n_rows - 1) // step) + 1
+    n_c = -(-(grid.n_cols - 1) // step) + 1
+    theta = np.deg2rad(grid.theta0_deg + np.arange(n_r) * step * grid.deg_per_px)
+    z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
+    ring = section.points(theta, np.zeros_like(theta))
+    axis, seen = local.rotation_world_probe()[2], local.to_probe(ring)
+    scale = np.ones_like(z) if profile is None else profile.at(z)
+    if profile is None:
+        probe = seen[:, None, :] + z[None, :, None] * axis
+    else:
+        origin = local.to_probe(np.zeros((1, 3)))
+        probe = (origin + scale[None, :, None] * (seen - origin)[:, None, :]
+                 + z[None, :, None] * axis)
+    px = camera.project(probe.reshape(-1, 3)).reshape(n_r, n_c, 2)
+    valid = np.isfinite(px).all(axis=2)
+    px = np.where(valid[..., None], px, 0.0)
+    centre, normals = local.translation_world_probe(), section.normals(ring)
+    radial = np.sum(ring * normals, axis=1)[:, None] * scale[None, :]
+    along_normal = np.abs(radial - (normals[:, :2] @ centre[:2])[:, None])
+    across = ((ring[:, None, 0] * scale - centre[0]) ** 2
+              + (ring[:, None, 1] * scale - centre[1]) ** 2)
+    distance = np.sqrt(across + (z - centre[2])[None, :] ** 2)
+    cosine = np.clip(along_normal / distance, 0, 1)
+    resolution = np.minimum(*(np.hypot(np.gradient(px[..., 0], axis=a),
+                                       np.gradient(px[..., 1], axis=a)) for a in (0, 1)))
+    return MapFields(px[..., 0], px[..., 1], valid.astype(float), resolution / step * cosine,
+                     cosine * (grid.radius_mm / distance) ** 2)
+
+
+@pytest.mark.parametrize("lens", ["ocam", "opencv_fisheye"])
+def test_node_fields_are_the_numpy_expressions(lens: str) -> None:
+    camera = default_camera("half") if lens == "ocam" else OpenCVFisheyeModel(
+        330.0, 331.0, 611.0, 515.0, (0.02, -0.01, 0.003, -0.0005), 1224, 1024)
+    rng = np.random.default_rng(3)
+    unseen = 0
+    for case in range(12):
+        pose = Pose(*np.deg2rad(rng.uniform(-4, 4, 2)), *rng.uniform(-8, 8, 2))
+        section = (PipeSection(32.5) if case % 2 else
+                   PipeSection(32.5, 32.5 * rng.uniform(0.95, 1.05), rng.uniform(0, np.pi)))
+        z_knots = np.linspace(-30.0, 70.0, 9)
+        profile = (None if case % 3 == 0 else
+                   RadiusProfile(z_knots, 1 + 0.05 * np.sin(z_knots / 10 + case)))
+        grid = WallGrid.window(32.5, float(rng.choice([0.13, 0.27, 0.53])),
+                               rng.uniform(-80, 0), rng.uniform(5, 60))
+        step = int(rng.choice([1, 4, 16]))
+        want = _node_fields_numpy(camera, pose, section, grid, step, profile)
+        got, z = _node_fields(camera, pose, section, grid, step, True, profile)
+        assert z.shape == want.map_x.shape[1:]
+        assert np.count_nonzero(want.valid) > 0
+        unseen += np.count_nonzero(want.valid == 0)
+        for name in MapFields._fields:   # the same operations in the same order: equal
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name),
+                                          err_msg=f"{name}, case {case}")
+        maps_only, _ = _node_fields(camera, pose, section, grid, step, False, profile)
+        assert maps_only.quality is None and maps_only.shading is None
+        np.testing.assert_array_equal(maps_only.map_x, want.map_x)
+        np.testing.assert_array_equal(maps_only.valid, want.valid)
+    assert unseen > 0   # nodes behind the lens' field of view were among them

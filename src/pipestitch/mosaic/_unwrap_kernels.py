@@ -14,6 +14,7 @@ kernels". :func:`upsample_maps` is the one plain-Python wrapper: it names the fi
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numba
@@ -82,6 +83,82 @@ def upsample_masked(nodes: np.ndarray, step: int, n_rows: int, n_cols: int,
                 if not valid[j] > ok_f:
                     dst[j] = fill
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def node_points(seen: np.ndarray, z: np.ndarray, axis: np.ndarray, origin: np.ndarray,
+                scale: np.ndarray) -> np.ndarray:
+    """Probe-frame points of a strip's nodes, (rows · cols, 3), row after row.
+
+    ``seen`` (rows, 3) is the ring of wall points at z = 0 in the probe frame, ``z``
+    (cols,) the columns' axial positions, ``axis`` the pipe axis seen from the probe.
+    Node (r, c) is ``seen[r] + z[c]·axis``; with a ``scale`` (cols,; empty: none) the
+    ring is first scaled about the pipe axis' point ``origin``: ``origin + scale[c]·
+    (seen[r] − origin) + z[c]·axis`` (the numpy broadcast's sums in its order).
+    """
+    rows, cols = seen.shape[0], z.shape[0]
+    out = np.empty((rows * cols, 3))
+    scaled = scale.shape[0] > 0
+    for r in range(rows):
+        for c in range(cols):
+            for k in range(3):
+                wall = (origin[k] + scale[c] * (seen[r, k] - origin[k]) if scaled
+                        else seen[r, k])
+                out[r * cols + c, k] = wall + z[c] * axis[k]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def node_fields(px: np.ndarray, rows: int, cols: int, step: int, with_quality: bool,
+                sight: np.ndarray, ring_xy: np.ndarray, scale: np.ndarray, z: np.ndarray,
+                centre: np.ndarray, radius: float) -> np.ndarray:
+    """A strip's node fields from the nodes' pixels ``px`` (rows · cols, 2): (F, rows,
+    cols) float64 of map x, map y (0 where not seen), validity (1/0) and, with
+    ``with_quality``, the quality and the shading of
+    :class:`pipestitch.mosaic.unwrap.UnwrapMaps`.
+
+    Quality: source pixels per node step (the smaller of the two grid directions'
+    central differences, one-sided at the edges: ``numpy.gradient``'s), divided by
+    ``step`` and times the cosine of the line of sight on the wall, clipped to [0, 1].
+    The wall point of node (r, c) is ``ring_xy[r]`` scaled by ``scale[c]`` at ``z[c]``;
+    ``sight[0, r]`` is its radial distance along the wall normal at scale 1 and
+    ``sight[1, r]`` the normal's dot product with the camera centre ``centre``.
+    Shading: the cosine times (``radius`` / distance)². A direction with a single node
+    does not count for the quality; with neither, it is 0.
+    """
+    out = np.zeros((5 if with_quality else 3, rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            x, y = px[r * cols + c, 0], px[r * cols + c, 1]
+            if np.isfinite(x) and np.isfinite(y):
+                out[0, r, c], out[1, r, c], out[2, r, c] = x, y, 1.0
+    if not with_quality:
+        return out
+    for r in range(rows):
+        for c in range(cols):
+            across = ((ring_xy[r, 0] * scale[c] - centre[0]) ** 2
+                      + (ring_xy[r, 1] * scale[c] - centre[1]) ** 2)
+            distance = np.sqrt(across + (z[c] - centre[2]) ** 2)
+            cosine = min(max(abs(sight[0, r] * scale[c] - sight[1, r]) / distance, 0.0), 1.0)
+            down = along = np.inf
+            if rows > 1:
+                down = math.hypot(_derivative(out[0, :, c], r), _derivative(out[1, :, c], r))
+            if cols > 1:
+                along = math.hypot(_derivative(out[0, r], c), _derivative(out[1, r], c))
+            res = min(down, along)
+            out[3, r, c] = (res if res < np.inf else 0.0) / step * cosine
+            out[4, r, c] = cosine * (radius / distance) ** 2
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _derivative(f: np.ndarray, i: int) -> float:
+    """``numpy.gradient(f)[i]`` at unit spacing (central inside, one-sided at the ends)."""
+    if i == 0:
+        return (f[1] - f[0]) / 1.0
+    if i == f.shape[0] - 1:
+        return (f[i] - f[i - 1]) / 1.0
+    return (f[i + 1] - f[i - 1]) / 2.0
 
 
 class MapFields(NamedTuple):

@@ -32,6 +32,8 @@ from pipestitch.mosaic._unwrap_kernels import (
     contrast_of,
     fill_invalid,
     mask_strip,
+    node_fields,
+    node_points,
     upsample_maps,
 )
 
@@ -42,15 +44,16 @@ __all__ = ["Strip", "UnwrapMaps", "default_mm_per_px", "local_contrast",
 
 def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
                  profile: RadiusProfile | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nodes of every ``step``-th row and column (the last ones always included).
 
     Returns the wall points of the rows' ring at z = 0 (rows, 3), the columns' z
-    (cols,) and the nodes in the probe frame (rows, cols, 3). The wall's section
-    depends on theta alone (scaled about the axis by ``profile`` at each column's z)
-    and the world-to-probe map is affine, so the ring is mapped once and each column
-    scales it about the axis and adds z times the pipe axis seen from the probe (no
-    (N, 3) x (3, 3) product, which a multi-threaded BLAS makes costly).
+    (cols,), their scale about the axis (cols,; ones without ``profile``) and the nodes
+    in the probe frame (rows · cols, 3), row after row. The wall's section depends on
+    theta alone (scaled about the axis by ``profile`` at each column's z) and the
+    world-to-probe map is affine, so the ring is mapped once and each column scales it
+    about the axis and adds z times the pipe axis seen from the probe
+    (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
     """
     n_r = -(-(grid.n_rows - 1) // step) + 1
     n_c = -(-(grid.n_cols - 1) // step) + 1
@@ -60,10 +63,10 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
     seen = pose.to_probe(ring)
     if profile is None:
-        return ring, z, seen[:, None, :] + z[None, :, None] * axis
-    origin = pose.to_probe(np.zeros((1, 3)))   # the pipe axis at z = 0
-    return ring, z, (origin + profile.at(z)[None, :, None] * (seen - origin)[:, None, :]
-                     + z[None, :, None] * axis)
+        return ring, z, np.ones_like(z), node_points(seen, z, axis, axis, np.empty(0))
+    origin = pose.to_probe(np.zeros((1, 3)))[0]   # the pipe axis at z = 0
+    scale = np.asarray(profile.at(z), float)
+    return ring, z, scale, node_points(seen, z, axis, origin, scale)
 
 
 @dataclass(frozen=True)
@@ -137,42 +140,21 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
     """
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
-    ring, z, probe = _grid_points(grid, section, local, step, profile)
-    shape = probe.shape[:2]
-    px = camera.project(probe.reshape(-1, 3)).reshape(*shape, 2)
-    valid = np.isfinite(px).all(axis=2)
-    px = np.where(valid[..., None], px, 0.0)
-    fields = MapFields(px[..., 0], px[..., 1], valid.astype(float))
+    ring, z, scale, probe = _grid_points(grid, section, local, step, profile)
+    rows, cols = ring.shape[0], z.shape[0]
+    px = camera.project(probe)
+    # Smooth quantities (quality, shading): computed on the projected nodes, interpolated
+    # with the maps. Irradiance relative to a wall at the grid's radius, which every
+    # strip of a run shares: a frame in a narrower stretch (its own section smaller)
+    # sees its closer wall brighter, as the LEDs light it, not as an exposure change.
+    sight, centre = np.empty((2, 0)), np.zeros(3)
     if with_quality:
-        # Smooth quantities: computed on the projected nodes, interpolated with the maps.
-        scale = np.ones_like(z) if profile is None else profile.at(z)
-        cosine, distance = _line_of_sight(local, section, ring, z, scale)
-        cosine = np.clip(cosine, 0, 1)
-        resolution = _resolution(px[..., 0], px[..., 1]) / step
-        # Irradiance relative to a wall at the grid's radius, which every strip of a run
-        # shares: a frame in a narrower stretch (its own section smaller) sees its
-        # closer wall brighter, as the LEDs light it, not as an exposure change.
-        fields = fields._replace(quality=resolution * cosine,
-                                 shading=cosine * (grid.radius_mm / distance) ** 2)
-    return fields, z
-
-
-def _line_of_sight(pose: Pose, section: PipeSection, ring: np.ndarray, z: np.ndarray,
-                   scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """|cos| of the angle between line of sight and wall normal, and the distance (mm).
-
-    At the wall points ``ring`` (rows, 3; at z = 0) scaled about the axis by ``scale``
-    and moved to each ``z`` (cols,): (rows, cols) arrays. The normal is the section's
-    (no axial part: a reducer's cone, a few degrees, is left out).
-    """
-    centre = pose.translation_world_probe()
-    normals = section.normals(ring)
-    radial = np.sum(ring * normals, axis=1)[:, None] * scale[None, :]
-    along_normal = np.abs(radial - (normals[:, :2] @ centre[:2])[:, None])
-    across = ((ring[:, None, 0] * scale - centre[0]) ** 2
-              + (ring[:, None, 1] * scale - centre[1]) ** 2)
-    distance = np.sqrt(across + (z - centre[2])[None, :] ** 2)
-    return along_normal / distance, distance
+        centre = local.translation_world_probe()
+        normals = section.normals(ring)   # the section's (a reducer's cone left out)
+        sight = np.stack([np.sum(ring * normals, axis=1), normals[:, :2] @ centre[:2]])
+    fields = node_fields(px, rows, cols, step, with_quality, sight, ring[:, :2].copy(),
+                         scale, z, centre, float(grid.radius_mm))
+    return MapFields(*fields), z
 
 
 def _resolution(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:

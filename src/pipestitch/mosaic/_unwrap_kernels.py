@@ -1,11 +1,14 @@
-"""Compiled inner loops of unwrapping (numba): upsampled maps, strip masks, local
-contrast.
+"""Compiled inner loops of unwrapping (numba): the maps' nodes and their fields,
+upsampled maps, strip masks, local contrast.
 
 Why hand-written: every LED frame is unwrapped once or twice per run and each strip
 (about a million nodes at full size) then goes through a dozen whole-array passes; as
 numpy expressions each pass allocates and walks the array again and most of the time
 goes to memory traffic. OpenCV's resize/remap quantise interpolation weights to 1/32
-(see :func:`pipestitch.mosaic.unwrap.unwrap_maps`), so they cannot stand in.
+(see :func:`pipestitch.mosaic.unwrap.unwrap_maps`), so they cannot stand in. The
+nodes' fields (some ten thousand nodes a strip, four or five maps a frame) took ~25
+small array expressions, whose overhead, with the GIL held, cost as much as the
+projection they surround.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled
 kernels". :func:`upsample_maps` is the one plain-Python wrapper: it names the fields

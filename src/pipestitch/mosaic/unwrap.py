@@ -63,7 +63,7 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
     seen = pose.to_probe(ring)
     if profile is None:
-        return ring, z, np.ones_like(z), node_points(seen, z, axis, axis, np.empty(0))
+        return ring, z, np.ones_like(z), node_points(seen, z, axis, np.zeros(3), np.empty(0))
     origin = pose.to_probe(np.zeros((1, 3)))[0]   # the pipe axis at z = 0
     scale = np.asarray(profile.at(z), float)
     return ring, z, scale, node_points(seen, z, axis, origin, scale)

@@ -29,6 +29,8 @@ from types import TracebackType
 import cv2
 import numpy as np
 
+from pipestitch.io.filebytes import file_bytes
+
 __all__ = ["DecodeAhead", "take"]
 
 # The reader has caught up when it has asked this many times for a file this close ahead
@@ -192,7 +194,7 @@ class DecodeAhead:
                     continue
             pixels, stamp = None, _stamp(path)
             try:
-                data = np.fromfile(path, np.uint8) if stamp is not None else np.empty(0)
+                data = file_bytes(path) if stamp is not None else np.empty(0, np.uint8)
                 declared = image_header(data)
                 # only what read_image would decode: a known header within its limit,
                 # of the run's frame size

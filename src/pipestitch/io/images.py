@@ -21,6 +21,7 @@ import tifffile
 from pipestitch.errors import DatasetError
 from pipestitch.io import ahead
 from pipestitch.io.atomic import atomic_write_bytes
+from pipestitch.io.filebytes import file_bytes
 from pipestitch.io.png import SIGNATURE as PNG_SIGNATURE
 from pipestitch.io.png import decode_png
 
@@ -122,7 +123,7 @@ def _decoded(path: Path, size: tuple[int, int] | None) -> np.ndarray:
     """The file's pixels, its declared size checked before decoding."""
     if not path.is_file():
         raise DatasetError(path, "file not found")
-    data = np.fromfile(path, dtype=np.uint8)
+    data = file_bytes(path)
     if data.size == 0:
         raise DatasetError(path, "file is empty")
     declared = image_header(data)

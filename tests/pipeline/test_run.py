@@ -481,15 +481,15 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
 def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
     """The run's modules load without matplotlib (its import is ~0.25 s of every start),
     without PyAV (only a video needs it) and without scipy.stats and scipy.signal (~0.5 s
-    and 30 MB); :func:`pipestitch.report.html.prepare_plots`, which the run calls in a
-    thread while the passes work, loads matplotlib and draws one figure."""
+    and 30 MB); the report's first figure (:func:`pipestitch.report.html.agg_pyplot`)
+    loads matplotlib."""
     import subprocess
     import sys
 
     code = ("import sys, pipestitch.pipeline.run, pipestitch.pipeline.review; "
             "print(any(m in sys.modules for m in ('matplotlib', 'av', 'scipy.stats', "
             "'scipy.signal'))); "
-            "from pipestitch.report.html import prepare_plots; prepare_plots(); "
+            "from pipestitch.report.html import agg_pyplot; agg_pyplot(); "
             "print('matplotlib.pyplot' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
@@ -499,10 +499,9 @@ def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
 @pytest.mark.parametrize("how", ["stopped", "no pose"])
 def test_a_run_whose_pose_pass_ends_early_does_not_wait_for_its_helper(
         how: str, dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A run stopped while its helper thread still finds the occluder mask (the plotting
-    warm-up queued behind it), or one whose frames all fail their pose, ends without
-    waiting for the warm-up the helper's shutdown cancelled (a cancelled, never-started
-    future never counts as done); the run without poses still writes its report."""
+    """A run stopped while its helper thread still finds the occluder mask, or one whose
+    frames all fail their pose, ends without waiting for the mask; the run without poses
+    still writes its report."""
     import threading
     import time
 

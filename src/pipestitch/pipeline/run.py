@@ -15,7 +15,7 @@ import math
 import shutil
 import time
 from collections.abc import Collection, Iterator, Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -77,7 +77,6 @@ from pipestitch.report.html import (
     FrameRow,
     ReportData,
     draw_track_figures,
-    prepare_plots,
     render_report,
 )
 
@@ -571,10 +570,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     # only the section refits of the photometric refinement read the ring points again
     refits = dataset.has_led and settings.refine_rounds > 0
     ahead = ThreadPoolExecutor(max_workers=1)
-    plots: Future[None] | None = None
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
-        plots = ahead.submit(prepare_plots)   # after the mask, while the passes run
         frames, choices = _poses(dataset, refits, show_progress, settings.workers, timer,
                                  rings)
         if rings.problem:
@@ -587,12 +584,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                                        show_progress, out, declared,
                                                        occluders)
     finally:
-        # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops;
-        # pyplot is left to one thread at a time (the report's, or the caller's)
+        # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops
         ahead.shutdown(wait=False, cancel_futures=True)
-        # (a future the shutdown cancelled never counts as done for `wait`: ask cancel())
-        if plots is not None and not plots.cancel():
-            wait([plots])
     release_free_memory()
     imu = read_imu(dataset.root) or {}
     if result is not None:

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from matplotlib.transforms import Bbox
 
 __all__ = ["FrameRow", "ReportData", "StandardsView", "agg_pyplot", "observation_section",
-           "prepare_plots", "render_report", "with_observation_section"]
+           "render_report", "with_observation_section"]
 
 MAX_MOSAIC_PX = 1400     # the embedded mosaic is downscaled to at most this many pixels
 MAX_FIGURE_HEIGHT_IN = 40.0   # the mosaic figure's height at most (4400 px; its width is <= 16 in)
@@ -105,21 +105,6 @@ def agg_pyplot() -> ModuleType:
     import matplotlib.pyplot
 
     return matplotlib.pyplot
-
-
-def prepare_plots() -> None:
-    """Import matplotlib and draw a small labelled figure, so that the report's first
-    figure finds the backend, the fonts and the text layout ready.
-
-    A caller runs it in a thread while other work leaves a core free; the report is the
-    same whether it ran or not.
-    """
-    plt = agg_pyplot()
-    fig, ax = plt.subplots(figsize=(2, 1.5))
-    ax.plot([0, 1], [0, 1], ".-", label="α")
-    ax.set_xlabel("z (mm)")
-    ax.legend(fontsize=8)
-    _png(fig)
 
 
 FIGURE_DPI = 110

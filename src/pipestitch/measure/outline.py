@@ -25,6 +25,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from pipestitch.imaging import mad_sigma
+
 __all__ = ["RimOutline", "rim_outline"]
 
 STEP_PX = 0.25            # sampling step along each ray
@@ -154,8 +156,7 @@ def _gate(resid: np.ndarray, ref: np.ndarray, floor_mm: float) -> np.ndarray:
     """Residuals within ``GATE_SIGMAS`` robust sigmas (MAD of those in ``ref``, at least
     ``floor_mm``) of their median."""
     centre = float(np.median(resid[ref]))
-    sigma = 1.4826 * float(np.median(np.abs(resid[ref] - centre)))
-    return np.abs(resid - centre) <= GATE_SIGMAS * max(sigma, floor_mm)
+    return np.abs(resid - centre) <= GATE_SIGMAS * max(mad_sigma(resid[ref]), floor_mm)
 
 
 def _ellipse_radius(x: np.ndarray, y: np.ndarray, phi: np.ndarray) -> np.ndarray:

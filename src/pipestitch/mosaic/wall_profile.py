@@ -20,6 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from pipestitch.geometry import RadiusProfile
+from pipestitch.imaging import mad_sigma
 
 __all__ = ["SIGNIFICANCE", "frame_profiles", "ring_radius_noise"]
 
@@ -36,9 +37,7 @@ def ring_radius_noise(radius_mm: np.ndarray) -> float:
     r = np.asarray(radius_mm, float)
     if r.size < 4:
         return float("nan")
-    d2 = np.diff(r, 2)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(1.4826 * mad / np.sqrt(6.0))
+    return float(mad_sigma(np.diff(r, 2)) / np.sqrt(6.0))
 
 
 def _merged(ring_z_mm: np.ndarray, radius_mm: np.ndarray, tol_mm: float

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from pipestitch.camera import default_camera
@@ -10,6 +12,7 @@ from pipestitch.mosaic.refine import (
     PATCHES_AROUND,
     PatchShifts,
     node_jacobian,
+    pair_jacobians,
     patch_shifts,
     solve_in_windows,
     solve_pose_errors,
@@ -17,6 +20,11 @@ from pipestitch.mosaic.refine import (
 from pipestitch.mosaic.unwrap import unwrap_maps
 
 R = 32.5
+
+
+def _given(jacobians: dict) -> Callable[[list[PatchShifts]], list]:
+    """``solve_in_windows``' ``jacobians_of`` over Jacobians given by pair."""
+    return lambda new: [jacobians[(o.i, o.j)] for o in new]
 
 
 CAMERA = default_camera("half")
@@ -62,6 +70,34 @@ def test_node_jacobian_predicts_the_strip_warp_of_a_pose_error() -> None:
         assert np.allclose(predicted, [rr, cc], atol=1.0)
 
 
+def test_pair_jacobians_are_each_pairs_own_with_one_call_a_frame() -> None:
+    """The Jacobians of a chain of pairs, each frame asked once with all its nodes, are
+    those of node_jacobian called pair by pair (oval section, tilted poses)."""
+    grid = WallGrid.window(R, 0.135, 5.0, 40.0)
+    rng = np.random.default_rng(4)
+    poses = {f: Pose.from_degrees(*rng.uniform(-2, 2, 2), *rng.uniform(-3, 3, 2))
+             for f in range(5)}
+    section = PipeSection(R + 0.4, R - 0.4, np.deg2rad(30.0))
+    pairs = [(0, 1), (1, 2), (0, 2), (2, 3), (3, 4)]
+    observations = [PatchShifts(i, j, rng.uniform([0, 0], [1500, 300], (n, 2)).astype(np.float32),
+                                rng.normal(0, 3, (n, 2)).astype(np.float32), np.ones(n, np.float32))
+                    for (i, j), n in zip(pairs, (7, 1, 12, 5, 9), strict=True)]
+    asked = []
+
+    def frame_jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
+        asked.append(frame)
+        return node_jacobian(CAMERA, poses[frame], section, grid, nodes)
+
+    found = pair_jacobians(observations, frame_jacobian)
+    assert sorted(asked) == list(range(5))
+    for o, (g_i, g_j) in zip(observations, found, strict=True):
+        for g, frame, nodes in ((g_i, o.i, o.nodes + o.shift), (g_j, o.j, o.nodes)):
+            alone = node_jacobian(CAMERA, poses[frame], section, grid, nodes)
+            # the same to rounding: numpy's matrix product of one row (a 1-patch pair
+            # alone) rounds otherwise than of many (~1e-12 relative here)
+            np.testing.assert_allclose(g, alone, rtol=1e-10, atol=1e-10)
+
+
 def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
     """Patch shifts exactly consistent with known pose errors, where the held frames'
     errors are 0: the held frames come out at exactly 0, the free ones at their
@@ -91,7 +127,7 @@ def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
     for key, motion in motions.items():
         np.testing.assert_allclose(motion, rigid[key], atol=1e-3)
     # in overlapping windows of 5 frames (1 of margin): the same, to far below the errors
-    windowed, _ = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)],
+    windowed, _ = solve_in_windows(observations, _given(jacobians),
                                    information, held=held, window=5, margin=1)
     for f in range(n):
         if f in held:

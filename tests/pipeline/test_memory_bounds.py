@@ -9,6 +9,7 @@ import dataclasses
 import itertools
 import sys
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,11 @@ from pipestitch.mosaic.refine import (
 )
 
 PATCHES = 34        # patch shifts per link on the mosaic's grid (measured: 34 on average)
+
+
+def _given(jacobians: dict) -> Callable[[list[PatchShifts]], list]:
+    """``solve_in_windows``' ``jacobians_of`` over Jacobians given by pair."""
+    return lambda new: [jacobians[(o.i, o.j)] for o in new]
 
 
 def _chain(n_frames: int, seed: int = 0) -> tuple[list[PatchShifts], dict, dict, np.ndarray]:
@@ -144,9 +150,9 @@ def test_windowed_solve_is_the_whole_runs_solve() -> None:
     whole_e, whole_m = solve_pose_errors(observations, jacobians, information)
     asked = []
 
-    def jacobians_of(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
-        asked.append((o.i, o.j))
-        return jacobians[(o.i, o.j)]
+    def jacobians_of(new: list[PatchShifts]) -> list[tuple[np.ndarray, np.ndarray]]:
+        asked.extend((o.i, o.j) for o in new)
+        return [jacobians[(o.i, o.j)] for o in new]
 
     e, m = solve_in_windows(observations, jacobians_of, information, window=60, margin=20)
     assert sorted(asked) == sorted(jacobians) and len(set(asked)) == len(asked)
@@ -155,7 +161,7 @@ def test_windowed_solve_is_the_whole_runs_solve() -> None:
     spread = np.array(list(whole_e.values())).std(axis=0)
     assert np.all(np.abs(diff).max(axis=0) < 0.01 * spread), np.abs(diff).max(axis=0) / spread
     assert max(np.abs(m[k] - whole_m[k]).max() for k in whole_m) < 0.01
-    one_e, one_m = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)],
+    one_e, one_m = solve_in_windows(observations, _given(jacobians),
                                     information, window=600, margin=100)
     assert all(np.array_equal(one_e[f], whole_e[f]) for f in whole_e)
     assert all(np.array_equal(one_m[k], whole_m[k]) for k in whole_m)
@@ -172,7 +178,7 @@ def test_windowed_solve_keeps_a_pair_reaching_back_past_the_margin() -> None:
     observations.append(PatchShifts(40, 70, rng.uniform(0, 500, (PATCHES, 2)), shift,
                                     np.full(PATCHES, 0.6)))
     jacobians[(40, 70)] = (g_i, g_j)
-    e, m = solve_in_windows(observations, lambda o: jacobians[(o.i, o.j)], information,
+    e, m = solve_in_windows(observations, _given(jacobians), information,
                             window=40, margin=8)
     assert (40, 70) in m
     np.testing.assert_allclose(m[(40, 70)], rigid, atol=1e-3)
@@ -187,7 +193,7 @@ def test_windowed_solve_working_memory_does_not_grow_with_the_run() -> None:
         observations, jacobians, information, _ = _chain(n)
         tracemalloc.start()
         try:
-            result = solve_in_windows(observations, lambda o, jac=jacobians: jac[(o.i, o.j)],
+            result = solve_in_windows(observations, _given(jacobians),
                                       information, window=120, margin=20)
             kept, peak = tracemalloc.get_traced_memory()
             working.append(peak - kept)

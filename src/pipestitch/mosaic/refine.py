@@ -37,8 +37,8 @@ from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta
 from pipestitch.mosaic.noise import ContrastNoise, patch_noise, patch_table
 from pipestitch.mosaic.register import phase_shift
 
-__all__ = ["PatchShifts", "node_jacobian", "patch_shifts", "refinement_windows", "solve_in_windows",
-           "solve_pose_errors"]
+__all__ = ["PatchShifts", "node_jacobian", "pair_jacobians", "patch_shifts", "refinement_windows",
+           "solve_in_windows", "solve_pose_errors"]
 
 PATCH_PX = 64
 PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
@@ -157,6 +157,46 @@ def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: W
         d_theta = (np.rad2deg(th2 - theta) + 180.0) % 360.0 - 180.0
         out[:, 0, k] = d_theta / grid.deg_per_px / EPS[k]
         out[:, 1, k] = (z2 - z) / grid.mm_per_px_axial / EPS[k]
+    return out
+
+
+def pair_jacobians(observations: Sequence[PatchShifts],
+                   frame_jacobian: Callable[[int, np.ndarray], np.ndarray],
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(G_i, G_j) of each pair, as :func:`solve_pose_errors` takes them.
+
+    Parameters
+    ----------
+    observations : sequence of PatchShifts
+        Patch shifts of the pairs.
+    frame_jacobian : callable
+        ``frame_jacobian(frame, nodes)``: that frame's :func:`node_jacobian` at nodes
+        (N, 2) as (rows, cols), (N, 2, 4), node by node.
+
+    Returns
+    -------
+    list of (numpy.ndarray, numpy.ndarray)
+        Per pair, G_i at the patches' positions in strip i (``nodes + shift``) and G_j
+        at its nodes: views of one array per frame.
+
+    Notes
+    -----
+    Each frame is asked once, with its nodes of every pair it is in: a call costs far
+    more than a node (~0.3 ms of camera and wall calls for the ~10 patches of a pair).
+    """
+    parts: dict[int, list[np.ndarray]] = {}
+    for o in observations:
+        parts.setdefault(o.i, []).append(o.nodes + o.shift)
+        parts.setdefault(o.j, []).append(o.nodes)
+    whole = {f: frame_jacobian(f, np.concatenate(p)) for f, p in parts.items()}
+    start = dict.fromkeys(whole, 0)
+    out = []
+    for o in observations:
+        g = []
+        for f in (o.i, o.j):
+            g.append(whole[f][start[f]:start[f] + len(o.nodes)])
+            start[f] += len(o.nodes)
+        out.append((g[0], g[1]))
     return out
 
 
@@ -354,7 +394,8 @@ def refinement_windows(n_frames: int, window: int = WINDOW_FRAMES,
 
 
 def solve_in_windows(observations: Sequence[PatchShifts],
-                     jacobians_of: Callable[[PatchShifts], tuple[np.ndarray, np.ndarray]],
+                     jacobians_of: Callable[[Sequence[PatchShifts]],
+                                            Sequence[tuple[np.ndarray, np.ndarray]]],
                      information: Mapping[int, np.ndarray | None], *,
                      window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
                      iterations: int = 4,
@@ -371,9 +412,10 @@ def solve_in_windows(observations: Sequence[PatchShifts],
     A frame's pose error is tied to its neighbours only through the patches of the few
     links between them, each frame having its ring's prior, so ``margin`` frames of
     context on each side leave a core's solution as the whole run's to far below its
-    uncertainty (tested). ``jacobians_of(observation)`` gives (G_i, G_j) as
-    :func:`solve_pose_errors` takes them; each pair's are computed once, and dropped
-    when no later window needs them.
+    uncertainty (tested). ``jacobians_of(observations)`` gives each pair's (G_i, G_j)
+    as :func:`solve_pose_errors` takes them (:func:`pair_jacobians`); it is called once
+    a window, with the pairs no earlier window asked for, so each pair's are computed
+    once, and dropped when no later window needs them.
 
     Returns
     -------
@@ -396,9 +438,8 @@ def solve_in_windows(observations: Sequence[PatchShifts],
         inside = [o for o in obs if lo <= span[(o.i, o.j)][0] and span[(o.i, o.j)][1] < hi]
         for key in [k for k in jac if span[k][0] < lo]:
             del jac[key]   # no later window reaches back this far
-        for o in inside:
-            if (o.i, o.j) not in jac:
-                jac[(o.i, o.j)] = jacobians_of(o)
+        new = [o for o in inside if (o.i, o.j) not in jac]
+        jac.update(zip([(o.i, o.j) for o in new], jacobians_of(new), strict=True))
         e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
                                  iterations=iterations, held=held)
         errors.update((f, e[f]) for f in frames[core_lo:core_hi])

@@ -60,7 +60,13 @@ from pipestitch.mosaic.flat_field import (
 )
 from pipestitch.mosaic.noise import ContrastNoise, NoiseModel, contrast_noise, estimate_noise
 from pipestitch.mosaic.occluders import defect_pixels, occluder_mask
-from pipestitch.mosaic.refine import PatchShifts, node_jacobian, patch_shifts, solve_in_windows
+from pipestitch.mosaic.refine import (
+    PatchShifts,
+    node_jacobian,
+    pair_jacobians,
+    patch_shifts,
+    solve_in_windows,
+)
 from pipestitch.mosaic.register import (
     Link,
     MotionPrior,
@@ -668,10 +674,7 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
         view = views[frame]
         return node_jacobian(camera, view.pose, view.section, own, nodes).astype(np.float32)
 
-    def jacobians(o: PatchShifts) -> tuple[np.ndarray, np.ndarray]:
-        return jacobian(o.i, o.nodes + o.shift), jacobian(o.j, o.nodes)
-
-    errors, motions = solve_in_windows(patches, jacobians,
+    errors, motions = solve_in_windows(patches, lambda new: pair_jacobians(new, jacobian),
                                        {i: v.information for i, v in solved.items()},
                                        held=held)
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px_axial),

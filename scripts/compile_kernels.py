@@ -68,6 +68,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._flat_field_kernels", "fall_off_at", "f4:2 f4:2 f8 f8 f8 f8:1"),
     ("mosaic._blend_kernels", "feathered_weight", "f4:2 f4:2 u1:2"),
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
+    ("mosaic._blend_kernels", "gain_ratios", "f4:2 f4:2 i8 f4:2 f4:2 i8 f4:1"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
     ("io._image_kernels", "png_unfilter", "u1:1r i8 i8 i8 u1:1"),
     ("io._image_kernels", "png_paeth_filter", "u1:2r i8"),

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight, shaded_albedo
+from pipestitch.mosaic._blend_kernels import (
+    accumulate_strip,
+    feathered_weight,
+    gain_ratios,
+    shaded_albedo,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -36,3 +41,28 @@ def test_accumulated_strip_is_the_numpy_sums_over_its_columns() -> None:
     accumulate_strip(total, weights, 7, albedo, weight, 1.3)
     np.testing.assert_array_equal(weights, want_weights)
     np.testing.assert_allclose(total, want_total, rtol=1e-7, atol=0)
+
+
+def test_gain_ratios_are_the_numpy_expression_over_the_strided_overlap() -> None:
+    """The exposure gain's node ratios (blend.Canvas._gain): the same float32 values in
+    the same order as numpy's masked expression, thresholds met exactly included (a
+    float32 compared with a Python float is compared in float32)."""
+    total = RNG.random((31, 60)).astype(np.float32)
+    weights = RNG.random((31, 60)).astype(np.float32) * 1.2
+    albedo = RNG.random((31, 25)).astype(np.float32)
+    weight = RNG.random((31, 25)).astype(np.float32)
+    # values at and one float32 step beside each threshold, on the nodes read
+    for field, level in ((weight, 0.2), (albedo, 1e-6)):
+        at = np.float32(level)
+        field[0, :6:2] = [np.nextafter(at, np.float32(0)), at, np.nextafter(at, np.float32(1))]
+    weights[2, 9:15:2] = [np.nextafter(np.float32(0.5), np.float32(0)), 0.5, 0.5000001]
+    albedo[4, :4] = 0
+    for stride, col0 in ((2, 9), (1, 0), (3, 35)):
+        cols = slice(col0, col0 + albedo.shape[1])
+        have, mine = weights[::stride, cols][:, ::stride], albedo[::stride, ::stride]
+        both = (weight[::stride, ::stride] > 0.2) & (have > 0.5) & (mine > 1e-6)
+        want = total[::stride, cols][:, ::stride][both] / (have[both] * mine[both])
+        out = np.full(albedo.size, np.nan, np.float32)
+        found = gain_ratios(total, weights, col0, albedo, weight, stride, out)
+        assert found == np.count_nonzero(both)
+        np.testing.assert_array_equal(out[:found], want)

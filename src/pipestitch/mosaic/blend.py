@@ -21,7 +21,12 @@ import numpy as np
 
 from pipestitch.geometry import WallGrid
 from pipestitch.imaging import median
-from pipestitch.mosaic._blend_kernels import accumulate_strip, feathered_weight, shaded_albedo
+from pipestitch.mosaic._blend_kernels import (
+    accumulate_strip,
+    feathered_weight,
+    gain_ratios,
+    shaded_albedo,
+)
 from pipestitch.mosaic.unwrap import Strip
 
 __all__ = ["Canvas", "Overview", "ShadedStrip", "canvas_grid", "frame_grid", "overview_factor",
@@ -87,8 +92,8 @@ def _feather(valid: np.ndarray) -> np.ndarray:
 class ShadedStrip:
     """A strip ready to blend (:func:`shade`).
 
-    ``albedo``: values divided by shading and vignetting, 0 where there is no data;
-    ``weight``: blend weight (quality x feather), float32, 0 where there is no data.
+    ``albedo``: values divided by shading and vignetting, float32, 0 where there is no
+    data; ``weight``: blend weight (quality x feather), float32, 0 where there is no data.
     """
 
     albedo: np.ndarray
@@ -185,12 +190,11 @@ class Canvas:
         the camera's exposure shows as a step beyond it.
         """
         s = GAIN_STRIDE
-        have = self.weights[::s, cols][:, ::s]
-        mine = values[::s, ::s]
-        both = (weight[::s, ::s] > 0.2) & (have > 0.5) & (mine > 1e-6)
-        if np.count_nonzero(both) * s * s < GAIN_MIN_NODES:
+        ratios = np.empty(-(-values.shape[0] // s) * -(-values.shape[1] // s), np.float32)
+        found = gain_ratios(self.total, self.weights, cols.start, values, weight, s, ratios)
+        if found * s * s < GAIN_MIN_NODES:
             return 1.0
-        ratio = median(self.total[::s, cols][:, ::s][both] / (have[both] * mine[both]))
+        ratio = median(ratios[:found])
         if not (math.isfinite(ratio) and ratio > 0) or abs(math.log(ratio)) <= math.log1p(
                 GAIN_DEADBAND):
             return 1.0   # (no ratio: the canvas holds black there, as a frame of no light)

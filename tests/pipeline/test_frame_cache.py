@@ -158,3 +158,34 @@ def test_a_full_disk_gives_the_spill_file_up_and_its_space_back(
             assert cache.read_led(i)[0, 0] == i
     assert [ds.reads[i] for i in range(4)] == [3, 3, 2, 2]
     cache.close()
+
+
+@pytest.mark.parametrize("budget", [5000, 100])
+def test_a_frame_is_judged_blank_once_per_decode(budget: int,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """blank_led gives blank_frame's verdict (frame 0 is all 0: black; the others flat
+    grey), asking it once per decode: once per frame when the run is kept, at every
+    read when the frames are decoded again (budget too small, no spill folder); a
+    dataset without the cache is judged at every call."""
+    import pipestitch.pipeline.frame_cache as frame_cache
+    from pipestitch.camera.frames import blank_frame
+
+    asked: Counter[int] = Counter()
+
+    def counted(frame: np.ndarray) -> str:
+        asked[int(frame[0, 0])] += 1
+        return blank_frame(frame)
+
+    monkeypatch.setattr(frame_cache, "blank_frame", counted)
+    ds = FakeDataset(5)
+    cache = CachedLedFrames(ds, budget_bytes=budget)
+    for _ in range(3):
+        for i in range(5):
+            verdict = frame_cache.blank_led(cache, i, cache.read_led(i))
+            assert verdict == blank_frame(np.full((10, 100), i, np.uint8))
+    assert "black" in frame_cache.blank_led(cache, 0, cache.read_led(0))
+    decodes = 1 if budget == 5000 else 3
+    assert ds.reads == Counter({i: decodes + (i == 0 and budget == 100) for i in range(5)})
+    assert asked == ds.reads
+    frame_cache.blank_led(ds, 2, ds.read_led(2))   # not the cache: judged at each call
+    assert asked == ds.reads

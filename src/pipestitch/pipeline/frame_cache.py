@@ -16,6 +16,9 @@ once and kept:
   frames when no file can be made or written, are decoded each time they are read.
 
 An LRU cache of part of a run would never hit: a run is read in full passes.
+
+Each pass also asks whether a frame shows a picture at all
+(:func:`pipestitch.camera.frames.blank_frame`); :func:`blank_led` asks once per decode.
 """
 
 from __future__ import annotations
@@ -30,7 +33,9 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-__all__ = ["CachedLedFrames"]
+from pipestitch.camera.frames import blank_frame
+
+__all__ = ["CachedLedFrames", "blank_led"]
 
 DEFAULT_BUDGET_BYTES = 512 * 2**20
 SPILL_SHARE_OF_FREE = 0.25   # of the spill folder's free space the file may take
@@ -76,6 +81,7 @@ class CachedLedFrames:
         self._closing = False
         self._failed = False   # a write failed: the file is given up
         self._lock = threading.Condition()
+        self._blank: dict[int, str] = {}   # blank_frame's verdict on each frame decoded
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._dataset, name)
@@ -95,6 +101,7 @@ class CachedLedFrames:
         frame = self._dataset.read_led(index)
         frame.flags.writeable = False
         with self._lock:
+            self._blank.pop(index, None)   # a new decode: judged again when asked
             if self._mode is None:
                 self._mode = self._choose_mode(frame.nbytes * self._dataset.n_pairs)
             if self._mode == "memory" and index not in self._frames:
@@ -107,6 +114,17 @@ class CachedLedFrames:
         if offset is not None:
             self._spill(index, offset, frame)
         return frame
+
+    def blank(self, index: int, frame: np.ndarray) -> str:
+        """:func:`~pipestitch.camera.frames.blank_frame` of LED frame ``index`` as
+        :meth:`read_led` gave it (``frame``): judged once per decode, not at every read."""
+        with self._lock:
+            verdict = self._blank.get(index)
+        if verdict is None:
+            verdict = blank_frame(frame)
+            with self._lock:
+                self._blank[index] = verdict
+        return verdict
 
     @property
     def spilled_bytes(self) -> int:
@@ -215,3 +233,12 @@ class CachedLedFrames:
         if len(data) != size:
             return None
         return np.frombuffer(data, dtype=dtype).reshape(shape)
+
+
+def blank_led(dataset: Any, index: int, frame: np.ndarray) -> str:
+    """Why LED frame ``index`` (``frame``, as ``dataset.read_led`` gave it) shows no
+    picture, or "" (:func:`~pipestitch.camera.frames.blank_frame`): from the verdict a
+    :class:`CachedLedFrames` keeps per decode, else judged now."""
+    if isinstance(dataset, CachedLedFrames):
+        return dataset.blank(index, frame)
+    return blank_frame(frame)

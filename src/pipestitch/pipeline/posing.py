@@ -26,7 +26,7 @@ from rich.markup import escape
 
 from pipestitch._runtime import scratch
 from pipestitch._runtime.threads import opencv_threads, ordered_map
-from pipestitch.camera import CameraModel, blank_frame
+from pipestitch.camera import CameraModel
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
@@ -40,6 +40,7 @@ from pipestitch.mosaic.photometric import (
     contrast_strips,
     pair_costs,
 )
+from pipestitch.pipeline.frame_cache import blank_led
 from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
@@ -324,7 +325,7 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
         if dataset.has_led:
             try:
                 led = dataset.read_led(index)
-                if blank := blank_frame(led):
+                if blank := blank_led(dataset, index, led):
                     raise DatasetError(dataset.led_paths[index], blank)
             except DatasetError as exc:
                 # The laser frame alone still gives a pose, a little less exact.

@@ -32,7 +32,7 @@ from pipestitch._runtime import scratch
 from pipestitch._runtime.memory import release_free_memory
 from pipestitch._runtime.threads import ordered_map
 from pipestitch.camera import CameraModel
-from pipestitch.camera.frames import blank_frame, repair_pixels, to_grey
+from pipestitch.camera.frames import repair_pixels, to_grey
 from pipestitch.errors import DatasetError, StageError
 from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.io.dataset import Dataset
@@ -91,6 +91,7 @@ from pipestitch.mosaic.unwrap import (
     unwrap_with_quality,
 )
 from pipestitch.mosaic.wall_profile import frame_profiles
+from pipestitch.pipeline.frame_cache import blank_led
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
@@ -272,7 +273,7 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
     for a caller done with it before its next frame."""
     with timer("decode"):
         led = dataset.read_led(index)
-        if blank := blank_frame(led):   # the pose pass took the laser frame alone
+        if blank := blank_led(dataset, index, led):   # the pose pass took the laser frame alone
             raise DatasetError(dataset.led_paths[index], blank)
         out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
                if scratch_buffer and led.ndim == 2 else None)
@@ -335,7 +336,7 @@ def sample_led(dataset: Dataset, frames: Sequence[int], count: int, timer: Stage
         try:
             with timer("decode"):
                 led = dataset.read_led(i)
-                if blank_frame(led):
+                if blank_led(dataset, i, led):
                     return None   # shows nothing; reported when the frame is processed
                 # grey frames as stored (<= 2 bytes a pixel), made float in the mask's
                 # stack; colour ones grey now (16-bit BGRA would hold 8 bytes a pixel)

@@ -29,11 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipestitch.camera import CameraModel, blank_frame
+from pipestitch.camera import CameraModel
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import PipeSection, Pose
 from pipestitch.io.dataset import Dataset
 from pipestitch.mosaic.photometric import contrast_strip, strip_misfit
+from pipestitch.pipeline.frame_cache import blank_led
 from pipestitch.pipeline.posing import PHOTOMETRIC_MIN_TILT_DEG, FramePose, strips_overlap
 from pipestitch.pose.ambiguity import consistently_positive
 from pipestitch.pose.fit import PoseFit
@@ -139,7 +140,7 @@ def _sample(dataset: Dataset, frame: FramePose) -> tuple[np.ndarray, FramePose] 
         led = dataset.read_led(frame.index)
     except DatasetError:
         return None   # reported when the frame itself is processed
-    return None if blank_frame(led) else (prepare_laser_frame(led), frame)
+    return None if blank_led(dataset, frame.index, led) else (prepare_laser_frame(led), frame)
 
 
 def _strips(sample: tuple[np.ndarray, FramePose], share: float,

@@ -32,8 +32,8 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 
-# (module, kernel, argument types). Types: f4 f8 i8 u1 b1 are float32, float64, int64,
-# uint8 and bool scalars; "f4:2" is a C-contiguous 2-d float32 array, a trailing "A"
+# (module, kernel, argument types). Types: f4 f8 i8 u1 u2 b1 are float32, float64, int64,
+# uint8, uint16 and bool scalars; "f4:2" is a C-contiguous 2-d float32 array, a trailing "A"
 # any layout, a trailing "r" read-only; "Name(f8 i8)" a named tuple of the kernel's
 # module (its class ``Name``) with fields of those types.
 PLANE = "Plane(f8 f8:1r f8:2r)"
@@ -70,6 +70,11 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("mosaic._blend_kernels", "gain_ratios", "f4:2 f4:2 i8 f4:2 f4:2 i8 f4:1"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
+    # laser frames as decoded, LED frames as the run's cache shares them (read-only)
+    ("imaging.scaling", "_scaled", "u1:2 f4 f4:2"),
+    ("imaging.scaling", "_scaled", "u1:2r f4 f4:2"),
+    ("imaging.scaling", "_scaled", "u2:2 f4 f4:2"),
+    ("imaging.scaling", "_scaled", "u2:2r f4 f4:2"),
     ("io._image_kernels", "png_unfilter", "u1:1r i8 i8 i8 u1:1"),
     ("io._image_kernels", "png_paeth_filter", "u1:2r i8"),
 )
@@ -111,7 +116,7 @@ def _scalar_or_array(token: str) -> object:
     from numba.core import types
 
     scalars = {"f4": types.float32, "f8": types.float64, "i8": types.int64,
-               "u1": types.uint8, "b1": types.boolean}
+               "u1": types.uint8, "u2": types.uint16, "b1": types.boolean}
     name, _, rest = token.partition(":")
     if not rest:
         return scalars[name]

@@ -21,7 +21,7 @@ ALLOWED = {
     "errors": set(),
     "jsonsafe": set(),
     "imaging": set(),
-    "camera": {"errors", "_runtime"},
+    "camera": {"errors", "_runtime", "imaging"},
     "geometry": {"camera", "errors"},
     "config": PURE,
     "pose": PURE,

@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from pipestitch.imaging import scaled_float32
+
 __all__ = ["blank_frame", "repair_pixels", "to_grey"]
 
 
@@ -41,7 +43,7 @@ def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
     if integer and arr.ndim == 2:
         # One pass (cast and scale, the same float32 arithmetic): a frame is read
         # once per pass of the mosaic.
-        return np.multiply(arr, np.float32(scale), dtype=np.float32, out=out)
+        return scaled_float32(arr, scale, out=out)
     arr = arr.astype(np.float32)
     if arr.ndim == 3:
         arr = cv2.cvtColor(arr[..., :3], cv2.COLOR_BGR2GRAY) if arr.shape[2] >= 3 else arr[..., 0]

@@ -2,12 +2,15 @@
 
 * :mod:`~pipestitch.imaging.blur`: Gaussian blurs of float32 images through OpenCV's
   fastest route for their size;
-* :mod:`~pipestitch.imaging.medians`: numpy's medians from one partition instead of two.
+* :mod:`~pipestitch.imaging.medians`: numpy's medians from one partition instead of two;
+* :mod:`~pipestitch.imaging.scaling`: integer frames to float32, scaled, as numpy does it.
 
-Imports no pipestitch package (OpenCV and numpy only): any layer may import it.
+Imports no pipestitch package (OpenCV, numpy and numba only): any layer may import it.
 """
 
 from pipestitch.imaging.blur import gaussian_blur, kernel_taps
 from pipestitch.imaging.medians import MAD_TO_SIGMA, mad_sigma, median, nanmedian
+from pipestitch.imaging.scaling import scaled_float32
 
-__all__ = ["MAD_TO_SIGMA", "gaussian_blur", "kernel_taps", "mad_sigma", "median", "nanmedian"]
+__all__ = ["MAD_TO_SIGMA", "gaussian_blur", "kernel_taps", "mad_sigma", "median", "nanmedian",
+           "scaled_float32"]

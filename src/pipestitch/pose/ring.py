@@ -25,7 +25,7 @@ import numpy as np
 
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
-from pipestitch.imaging import gaussian_blur, mad_sigma
+from pipestitch.imaging import gaussian_blur, mad_sigma, scaled_float32
 from pipestitch.pose._ring_kernels import flatten_by_reflectance, ridge_peaks
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
@@ -110,7 +110,7 @@ def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,
     elif arr.ndim != 2:
         raise ValueError(f"laser frame: expected a 2-D or 3-D image, got shape {arr.shape}")
     # Cast and scale in one pass (the float32 arithmetic of a cast, then a product).
-    arr = np.multiply(arr, scale, dtype=np.float32, out=out)
+    arr = scaled_float32(arr, scale, out=out)
     # Only a float frame can hold NaN or infinities.
     if not integer and not np.all(np.isfinite(arr)):
         arr = np.nan_to_num(arr, nan=0.0, posinf=0.0, neginf=0.0)

@@ -22,6 +22,11 @@ import numpy as np
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.imaging import gaussian_blur, nanmedian
+from pipestitch.mosaic._photometric_kernels import (
+    contrast_and_dark,
+    filled_and_valid,
+    masked_contrast,
+)
 from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
 
@@ -48,18 +53,21 @@ class StripPair:
 
 
 def _contrast(strip: np.ndarray) -> np.ndarray:
-    """Local contrast (value / local mean - 1); dark, masked or occluded nodes are NaN."""
-    valid = np.isfinite(strip)
-    filled = np.where(valid, strip, 0).astype(np.float32)
-    weight = gaussian_blur(valid.astype(np.float32), 6.0)
-    local = gaussian_blur(filled, 6.0) / np.maximum(weight, 1e-6)
-    med = nanmedian(strip) if valid.any() else 0.0
-    contrast = filled / np.maximum(local, 1e-6) - 1
+    """Local contrast (value / local mean - 1); dark, masked or occluded nodes are NaN.
+
+    ``strip``: float32 (:func:`~pipestitch.mosaic.unwrap.unwrap`'s). The arithmetic is
+    float32, in compiled passes around OpenCV's blurs and dilation
+    (:mod:`pipestitch.mosaic._photometric_kernels`).
+    """
+    strip = np.ascontiguousarray(strip, np.float32)
+    filled, valid = filled_and_valid(strip)
+    weight = gaussian_blur(valid, 6.0)
+    med = nanmedian(strip)   # NaN (no dark level) where no node is valid
     # Very dark nodes are the laser holder arm, the mirror assembly or holes: they do
     # not move with the wall, so they are masked (with a margin) rather than compared.
-    dark = ~valid | (filled < 0.3 * local) | (local < 0.25 * med)
-    dark = cv2.dilate(dark.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    return np.where(dark | (weight < 0.5), np.nan, contrast).astype(np.float32)
+    contrast, dark = contrast_and_dark(filled, gaussian_blur(filled, 6.0), weight, valid,
+                                       np.float32(0.25) * (med if med == med else np.float32(0)))
+    return masked_contrast(contrast, cv2.dilate(dark, np.ones((5, 5), np.uint8)), weight)
 
 
 def contrast_strips(led: np.ndarray, camera: CameraModel, fit: PoseFit,

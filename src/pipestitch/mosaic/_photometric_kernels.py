@@ -2,9 +2,10 @@
 
 Why hand-written: :func:`pipestitch.mosaic.photometric._contrast` took about ten
 array expressions over a strip (validity, filled values, the local mean's division,
-the contrast, three darkness tests, the final mask), each a temporary array; two
-passes before and after OpenCV's blurs and dilation do the same float32 arithmetic in
-the same order, pixel by pixel. Two strips a frame, in the pose pass.
+the contrast, three darkness tests, the final mask), each a temporary array; compiled
+passes before (:func:`pipestitch.mosaic._unwrap_kernels.fill_invalid`, the unwrap's
+own) and after OpenCV's blurs and dilation do the same float32 arithmetic in the same
+order, pixel by pixel. Two strips a frame, in the pose pass.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -18,20 +19,6 @@ F32 = np.float32
 FLOOR = F32(1e-6)        # the local mean's and the weight's floor (numpy: float32)
 DARK_SHARE = F32(0.3)    # a node darker than this share of its local mean is dark
 MIN_WEIGHT = F32(0.5)    # nodes with less of their neighbourhood valid are masked
-
-
-@numba.njit(cache=True, nogil=True)
-def filled_and_valid(strip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The strip with its non-finite nodes 0, and its validity as float32 1 / 0."""
-    filled = np.empty(strip.shape, np.float32)
-    valid = np.empty(strip.shape, np.float32)
-    for i in range(strip.shape[0]):
-        for j in range(strip.shape[1]):
-            v = strip[i, j]
-            ok = np.isfinite(v)
-            filled[i, j] = v if ok else F32(0)
-            valid[i, j] = F32(1) if ok else F32(0)
-    return filled, valid
 
 
 @numba.njit(cache=True, nogil=True)

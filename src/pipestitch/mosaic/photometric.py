@@ -22,11 +22,8 @@ import numpy as np
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.imaging import gaussian_blur, nanmedian
-from pipestitch.mosaic._photometric_kernels import (
-    contrast_and_dark,
-    filled_and_valid,
-    masked_contrast,
-)
+from pipestitch.mosaic._photometric_kernels import contrast_and_dark, masked_contrast
+from pipestitch.mosaic._unwrap_kernels import fill_invalid
 from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
 
@@ -60,7 +57,7 @@ def _contrast(strip: np.ndarray) -> np.ndarray:
     (:mod:`pipestitch.mosaic._photometric_kernels`).
     """
     strip = np.ascontiguousarray(strip, np.float32)
-    filled, valid = filled_and_valid(strip)
+    filled, valid = fill_invalid(strip)
     weight = gaussian_blur(valid, 6.0)
     med = nanmedian(strip)   # NaN (no dark level) where no node is valid
     # Very dark nodes are the laser holder arm, the mirror assembly or holes: they do

@@ -59,11 +59,11 @@ def _contrast(strip: np.ndarray) -> np.ndarray:
     strip = np.ascontiguousarray(strip, np.float32)
     filled, valid = fill_invalid(strip)
     weight = gaussian_blur(valid, 6.0)
-    med = nanmedian(strip)   # NaN (no dark level) where no node is valid
+    med = nanmedian(strip) if valid.any() else np.float32(0)
     # Very dark nodes are the laser holder arm, the mirror assembly or holes: they do
     # not move with the wall, so they are masked (with a margin) rather than compared.
     contrast, dark = contrast_and_dark(filled, gaussian_blur(filled, 6.0), weight, valid,
-                                       np.float32(0.25) * (med if med == med else np.float32(0)))
+                                       np.float32(0.25) * med)
     return masked_contrast(contrast, cv2.dilate(dark, np.ones((5, 5), np.uint8)), weight)
 
 

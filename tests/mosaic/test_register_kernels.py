@@ -31,6 +31,26 @@ def test_packed_cross_power_equals_the_complex_form(shape: tuple[int, int]) -> N
     np.testing.assert_allclose(got, want, rtol=0, atol=2e-6)
 
 
+@pytest.mark.parametrize("n_cols", [48, 47, 3, 2, 1])
+def test_packed_cross_power_pairs_are_the_float32_expression_to_the_bit(n_cols: int) -> None:
+    # The (re, im) columns, which a vectorised loop computes: numpy's float32 products
+    # and sums in the same order, the modulus in float64 rounded once.
+    a = RNG.normal(size=(16, n_cols)).astype(np.float32)
+    b = RNG.normal(size=(16, n_cols)).astype(np.float32)
+    a[3] = 0    # zero products: the 1e-12 floor
+    fa, fb = cv2.dft(a), cv2.dft(b)
+    a_re, a_im, b_re, b_im = fa[:, 1:-1:2], fa[:, 2::2], fb[:, 1:-1:2], fb[:, 2::2]
+    n = (n_cols - 1) // 2
+    a_re, a_im, b_re, b_im = a_re[:, :n], a_im[:, :n], b_re[:, :n], b_im[:, :n]
+    re = b_re * a_re + b_im * a_im
+    im = b_im * a_re - b_re * a_im
+    mag = np.maximum(np.sqrt(re.astype(float) ** 2 + im.astype(float) ** 2).astype(np.float32),
+                     np.float32(1e-12))
+    got = cross_power_ccs(fb, fa)
+    assert np.array_equal(got[:, 1:1 + 2 * n:2], re / mag)
+    assert np.array_equal(got[:, 2:2 + 2 * n:2], im / mag)
+
+
 def test_gradient_moments_are_numpy_gradient_sums() -> None:
     img = RNG.normal(size=(31, 45)).astype(np.float32)
     weight = RNG.random(img.shape).astype(np.float32)

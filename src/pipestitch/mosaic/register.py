@@ -44,6 +44,7 @@ __all__ = [
     "measure_shift",
     "odometer_noise_mm",
     "phase_shift",
+    "polish_moments",
     "predict_motion",
     "registration_image",
     "shared_taper",
@@ -119,13 +120,16 @@ def _minus_weighted_mean(image: np.ndarray, weight: np.ndarray | None) -> np.nda
 
 
 def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx: float,
-            dy: float, iterations: int, noise: PatchNoise | None = None) -> tuple[float, float]:
+            dy: float, iterations: int, noise: PatchNoise | None = None,
+            moments: tuple[float, float, float] | None = None) -> tuple[float, float]:
     """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``.
 
     ``weight`` None weighs every pixel 1. ``noise``: the expected share of ``first``'s
     noise in the residual moments and in the Hessian's diagonal, subtracted from both
     (:mod:`pipestitch.mosaic.noise`); not where it would leave less than
-    ``MIN_SIGNAL_SHARE`` of the Hessian (a patch of noise alone).
+    ``MIN_SIGNAL_SHARE`` of the Hessian (a patch of noise alone). ``moments``:
+    ``first``'s gradient moments under ``weight`` when already computed
+    (:func:`polish_moments`).
     """
     if not (np.isfinite(dx) and np.isfinite(dy)):
         return float(dx), float(dy)
@@ -133,7 +137,7 @@ def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx
     second = np.ascontiguousarray(second, np.float32)
     weight = (np.zeros((0, 0), np.float32) if weight is None
               else np.ascontiguousarray(weight, np.float32))
-    a11, a12, a22 = gradient_moments(first, weight)
+    a11, a12, a22 = gradient_moments(first, weight) if moments is None else moments
     d_x = d_y = 0.0
     if noise is not None and min(a11 - noise.h_x - MIN_SIGNAL_SHARE * a11,
                                  a22 - noise.h_y - MIN_SIGNAL_SHARE * a22) > 0:
@@ -214,6 +218,12 @@ def spectrum(image: np.ndarray) -> np.ndarray:
     complex form, which the correlation does not need.
     """
     return cv2.dft(image)
+
+
+def polish_moments(image: np.ndarray) -> tuple[float, float, float]:
+    """The gradient moments :func:`measure_shift` polishes a shift from ``image`` with,
+    for reuse (float32 ``image``; it is the first of several links' pairs)."""
+    return gradient_moments(np.ascontiguousarray(image, np.float32), np.zeros((0, 0), np.float32))
 
 
 def _prior_peak(first: np.ndarray, second: np.ndarray, expected_px: tuple[float, float],
@@ -304,13 +314,15 @@ def _cut_shift(first: np.ndarray, first_weight: np.ndarray, second: np.ndarray,
 
 def measure_shift(first: np.ndarray, second: np.ndarray, grid: WallGrid, i: int,
                   j: int, prior: MotionPrior | None = None,
-                  spectra: tuple[np.ndarray, np.ndarray] | None = None) -> Link | None:
+                  spectra: tuple[np.ndarray, np.ndarray] | None = None,
+                  first_moments: tuple[float, float, float] | None = None) -> Link | None:
     """Link from frame i to frame j by phase correlation of their registration images.
 
     With a ``prior`` the correlation peak is sought near the expected motion
-    (:func:`predict_motion`). ``spectra``: the images' :func:`spectrum`, when already
-    computed (each frame is correlated with several). Returns None when the peak is
-    below ``MIN_RESPONSE`` (no common texture).
+    (:func:`predict_motion`). ``spectra``: the images' :func:`spectrum`, and
+    ``first_moments`` the first's :func:`polish_moments`, when already computed (each
+    frame is correlated with several). Returns None when the peak is below
+    ``MIN_RESPONSE`` (no common texture).
     """
     if not (np.any(first) and np.any(second)):
         return None
@@ -322,7 +334,7 @@ def measure_shift(first: np.ndarray, second: np.ndarray, grid: WallGrid, i: int,
         sigma = (prior.dz_sigma_mm / grid.mm_per_px_axial, prior.droll_sigma_deg / grid.deg_per_px)
         dx, dy, response = _prior_peak(first, second, expected, sigma, spectra)
     # One polishing step: ~0.03 px, and the refinement replaces most links anyway.
-    dx, dy = _polish(first, second, None, dx, dy, 1)
+    dx, dy = _polish(first, second, None, dx, dy, 1, moments=first_moments)
     if not np.isfinite(response) or response < MIN_RESPONSE:
         return None
     # phaseCorrelate: second(x) = first(x - d), and strip_j(x) = strip_i(x + motion).

@@ -73,6 +73,7 @@ from pipestitch.mosaic.register import (
     Positions,
     measure_overlap_shift,
     measure_shift,
+    polish_moments,
     predict_motion,
     registration_image,
     shared_taper,
@@ -374,8 +375,9 @@ class _Candidate:
 
     contrast: np.ndarray
     weight: np.ndarray            # the strip's quality weight (float32; 0: no data)
-    image: np.ndarray | None      # registration image and its spectrum (None: the
-    spectrum: np.ndarray | None   # frame's links are known, only patches are measured)
+    image: np.ndarray | None      # registration image, its spectrum and polish moments
+    spectrum: np.ndarray | None   # (None: the frame's links are known, only patches
+    moments: tuple[float, float, float] | None   # are measured)
     flat: FlatInput | None   # None: a pass whose flat field data are not kept
     noise: ContrastNoise | None = None   # of ``contrast``, for the patch shifts
 
@@ -477,6 +479,7 @@ def _unwrap_candidate(unwrapper: _Unwrapper, index: int, grey: np.ndarray, view:
                  else contrast_noise(maps.map_x, maps.map_y, mean, unwrapper.noise))
         return _Candidate(contrast, strip.weight, image,
                           None if image is None else spectrum(image),
+                          None if image is None else polish_moments(image),
                           unwrapper.flat(index, grey, strip, maps) if flat else None, noise)
 
 
@@ -507,7 +510,7 @@ def _link(prev: _Candidate, cand: _Candidate, grid: WallGrid, j: int, i: int,
         return measure_overlap_shift(prev.contrast, prev.weight, cand.contrast, cand.weight,
                                      grid, j, i, prior)
     return measure_shift(prev.image, cand.image, grid, j, i, prior,
-                         (prev.spectrum, cand.spectrum))
+                         (prev.spectrum, cand.spectrum), prev.moments)
 
 
 # Below this share of their tapers' energy in common at the expected step (a step of

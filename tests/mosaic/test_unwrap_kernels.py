@@ -64,6 +64,41 @@ def test_upsampled_maps_are_bilinear_and_masked_where_any_node_is_invalid(
     np.testing.assert_array_equal(maps_only.map_y, out.map_y)
 
 
+def _rows_then_columns(nodes: np.ndarray, step: int, n_rows: int, n_cols: int) -> np.ndarray:
+    """The float32 interpolation written out: rows first, then columns, weights k / step
+    rounded to float32, a copy on the nodes and past the last one."""
+    w_hi = np.array([k / step for k in range(step)], np.float32)
+    w_lo = np.float32(1) - w_hi
+
+    def along(a: np.ndarray, n: int, axis: int) -> np.ndarray:
+        a = np.moveaxis(a, axis, 0)
+        out = np.empty((n,) + a.shape[1:], np.float32)
+        for i in range(n):
+            c, k = min(i // step, len(a) - 1), i % step
+            out[i] = a[c] if k == 0 or c == len(a) - 1 else a[c] * w_lo[k] + a[c + 1] * w_hi[k]
+        return np.moveaxis(out, 0, axis)
+
+    return along(along(nodes, n_rows, 1), n_cols, 2)
+
+
+@pytest.mark.parametrize("step", [1, 2, 3, 4, 5, 8])
+@pytest.mark.parametrize("cut", [0, 1, 2, 5])
+def test_upsampled_fields_are_the_float32_expression_to_the_bit(step: int, cut: int) -> None:
+    # ``cut`` output columns short of the last node: a last cell with only some phases.
+    n_r, n_c = 7, 9
+    n_rows, n_cols = n_r * step + 2, max(1, (n_c - 1) * step + 1 - cut)
+    nodes = (RNG.normal(size=(5, n_r, n_c)) * 100).astype(np.float32)
+    nodes[2] = 1.0
+    nodes[2, 3, 4] = 0.0
+    out = upsample_maps(MapFields(*nodes), step=step, n_rows=n_rows, n_cols=n_cols,
+                        ok_above=0.999)
+    want = _rows_then_columns(nodes, step, n_rows, n_cols)
+    ok = want[2] > np.float32(0.999)
+    for name, k in (("map_x", 0), ("map_y", 1), ("quality", 3), ("shading", 4)):
+        fill = -1.0 if k < 2 else 0.0
+        np.testing.assert_array_equal(getattr(out, name), np.where(ok, want[k], fill))
+
+
 def test_strip_mask_uses_the_nearest_pixel_as_cv2_remap_does() -> None:
     # 30 columns: the packed mask's last byte holds 6 pixels and 2 pad bits
     occluded = RNG.random((20, 30)) < 0.3

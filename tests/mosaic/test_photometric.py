@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.mosaic.photometric import contrast_strips, pair_costs
+from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs, strip_misfit
 from pipestitch.pose.fit import ConicModel, Hypothesis, PoseFit, pose_from_conic
 from pipestitch.pose.ring import prepare_laser_frame
 from pipestitch.simulate.render import Renderer
@@ -45,3 +45,22 @@ def test_frames_that_share_under_half_the_window_give_no_evidence(
     assert near.max() > 5
     far = pair_costs(_strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 50.0))
     np.testing.assert_array_equal(far, np.zeros((2, 2)))
+
+
+def test_costs_read_the_strips_as_prepared_once(holed_renderer: Renderer) -> None:
+    # The pair's costs come from each strip prepared once (its filled values, validity
+    # and count): the same misfits as comparing the strips themselves, whose data are
+    # NaN-free only where they were valid.
+    first, second = _strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0)
+    for pair in (first, second):
+        for strip, prepared in zip(pair.strips, pair.comparable, strict=True):
+            np.testing.assert_array_equal(prepared.valid, np.isfinite(strip))
+            assert prepared.count == np.count_nonzero(np.isfinite(strip)) > 100
+            np.testing.assert_array_equal(prepared.filled, np.nan_to_num(strip, nan=0.0))
+    misfit = np.array([[strip_misfit(a, b) for b in second.strips] for a in first.strips])
+    costs = pair_costs(first, second)
+    # 0 at the best-agreeing combination, N_eff/2 log(U / U_min) elsewhere (capped)
+    assert costs[np.unravel_index(np.argmin(misfit), misfit.shape)] == 0.0
+    rebuilt = pair_costs(StripPair(first.strips), StripPair(second.strips))
+    np.testing.assert_array_equal(costs, rebuilt)
+    assert np.all((costs > 0) == (misfit > misfit.min()))

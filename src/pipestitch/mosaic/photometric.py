@@ -14,7 +14,8 @@ pixels), capped so one pair of frames cannot outvote the rest of the run.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -43,10 +44,34 @@ MIN_PEAK = 0.05
 
 
 @dataclass(frozen=True)
+class _Comparable:
+    """What a comparison reads of a strip: its values with 0 where it has none
+    (float32), where it has them, and how many nodes that is."""
+
+    filled: np.ndarray
+    valid: np.ndarray
+    count: int
+
+
+def _comparable(strip: np.ndarray) -> _Comparable:
+    valid = np.isfinite(strip)
+    return _Comparable(np.where(valid, strip, 0).astype(np.float32), valid,
+                       int(np.count_nonzero(valid)))
+
+
+@dataclass(frozen=True)
 class StripPair:
-    """Local-contrast strips of one frame for its two hypotheses (NaN = no data)."""
+    """Local-contrast strips of one frame for its two hypotheses (NaN = no data).
+
+    Each strip is compared four times (two hypotheses of the frame before and of the
+    frame after): what the comparisons read of it is prepared once, with the strips.
+    """
 
     strips: tuple[np.ndarray, ...]
+    comparable: tuple[_Comparable, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "comparable", tuple(_comparable(s) for s in self.strips))
 
 
 def _contrast(strip: np.ndarray) -> np.ndarray:
@@ -115,14 +140,25 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
     count : int
         Number of valid nodes the strips share.
     """
-    va, vb = np.isfinite(a), np.isfinite(b)
-    if va.sum() < 100 or vb.sum() < 100 or a.shape != b.shape:
+    return _compare(_comparable(a), _comparable(b))
+
+
+def _compare(a: _Comparable, b: _Comparable) -> tuple[float, int]:
+    """:func:`_misfit` of two prepared strips."""
+    if a.count < 100 or b.count < 100 or a.filled.shape != b.filled.shape:
         return np.nan, 0
-    fa, fb = np.where(va, a, 0).astype(np.float32), np.where(vb, b, 0).astype(np.float32)
-    win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
-    win = np.tile(win[a.shape[0] // 2:a.shape[0] // 2 + 1, :], (a.shape[0], 1))  # z only
-    _, response = cv2.phaseCorrelate(fb, fa, win)
-    return 1.0 - float(response), int(np.sum(va & vb))
+    _, response = cv2.phaseCorrelate(b.filled, a.filled, _z_window(a.filled.shape))
+    return 1.0 - float(response), int(np.count_nonzero(a.valid & b.valid))
+
+
+@functools.lru_cache(maxsize=8)
+def _z_window(shape: tuple[int, int]) -> np.ndarray:
+    """A Hanning taper along z only (the strips are circular in theta), float32;
+    read-only, as every comparison of strips of this shape shares it."""
+    win = cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
+    win = np.tile(win[shape[0] // 2:shape[0] // 2 + 1, :], (shape[0], 1))
+    win.flags.writeable = False
+    return win
 
 
 def pair_costs(first: StripPair, second: StripPair) -> np.ndarray:
@@ -134,9 +170,9 @@ def pair_costs(first: StripPair, second: StripPair) -> np.ndarray:
     """
     misfit = np.full((2, 2), np.nan)
     count = np.zeros((2, 2))
-    for i, a in enumerate(first.strips):
-        for j, b in enumerate(second.strips):
-            misfit[i, j], count[i, j] = _misfit(a, b)
+    for i, a in enumerate(first.comparable):
+        for j, b in enumerate(second.comparable):
+            misfit[i, j], count[i, j] = _compare(a, b)
     if not np.all(np.isfinite(misfit)) or np.min(misfit) <= 0 or np.min(misfit) > 1 - MIN_PEAK:
         return np.zeros((2, 2))
     n_eff = np.min(count) / BLOCK_PX**2

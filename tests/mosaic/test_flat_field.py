@@ -169,3 +169,12 @@ def test_the_compiled_fall_off_is_numpys_interpolation() -> None:
     radius = np.hypot(map_x.astype(np.float64) - 300.5, map_y.astype(np.float64) - 200.25)
     want = np.interp(radius, flat.radius_px, flat.level)   # the ends held beyond
     np.testing.assert_allclose(flat.at(map_x, map_y), want, rtol=1e-6)   # float32 out
+    # ... and to the bit the float64 expression it compiles (ring position, its whole
+    # part, the linear weights; rounded to float32 once)
+    ring_px = flat.radius_px[1] - flat.radius_px[0]
+    dx, dy = map_x.astype(np.float64) - 300.5, map_y.astype(np.float64) - 200.25
+    pos = np.clip(np.sqrt(dx * dx + dy * dy) / ring_px - 0.5, 0.0, len(flat.level) - 1.0)
+    low = np.minimum(pos.astype(int), len(flat.level) - 2)
+    frac = pos - low
+    exact = (flat.level[low] * (1.0 - frac) + flat.level[low + 1] * frac).astype(np.float32)
+    np.testing.assert_array_equal(flat.at(map_x, map_y), exact)

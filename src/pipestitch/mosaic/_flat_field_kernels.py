@@ -20,15 +20,30 @@ def fall_off_at(map_x: np.ndarray, map_y: np.ndarray, centre_col: float, centre_
                 ring_px: float, level: np.ndarray) -> np.ndarray:
     """``level`` (per ring centre, rings ``ring_px`` wide from the centre) interpolated
     linearly at the radius of every pixel position, the end rings' values beyond them
-    (float32, the maps' shape)."""
+    (float32, the maps' shape).
+
+    Row by row: the ring positions first (a loop the compiler vectorises), then the
+    look-ups (2x faster than both in one loop; the same values).
+    """
     n = level.shape[0]
     out = np.empty(map_x.shape, np.float32)
+    pos = np.empty(map_x.shape[1])
     for i in range(map_x.shape[0]):
+        _ring_positions(map_x[i], map_y[i], centre_col, centre_row, ring_px, n - 1.0, pos)
+        row = out[i]
         for j in range(map_x.shape[1]):
-            dx = np.float64(map_x[i, j]) - centre_col
-            dy = np.float64(map_y[i, j]) - centre_row
-            pos = min(max(np.sqrt(dx * dx + dy * dy) / ring_px - 0.5, 0.0), n - 1.0)
-            low = min(int(pos), n - 2)
-            frac = pos - low
-            out[i, j] = F32(level[low] * (1.0 - frac) + level[low + 1] * frac)
+            low = min(int(pos[j]), n - 2)
+            frac = pos[j] - low
+            row[j] = F32(level[low] * (1.0 - frac) + level[low + 1] * frac)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _ring_positions(map_x: np.ndarray, map_y: np.ndarray, centre_col: float,
+                    centre_row: float, ring_px: float, last: float, pos: np.ndarray) -> None:
+    """Each position's distance from the centre in rings, less half a ring, clipped to
+    [0, ``last``] (float64)."""
+    for j in range(map_x.shape[0]):
+        dx = np.float64(map_x[j]) - centre_col
+        dy = np.float64(map_y[j]) - centre_row
+        pos[j] = min(max(np.sqrt(dx * dx + dy * dy) / ring_px - 0.5, 0.0), last)

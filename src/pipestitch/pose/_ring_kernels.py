@@ -31,7 +31,7 @@ def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor
     float32). Bright enough: ``local > floor·broad`` and ``broad > 0``; the division
     in float32, as the numpy expression. One pass over the rows, ``ROWS`` at a time,
     instead of two blurs and a division over the whole polar frame (4.3 against 2.0
-    ms for 1440 x 876 samples).
+    ms for 1440 x 876 samples, when the box sums were kept in an array).
     """
     n_rows, n = polar.shape
     out = np.empty(polar.shape, np.float32)
@@ -39,10 +39,9 @@ def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor
     broad = np.empty((ROWS, n), np.float32)
     f, m = F32(floor), F32(min_relative)
     for first in range(0, n_rows, ROWS):
-        count = min(ROWS, n_rows - first)
-        _box_means(local, first, count, box // 2, once)
-        _box_means(once, 0, count, box // 2, broad)
-        for r in range(count):
+        _box_means(local, first, box // 2, once)
+        _box_means(once, 0, box // 2, broad)
+        for r in range(min(ROWS, n_rows - first)):
             for j in range(n):
                 b, v = broad[r, j], local[first + r, j]
                 bright = v > f * b and b > F32(0)
@@ -51,24 +50,35 @@ def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _box_means(src: np.ndarray, first: int, count: int, half: int, dst: np.ndarray) -> None:
-    """Rows ``first .. first + count - 1`` of ``src``: the mean over ``2 half + 1``
-    samples about each, the border replicated, into ``dst[:count]`` (float64 running
-    sums: add the sample entering, subtract the one leaving)."""
-    n = src.shape[1]
+def _box_means(src: np.ndarray, first: int, half: int, dst: np.ndarray) -> None:
+    """Rows ``first .. first + 3`` of ``src`` (the last row again past the end): the
+    mean over ``2 half + 1`` samples about each, the border replicated, into ``dst``
+    (float64 running sums: add the sample entering, subtract the one leaving).
+
+    Four rows (``ROWS``) in four named sums: independent chains of additions the
+    processor overlaps (a 1440 x 578 polar frame's division 3.2 -> 1.6 ms against sums
+    in an array indexed by a row count; the same values).
+    """
+    n, last = src.shape[1], src.shape[0] - 1
     scale = 1.0 / (2 * half + 1)
-    total = np.zeros(ROWS)
+    s0, s1 = src[min(first, last)], src[min(first + 1, last)]
+    s2, s3 = src[min(first + 2, last)], src[min(first + 3, last)]
+    d0, d1, d2, d3 = dst[0], dst[1], dst[2], dst[3]
+    t0 = t1 = t2 = t3 = 0.0
     for k in range(-half, half + 1):
         at = min(max(k, 0), n - 1)
-        for r in range(count):
-            total[r] += src[first + r, at]
-    for r in range(count):
-        dst[r, 0] = total[r] * scale
+        t0 += s0[at]
+        t1 += s1[at]
+        t2 += s2[at]
+        t3 += s3[at]
+    d0[0], d1[0], d2[0], d3[0] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
     for j in range(1, n):
         enter, leave = min(j + half, n - 1), max(j - half - 1, 0)
-        for r in range(count):
-            total[r] += np.float64(src[first + r, enter]) - np.float64(src[first + r, leave])
-            dst[r, j] = total[r] * scale
+        t0 += np.float64(s0[enter]) - np.float64(s0[leave])
+        t1 += np.float64(s1[enter]) - np.float64(s1[leave])
+        t2 += np.float64(s2[enter]) - np.float64(s2[leave])
+        t3 += np.float64(s3[enter]) - np.float64(s3[leave])
+        d0[j], d1[j], d2[j], d3[j] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
 
 
 @numba.njit(cache=True, nogil=True)

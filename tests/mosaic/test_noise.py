@@ -78,6 +78,11 @@ def test_noise_fields_match_remapped_white_noise() -> None:
     fields = contrast_noise(map_x, map_y, np.full(map_x.shape, level, np.float32),
                             NoiseModel(variance, 0.0))
     sums = patch_noise(patch_table(fields, window), fields.step, 0, 0)
+    # the strip's own table: the same, computed once per window and kept
+    kept = fields.patch_table(window)
+    np.testing.assert_array_equal(kept, patch_table(fields, window))
+    assert fields.patch_table(window.copy()) is kept
+    assert fields.patch_table(window[:32, :32].copy()) is not kept
     # Monte-Carlo error of the mean ~2 %; the model's phase average and its every-4th-node
     # fields add a few per cent
     assert sums.d_x == pytest.approx(np.mean(d_x), rel=0.15)

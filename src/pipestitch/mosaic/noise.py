@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -152,6 +152,17 @@ class ContrastNoise:
 
     step: int
     fields: np.ndarray
+    _tables: dict[bytes, np.ndarray] = field(default_factory=dict, init=False, repr=False,
+                                             compare=False)
+
+    def patch_table(self, window: np.ndarray) -> np.ndarray:
+        """:func:`patch_table` of these fields under ``window``, computed once per
+        window (a strip is the template of each of its links to later frames)."""
+        key = np.ascontiguousarray(window).tobytes() + repr(window.shape).encode()
+        table = self._tables.get(key)
+        if table is None:
+            table = self._tables[key] = patch_table(self, window)
+        return table
 
 
 def contrast_noise(map_x: np.ndarray, map_y: np.ndarray, local_mean: np.ndarray,

@@ -34,7 +34,7 @@ from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
-from pipestitch.mosaic.noise import ContrastNoise, patch_noise, patch_table
+from pipestitch.mosaic.noise import ContrastNoise, patch_noise
 from pipestitch.mosaic.register import phase_shift
 
 __all__ = ["PatchShifts", "node_jacobian", "pair_jacobians", "patch_shifts", "refinement_windows",
@@ -47,6 +47,8 @@ PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
 # strip, so a full-size strip's 2-4x more patches measure it no better, at 2-4x the
 # cost (chart83 at full size: 12 around or 24, the same SSIM 0.90 and tilt error 0.007°).
 PATCHES_AROUND = 12
+# the patches' taper, shared by every link (never written to)
+_PATCH_WINDOW = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
 MIN_RESPONSE = 0.1
 MIN_CONTRAST = 0.01          # patches flatter than this (std of local contrast) are skipped
 SHIFT_SIGMA_PX = 0.15        # 1-sigma of a patch shift at response 1
@@ -95,8 +97,8 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
     n_rows, n_cols = second.shape
     step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
     dr, dc = round(motion_px[0]), round(motion_px[1])
-    win = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
-    table = None if first_noise is None else patch_table(first_noise, win)
+    win = _PATCH_WINDOW
+    table = None if first_noise is None else first_noise.patch_table(win)
     nodes, shifts, responses = [], [], []
     for c in range(0, n_cols - PATCH_PX + 1, step):
         c1 = c + dc

@@ -9,6 +9,7 @@ import pytest
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
+    patches_valid,
     residual_moments,
     shifted_residual_moments,
 )
@@ -99,3 +100,30 @@ def test_shifted_residual_moments_are_the_cubic_warp_s(dx: float, dy: float,
     np.testing.assert_allclose(shifted_residual_moments(img, moved, weight, dx, dy),
                                residual_moments(img, back, weight, 0, 0), rtol=2e-5,
                                atol=1e-6)
+
+
+@pytest.mark.parametrize(("shape", "shift"), [((100, 90), (3, 5)), ((100, 90), (-7, -20)),
+                                              ((64, 64), (0, 0)), ((50, 40), (60, 1)),
+                                              ((97, 150), (-130, 30))])
+def test_patch_validity_is_the_wrapped_fancy_index_test(shape: tuple[int, int],
+                                                        shift: tuple[int, int]) -> None:
+    # The test it replaces: rows wrapped by modulo, columns cut; sizes smaller than
+    # the patch give no patch at all.
+    size, step = 16, 12
+    first, second = (RNG.random(shape) > 0.002 for _ in range(2))
+    second[:, 30:33] = False
+    dr, dc = shift
+    want = []
+    for c in range(0, shape[1] - size + 1, step):
+        col = []
+        for r in range(0, shape[0], step):
+            rows_j = np.arange(r, r + size) % shape[0]
+            rows_i = (rows_j + dr) % shape[0]
+            col.append(0 <= c + dc and c + dc + size <= shape[1]
+                       and bool(second[rows_j, c:c + size].all())
+                       and bool(first[rows_i, c + dc:c + dc + size].all()))
+        want.append(col)
+    got = patches_valid(first, second, size, step, dr, dc)
+    np.testing.assert_array_equal(got, np.array(want, bool).reshape(got.shape))
+    assert got.any() or shape[1] < size
+    assert patches_valid(first[:, :10], second[:, :10], size, step, dr, dc).size == 0

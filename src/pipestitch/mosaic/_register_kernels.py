@@ -1,5 +1,6 @@
 """Compiled inner loops of registration (numba): packed cross-power spectra, the
-weighted correlation peak and the Lucas-Kanade polish of a sub-pixel shift.
+weighted correlation peak, the Lucas-Kanade polish of a sub-pixel shift and which
+patches of two strips lie wholly on valid nodes.
 
 Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectra,
 and the polish reads a cubic-shifted patch in one pass instead of warping a copy
@@ -235,3 +236,42 @@ def shifted_residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndar
             bx += e * gx[c]
             by += e * gy[c]
     return bx, by
+
+
+@numba.njit(cache=True, nogil=True)
+def patches_valid(first_valid: np.ndarray, second_valid: np.ndarray, size: int, step: int,
+                  shift_rows: int, shift_cols: int) -> np.ndarray:
+    """Which ``size`` x ``size`` patches of ``second_valid`` and their counterparts in
+    ``first_valid`` are valid throughout: (column patches, row patches) booleans.
+
+    Patch (k, m) of the second strip starts at column ``k·step`` and row ``m·step``;
+    its counterpart in the first starts ``shift_cols`` columns and ``shift_rows`` rows
+    on. Rows wrap around the pipe; columns do not: a counterpart past either end of
+    the strip is not valid. Each test stops at the first invalid node.
+    """
+    n_rows, n_cols = second_valid.shape
+    n_c = max(0, (n_cols - size) // step + 1)
+    n_r = (n_rows + step - 1) // step
+    out = np.zeros((n_c, n_r), np.bool_)
+    for k in range(n_c):
+        c, c1 = k * step, k * step + shift_cols
+        if c1 < 0 or c1 + size > n_cols:
+            continue
+        for m in range(n_r):
+            r = m * step
+            out[k, m] = (_all_valid(second_valid, r, c, size)
+                         and _all_valid(first_valid, r + shift_rows, c1, size))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _all_valid(valid: np.ndarray, row: int, col: int, size: int) -> bool:
+    """Whether rows ``row .. row + size - 1`` (wrapping) of ``valid`` are valid in
+    columns ``col .. col + size - 1``."""
+    n_rows = valid.shape[0]
+    for i in range(size):
+        line = valid[(row + i) % n_rows]
+        for j in range(col, col + size):
+            if not line[j]:
+                return False
+    return True

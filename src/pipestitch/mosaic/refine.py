@@ -34,6 +34,7 @@ from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
+from pipestitch.mosaic._register_kernels import patches_valid
 from pipestitch.mosaic.noise import ContrastNoise, patch_noise
 from pipestitch.mosaic.register import phase_shift
 
@@ -99,30 +100,26 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
     dr, dc = round(motion_px[0]), round(motion_px[1])
     win = _PATCH_WINDOW
     table = None if first_noise is None else first_noise.patch_table(win)
+    valid = patches_valid(np.ascontiguousarray(first_valid, np.bool_),
+                          np.ascontiguousarray(second_valid, np.bool_), PATCH_PX, step, dr, dc)
     nodes, shifts, responses = [], [], []
-    for c in range(0, n_cols - PATCH_PX + 1, step):
-        c1 = c + dc
-        if c1 < 0 or c1 + PATCH_PX > n_cols:
+    for k, m in zip(*np.nonzero(valid), strict=True):
+        c, c1, r = int(k) * step, int(k) * step + dc, int(m) * step
+        rows_j = np.arange(r, r + PATCH_PX) % n_rows
+        rows_i = (rows_j + dr) % n_rows
+        b = second[rows_j, c:c + PATCH_PX]
+        a = first[rows_i, c1:c1 + PATCH_PX]
+        if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
             continue
-        for r in range(0, n_rows, step):
-            rows_j = np.arange(r, r + PATCH_PX) % n_rows
-            rows_i = (rows_j + dr) % n_rows
-            if not (second_valid[rows_j, c:c + PATCH_PX].all()
-                    and first_valid[rows_i, c1:c1 + PATCH_PX].all()):
-                continue
-            b = second[rows_j, c:c + PATCH_PX]
-            a = first[rows_i, c1:c1 + PATCH_PX]
-            if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
-                continue
-            noise = (None if table is None
-                     else patch_noise(table, first_noise.step, int(rows_i[0]), c1))
-            sx, sy, resp = phase_shift(a, b, win, iterations=3, noise=noise)
-            if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
-                continue
-            # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.
-            nodes.append((r + (PATCH_PX - 1) / 2, c + (PATCH_PX - 1) / 2))
-            shifts.append((dr - sy, dc - sx))
-            responses.append(resp)
+        noise = (None if table is None
+                 else patch_noise(table, first_noise.step, int(rows_i[0]), c1))
+        sx, sy, resp = phase_shift(a, b, win, iterations=3, noise=noise)
+        if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
+            continue
+        # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.
+        nodes.append((r + (PATCH_PX - 1) / 2, c + (PATCH_PX - 1) / 2))
+        shifts.append((dr - sy, dc - sx))
+        responses.append(resp)
     # float32: a run's patch shifts are all held until its refinement (1e-5 px here)
     return PatchShifts(i, j, np.array(nodes, np.float32).reshape(-1, 2),
                        np.array(shifts, np.float32).reshape(-1, 2),

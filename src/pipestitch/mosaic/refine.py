@@ -95,7 +95,7 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
     Patches of ``PATCH_PX`` every ``PATCH_STEP_PX``, or every ``1 / PATCHES_AROUND``
     of the rows when that is wider.
     """
-    n_rows, n_cols = second.shape
+    n_rows = second.shape[0]
     step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
     dr, dc = round(motion_px[0]), round(motion_px[1])
     win = _PATCH_WINDOW

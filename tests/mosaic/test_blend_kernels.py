@@ -25,8 +25,11 @@ def test_shaded_albedo_is_the_numpy_division_with_its_validity() -> None:
     albedo, got_valid = shaded_albedo(values, shading, weight)
     np.testing.assert_array_equal(got_valid.astype(bool), valid)
     np.testing.assert_array_equal(albedo, np.where(valid, want, 0).astype(np.float32))
-    feather = RNG.random((30, 40)).astype(np.float32)
-    np.testing.assert_array_equal(feathered_weight(weight, feather, got_valid),
+    # the feather from the wrapped, padded strip's edge distances (4 rows, 1 column)
+    distance = (RNG.random((38, 42)) * 9).astype(np.float32)
+    feather = np.clip(distance[4:-4, 1:-1] / 4, 0, 1).astype(np.float32)
+    assert np.any(feather == 1) and np.any((feather > 0) & (feather < 1))
+    np.testing.assert_array_equal(feathered_weight(weight, distance, got_valid, 4),
                                   np.where(valid, weight * feather, 0).astype(np.float32))
 
 

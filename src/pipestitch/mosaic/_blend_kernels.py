@@ -42,12 +42,20 @@ def shaded_albedo(values: np.ndarray, shading: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True)
-def feathered_weight(weight: np.ndarray, feather: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``weight · feather`` (float32) where ``valid``, else 0."""
+def feathered_weight(weight: np.ndarray, distance: np.ndarray, valid: np.ndarray,
+                     feather_px: int) -> np.ndarray:
+    """``weight · feather`` (float32) where ``valid``, else 0; the feather is
+    ``min(max(distance / feather_px, 0), 1)`` in float32, as ``numpy.clip`` of the
+    float32 quotient gives it. ``distance`` is that of the strip wrapped by
+    ``feather_px`` rows and padded by a column each side: node (i, j) is at
+    (i + ``feather_px``, j + 1).
+    """
     out = np.empty(weight.shape, np.float32)
+    step = F32(feather_px)
     for i in range(weight.shape[0]):
         for j in range(weight.shape[1]):
-            out[i, j] = weight[i, j] * feather[i, j] if valid[i, j] else F32(0)
+            feather = min(max(distance[i + feather_px, j + 1] / step, F32(0)), F32(1))
+            out[i, j] = weight[i, j] * feather if valid[i, j] else F32(0)
     return out
 
 

@@ -79,13 +79,14 @@ def profile_step(n_frames: int) -> int:
     return max(1, -(-n_frames // PROFILE_FRAMES))
 
 
-def _feather(valid: np.ndarray) -> np.ndarray:
-    """0 at the edge of the valid region rising to 1 FEATHER_PX inside (rows wrap)."""
+def _edge_distance(valid: np.ndarray) -> np.ndarray:
+    """Distance (px) of every node to the edge of the valid region, on the strip wrapped
+    by FEATHER_PX rows (rows wrap around the pipe) and padded by a column each side (the
+    strip's z ends are edges too): the feather rises from 0 there to 1 FEATHER_PX
+    inside (:func:`~pipestitch.mosaic._blend_kernels.feathered_weight`)."""
     pad = FEATHER_PX
     wrapped = np.concatenate([valid[-pad:], valid, valid[:pad]]).astype(np.uint8, copy=False)
-    wrapped = np.pad(wrapped, ((0, 0), (1, 1)))  # the strip's z ends are edges too
-    dist = cv2.distanceTransform(wrapped, cv2.DIST_L2, 5)[pad:-pad, 1:-1]
-    return np.clip(dist / FEATHER_PX, 0, 1).astype(np.float32)
+    return cv2.distanceTransform(np.pad(wrapped, ((0, 0), (1, 1))), cv2.DIST_L2, 5)
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,8 @@ def shade(strip: Strip) -> ShadedStrip:
         raise ValueError(f"shade: shading {strip.shading.shape} and weight "
                          f"{strip.weight.shape} must be the values' {strip.values.shape}")
     albedo, valid = shaded_albedo(strip.values, strip.shading, strip.weight)
-    return ShadedStrip(albedo, feathered_weight(strip.weight, _feather(valid), valid))
+    return ShadedStrip(albedo, feathered_weight(strip.weight, _edge_distance(valid), valid,
+                                                FEATHER_PX))
 
 
 class Canvas:

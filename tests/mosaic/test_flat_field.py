@@ -178,3 +178,6 @@ def test_the_compiled_fall_off_is_numpys_interpolation() -> None:
     frac = pos - low
     exact = (flat.level[low] * (1.0 - frac) + flat.level[low + 1] * frac).astype(np.float32)
     np.testing.assert_array_equal(flat.at(map_x, map_y), exact)
+    # times a strip's shading in the same pass: the float32 product of the two arrays
+    shading = rng.uniform(0.2, 1.5, map_x.shape).astype(np.float32)
+    np.testing.assert_array_equal(flat.at(map_x, map_y, shading), shading * exact)

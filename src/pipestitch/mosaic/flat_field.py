@@ -177,12 +177,17 @@ class RadialFlatField:
         level = np.interp(mid, mid[seen], level[seen])   # rings no overlap saw: nearest
         return cls(centre, mid, level / np.median(level[seen]))
 
-    def at(self, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    def at(self, map_x: np.ndarray, map_y: np.ndarray, times: np.ndarray | None = None
+           ) -> np.ndarray:
         """The fall-off at pixel positions (float32 maps; float32, same shape; linear
-        between ring centres, the end rings' values beyond them)."""
+        between ring centres, the end rings' values beyond them); with ``times``
+        (float32, same shape), ``times`` · the fall-off in float32, without the
+        fall-off as an array of its own."""
         ring_px = float(self.radius_px[1] - self.radius_px[0])
         return fall_off_at(map_x, map_y, float(self.centre[0]), float(self.centre[1]),
-                           ring_px, np.ascontiguousarray(self.level, np.float64))
+                           ring_px, np.ascontiguousarray(self.level, np.float64),
+                           np.empty((0, 0), np.float32) if times is None
+                           else np.ascontiguousarray(times, np.float32))
 
 
 class _Find:

@@ -1000,7 +1000,7 @@ def _stitch(dataset: Dataset, views: Mapping[int, FrameView], unwrapper: _Unwrap
         with timer("unwrap"):
             strip, maps = unwrapper.strip(grey, views[i], grid)
         with timer("blend"):
-            lit = replace(strip, shading=strip.shading * flat.at(maps.map_x, maps.map_y),
+            lit = replace(strip, shading=flat.at(maps.map_x, maps.map_y, strip.shading),
                           weight=unclipped_weight(grey, maps.map_x, maps.map_y, strip.weight,
                                                   unwrapper.clipped(i, grey)))
             return i, shade(lit), col, ""

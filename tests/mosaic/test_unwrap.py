@@ -14,6 +14,7 @@ from pipestitch.camera.frames import to_grey
 from pipestitch.geometry import PipeSection, Pose, RadiusProfile, WallGrid
 from pipestitch.mosaic.unwrap import (
     default_mm_per_px,
+    pack_mask,
     polar_unwrap_maps,
     strip_window_mm,
     unwrap_maps,
@@ -173,3 +174,26 @@ def test_shading_is_the_lit_walls_irradiance_relative_to_one_radius_for_the_run(
     assert seen.mean() > 0.5
     ratio = np.broadcast_to(irradiance[30.5] / irradiance[R], seen.shape)
     np.testing.assert_allclose((narrow.shading / wide.shading)[seen], ratio[seen], rtol=2e-3)
+
+
+def test_an_occluder_mask_masks_its_nodes_packed_or_not(renderer: Renderer) -> None:
+    # The nodes whose nearest frame pixel is occluded are masked (weight 0, NaN); the
+    # mask packed once for a run's strips masks the same nodes.
+    _, led = renderer.render_pair(Pose.from_degrees(1, -1, 2, 1, 0, 40.0),
+                                  np.random.default_rng(0))
+    grey = to_grey(led)
+    grid = WallGrid.window(R, default_mm_per_px(CAMERA, R), 0.0, 30.0)
+    maps = unwrap_maps(CAMERA, Pose.from_degrees(1, -1, 2, 1, 0, 0), PipeSection(R), grid,
+                       step=4, with_quality=True)
+    occluded = np.zeros(grey.shape, bool)
+    occluded[:, : grey.shape[1] // 2] = True    # the left half of the frame
+    free = unwrap_with_quality(grey, maps)
+    masked = unwrap_with_quality(grey, maps, occluded=occluded)
+    packed = unwrap_with_quality(grey, maps, occluded=pack_mask(occluded))
+    np.testing.assert_array_equal(packed.weight, masked.weight)
+    np.testing.assert_array_equal(packed.values, masked.values)
+    left = np.rint(maps.map_x) < grey.shape[1] // 2
+    seen = free.weight > 0
+    assert np.any(seen & left) and np.any(seen & ~left)
+    assert np.all(masked.weight[left] == 0) and np.all(np.isnan(masked.values[left]))
+    np.testing.assert_array_equal(masked.weight[~left], free.weight[~left])

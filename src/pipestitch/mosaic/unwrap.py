@@ -37,9 +37,9 @@ from pipestitch.mosaic._unwrap_kernels import (
     upsample_maps,
 )
 
-__all__ = ["Strip", "UnwrapMaps", "default_mm_per_px", "local_contrast",
-           "local_contrast_and_mean", "polar_unwrap_maps", "seen_window_mm", "strip_window_mm",
-           "unwrap", "unwrap_maps", "unwrap_with_quality"]
+__all__ = ["PackedMask", "Strip", "UnwrapMaps", "default_mm_per_px", "local_contrast",
+           "local_contrast_and_mean", "pack_mask", "polar_unwrap_maps", "seen_window_mm",
+           "strip_window_mm", "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
 def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
@@ -192,8 +192,25 @@ class Strip:
     shading: np.ndarray
 
 
+@dataclass(frozen=True)
+class PackedMask:
+    """A frame mask packed eight pixels to a byte along its rows
+    (``numpy.packbits(mask, axis=1)``) and its width in pixels: how
+    :func:`unwrap_with_quality` reads an occluder mask (:func:`pack_mask`)."""
+
+    bits: np.ndarray
+    width: int
+
+
+def pack_mask(mask: np.ndarray | None) -> PackedMask:
+    """``mask`` (boolean, the frame's shape; None: nothing occluded) packed once, for the
+    many strips a run unwraps from frames of that mask."""
+    hidden = np.zeros((0, 0), bool) if mask is None else np.asarray(mask, bool)
+    return PackedMask(np.packbits(hidden, axis=1), hidden.shape[1])
+
+
 def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: float = 0.5,
-                        occluded: np.ndarray | None = None) -> Strip:
+                        occluded: np.ndarray | PackedMask | None = None) -> Strip:
     """Strip with its quality weight and shading; poorly resolved or occluded nodes masked.
 
     Parameters
@@ -205,15 +222,16 @@ def unwrap_with_quality(frame: np.ndarray, maps: UnwrapMaps, *, min_resolution: 
     min_resolution : float
         Nodes drawing on fewer source pixels per output pixel than this are masked
         (they would only be interpolated blur).
-    occluded : numpy.ndarray, optional
+    occluded : numpy.ndarray or PackedMask, optional
         Boolean mask of the frame's pixels that never show the wall (mirror assembly,
         laser-holder arm, outside the lens' image circle); see :mod:`pipestitch.mosaic.occluders`.
+        Packed by :func:`pack_mask` when many strips read it.
     """
     values = cv2.remap(frame, maps.map_x, maps.map_y, cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    hidden = np.zeros((0, 0), bool) if occluded is None else np.asarray(occluded, bool)
+    hidden = occluded if isinstance(occluded, PackedMask) else pack_mask(occluded)
     weight = mask_strip(values, maps.map_x, maps.map_y, maps.quality, float(min_resolution),
-                        np.packbits(hidden, axis=1), hidden.shape[1])
+                        hidden.bits, hidden.width)
     return Strip(values, weight, maps.shading)
 
 

@@ -19,6 +19,7 @@ or are not connected to the run by registration or the odometer are reported and
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from collections import deque
 from collections.abc import Collection, Iterable, Mapping, Sequence
@@ -81,10 +82,12 @@ from pipestitch.mosaic.register import (
     spectrum,
 )
 from pipestitch.mosaic.unwrap import (
+    PackedMask,
     Strip,
     UnwrapMaps,
     default_mm_per_px,
     local_contrast_and_mean,
+    pack_mask,
     polar_unwrap_maps,
     seen_window_mm,
     strip_window_mm,
@@ -242,6 +245,11 @@ class _Unwrapper:
     # each frame's clipping level, found on its first unwrap that needs it (a full scan)
     levels: dict[int, float | None] = field(default_factory=dict)
 
+    @functools.cached_property
+    def packed_occluded(self) -> PackedMask:
+        """``occluded`` as every strip's mask reads it, packed once per run."""
+        return pack_mask(self.occluded)
+
     def clipped(self, index: int, grey: np.ndarray) -> float | None:
         """Frame ``index``'s :func:`~pipestitch.mosaic.flat_field.clipped_level`
         (``grey``: the frame), found once per run."""
@@ -259,7 +267,7 @@ class _Unwrapper:
               ) -> tuple[Strip, UnwrapMaps]:
         maps = self.maps(view, grid)
         return unwrap_with_quality(grey, maps, min_resolution=self.settings.min_resolution,
-                                   occluded=self.occluded), maps
+                                   occluded=self.packed_occluded), maps
 
     def flat(self, index: int, grey: np.ndarray, strip: Strip, maps: UnwrapMaps) -> FlatInput:
         """The strip's nodes as the flat field's pairwise solve takes them."""

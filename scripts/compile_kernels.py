@@ -69,6 +69,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._photometric_kernels", "masked_contrast", "f4:2 u1:2 f4:2"),
     ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f4:2"),
     ("mosaic._flat_field_kernels", "fall_off_at", "f4:2 f4:2 f8 f8 f8 f8:1 f4:2"),
+    ("mosaic._flat_field_kernels", "ring_index", "f4:2 f4:2 f8 f8 f8 i8"),
     ("mosaic._blend_kernels", "feathered_weight", "f4:2 f4:2 u1:2 i8"),
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("mosaic._blend_kernels", "gain_ratios", "f4:2 f4:2 i8 f4:2 f4:2 i8 f4:1"),

@@ -181,3 +181,21 @@ def test_the_compiled_fall_off_is_numpys_interpolation() -> None:
     # times a strip's shading in the same pass: the float32 product of the two arrays
     shading = rng.uniform(0.2, 1.5, map_x.shape).astype(np.float32)
     np.testing.assert_array_equal(flat.at(map_x, map_y, shading), shading * exact)
+
+
+def test_each_nodes_ring_is_the_float32_hypot_of_its_offset() -> None:
+    # The ring index as numpy computes it: np.hypot of the float32 offsets (C's hypotf:
+    # float64, rounded once), times rings per pixel in float32, truncated; -1 outside.
+    rng = np.random.default_rng(4)
+    map_x = rng.uniform(-100, 1400, (50, 70)).astype(np.float32)
+    map_y = rng.uniform(-100, 1200, (50, 70)).astype(np.float32)
+    map_x[0, :3] = -1
+    centre = (612.3, 511.9)
+    values = np.ones(map_x.shape, np.float32)
+    got = flat_input(np.zeros((4, 4), np.float32), values, values, values, map_x, map_y,
+                     centre, EDGES, None).ring
+    radius = np.hypot(map_x - np.float32(centre[0]), map_y - np.float32(centre[1]))
+    ring = (radius * np.float32((len(EDGES) - 1) / EDGES[-1])).astype(np.int32)
+    want = np.where((ring >= 0) & (ring < len(EDGES) - 1), ring, -1).astype(np.int16)
+    np.testing.assert_array_equal(got, want)
+    assert np.any(got == -1) and np.any(got >= 0)

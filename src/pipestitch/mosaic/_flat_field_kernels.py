@@ -1,4 +1,5 @@
-"""Compiled inner loop of the flat field (numba): the fall-off at every strip node.
+"""Compiled inner loops of the flat field (numba): the fall-off at every strip node and
+every node's ring of image radius.
 
 Why hand-written: numpy needs five temporary arrays of the strip's size for the radius,
 the ring position, its whole and fractional parts and the interpolation; this is one
@@ -52,3 +53,19 @@ def _ring_positions(map_x: np.ndarray, map_y: np.ndarray, centre_col: float,
         dx = np.float64(map_x[j]) - centre_col
         dy = np.float64(map_y[j]) - centre_row
         pos[j] = min(max(np.sqrt(dx * dx + dy * dy) / ring_px - 0.5, 0.0), last)
+
+
+@numba.njit(cache=True, nogil=True)
+def ring_index(map_x: np.ndarray, map_y: np.ndarray, centre_col: float, centre_row: float,
+               rings_per_px: float, n_rings: int) -> np.ndarray:
+    """The ring of image radius of every pixel position (int16, -1 beyond the last ring):
+    ``int32(radius · rings_per_px)`` in float32, the radius ``hypot`` of the float32
+    offsets from the centre in float64, rounded once to float32 (C's ``hypotf``)."""
+    out = np.empty(map_x.shape, np.int16)
+    cx, cy, k = F32(centre_col), F32(centre_row), F32(rings_per_px)
+    for i in range(map_x.shape[0]):
+        for j in range(map_x.shape[1]):
+            dx, dy = np.float64(map_x[i, j] - cx), np.float64(map_y[i, j] - cy)
+            ring = np.int32(F32(np.sqrt(dx * dx + dy * dy)) * k)
+            out[i, j] = ring if 0 <= ring < n_rings else -1
+    return out

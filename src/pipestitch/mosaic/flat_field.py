@@ -41,7 +41,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from pipestitch.mosaic._flat_field_kernels import fall_off_at
+from pipestitch.mosaic._flat_field_kernels import fall_off_at, ring_index
 
 __all__ = ["CLIPPED_WEIGHT", "FIND", "RING_BINS", "FlatInput", "PairRatios", "RadialFlatField",
            "clipped_level", "flat_input", "optical_centre_px", "pair_ratios", "radial_edges",
@@ -243,23 +243,16 @@ def _touches_clipped(grey: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
                      borderValue=0) > 0
 
 
-def _ring_of(radius: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Ring index of each radius (int16, -1 beyond the last); ``edges`` are equal rings
-    from 0 (:func:`radial_edges`)."""
-    ring = (radius * np.float32((len(edges) - 1) / edges[-1])).astype(np.int32)
-    ring[(ring >= len(edges) - 1) | (ring < 0)] = -1
-    return ring.astype(np.int16)
-
-
-def _radius(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
-    """``np.hypot(dx, dy)`` of float32 arrays, bitwise: C's ``hypotf`` computes in
-    float64 and rounds once, as this does, without a library call per element (a
-    third less time)."""
-    x, y = dx.astype(np.float64), dy.astype(np.float64)
-    x *= x
-    y *= y
-    x += y
-    return np.sqrt(x, out=x).astype(np.float32)
+def _ring_of(map_x: np.ndarray, map_y: np.ndarray, centre: tuple[float, float],
+             edges: np.ndarray) -> np.ndarray:
+    """Ring index of each pixel position (int16, -1 beyond the last); ``edges`` are equal
+    rings from 0 (:func:`radial_edges`) about ``centre``. The radius is ``np.hypot`` of
+    the float32 offsets, bitwise (C's ``hypotf`` computes in float64 and rounds once),
+    in one compiled pass (:func:`~pipestitch.mosaic._flat_field_kernels.ring_index`)."""
+    return ring_index(np.ascontiguousarray(map_x, np.float32),
+                      np.ascontiguousarray(map_y, np.float32), float(np.float32(centre[0])),
+                      float(np.float32(centre[1])),
+                      float(np.float32((len(edges) - 1) / edges[-1])), len(edges) - 1)
 
 
 @dataclass(frozen=True)
@@ -286,8 +279,7 @@ def flat_input(grey: np.ndarray, values: np.ndarray, shading: np.ndarray, weight
     touched = _touches_clipped(grey, map_x, map_y, level)
     if touched is not None:
         log_albedo[touched & ok] = np.inf
-    ring = _ring_of(_radius(map_x - np.float32(centre[0]), map_y - np.float32(centre[1])),
-                    edges)
+    ring = _ring_of(map_x, map_y, centre, edges)
     ring[~ok] = -1
     return FlatInput(log_albedo, ring)
 

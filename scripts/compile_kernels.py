@@ -65,6 +65,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._register_kernels", "residual_moments", "f4:2 f4:2 f4:2 i8 i8"),
     ("mosaic._register_kernels", "shifted_residual_moments", "f4:2 f4:2 f4:2 f8 f8"),
     ("mosaic._register_kernels", "patches_valid", "b1:2 b1:2 i8 i8 i8 i8"),
+    ("mosaic._register_kernels", "tapered_image", "f4:2 f4:2 f4:1"),
     ("mosaic._photometric_kernels", "contrast_and_dark", "f4:2 f4:2 f4:2 f4:2 f4"),
     ("mosaic._photometric_kernels", "masked_contrast", "f4:2 u1:2 f4:2"),
     ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f4:2"),

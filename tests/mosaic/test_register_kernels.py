@@ -12,6 +12,7 @@ from pipestitch.mosaic._register_kernels import (
     patches_valid,
     residual_moments,
     shifted_residual_moments,
+    tapered_image,
 )
 
 RNG = np.random.default_rng(7)
@@ -127,3 +128,14 @@ def test_patch_validity_is_the_wrapped_fancy_index_test(shape: tuple[int, int],
     np.testing.assert_array_equal(got, np.array(want, bool).reshape(got.shape))
     assert got.any() or shape[1] < size
     assert patches_valid(first[:, :10], second[:, :10], size, step, dr, dc).size == 0
+
+
+def test_tapered_image_is_the_float32_expression() -> None:
+    contrast = RNG.normal(size=(40, 30)).astype(np.float32)
+    weight = RNG.uniform(-0.5, 1.5, (40, 30)).astype(np.float32)
+    weight[3, 4] = np.nan
+    taper = np.hanning(32)[1:-1].astype(np.float32)
+    want = (contrast * np.clip(weight, 0, 1) * taper[None, :]).astype(np.float32)
+    got = tapered_image(contrast, weight, taper)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[3, 4]) and np.any(got == 0)

@@ -1,6 +1,6 @@
 """Compiled inner loops of registration (numba): packed cross-power spectra, the
-weighted correlation peak, the Lucas-Kanade polish of a sub-pixel shift and which
-patches of two strips lie wholly on valid nodes.
+weighted correlation peak, the Lucas-Kanade polish of a sub-pixel shift, the tapered
+registration image and which patches of two strips lie wholly on valid nodes.
 
 Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectra,
 and the polish reads a cubic-shifted patch in one pass instead of warping a copy
@@ -275,3 +275,20 @@ def _all_valid(valid: np.ndarray, row: int, col: int, size: int) -> bool:
             if not line[j]:
                 return False
     return True
+
+
+@numba.njit(cache=True, nogil=True)
+def tapered_image(contrast: np.ndarray, weight: np.ndarray, taper: np.ndarray) -> np.ndarray:
+    """``contrast · clip(weight, 0, 1) · taper[column]`` in float32, as the numpy
+    expression multiplies float32 arrays (a NaN weight stays NaN, as ``numpy.clip``
+    leaves it)."""
+    out = np.empty(contrast.shape, np.float32)
+    for i in range(contrast.shape[0]):
+        for j in range(contrast.shape[1]):
+            w = weight[i, j]
+            if w < F32(0):
+                w = F32(0)
+            elif w > F32(1):
+                w = F32(1)
+            out[i, j] = F32(contrast[i, j] * w) * taper[j]
+    return out

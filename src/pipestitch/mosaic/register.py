@@ -31,6 +31,7 @@ from pipestitch.mosaic._register_kernels import (
     gradient_moments,
     residual_moments,
     shifted_residual_moments,
+    tapered_image,
     weighted_peak,
 )
 from pipestitch.mosaic.noise import PatchNoise
@@ -260,7 +261,8 @@ def strip_contrast(strip: Strip, *, sigma_px: float = 6.0) -> np.ndarray:
 def registration_image(contrast: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """Quality-weighted local contrast, tapered to 0 at both z ends (float32)."""
     taper = np.hanning(contrast.shape[1] + 2)[1:-1].astype(np.float32)
-    return (contrast * np.clip(weight, 0, 1) * taper[None, :]).astype(np.float32)
+    return tapered_image(np.ascontiguousarray(contrast, np.float32),
+                         np.ascontiguousarray(weight, np.float32), taper)
 
 
 def shared_taper(n_cols: int, shift_px: float) -> float:

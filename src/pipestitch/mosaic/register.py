@@ -223,7 +223,8 @@ def spectrum(image: np.ndarray) -> np.ndarray:
 
 def polish_moments(image: np.ndarray) -> tuple[float, float, float]:
     """The gradient moments :func:`measure_shift` polishes a shift from ``image`` with,
-    for reuse (float32 ``image``; it is the first of several links' pairs)."""
+    for reuse (float32 ``image``): a registration image is the first image of several
+    links."""
     return gradient_moments(np.ascontiguousarray(image, np.float32), np.zeros((0, 0), np.float32))
 
 

@@ -225,8 +225,8 @@ class _PairRows:
     sigma: np.ndarray
 
     def design(self) -> np.ndarray:
-        """(2N, 10) coefficients of the rows on ``unknowns`` (built for a solve: the
-        Jacobians are what a pair keeps)."""
+        """(2N, 10) coefficients of the rows on ``unknowns`` (built when needed: the
+        Jacobians are all that is kept)."""
         n = len(self.g_i)
         a = np.zeros((n, 2, 10))
         a[:, 0, 0] = a[:, 1, 1] = 1.0
@@ -276,17 +276,18 @@ def _normal_pattern(pairs: Sequence[_PairRows],
     return rows, cols
 
 
-def _normal_equations(pairs: Sequence[_PairRows], designs: Sequence[np.ndarray],
-                      weights: Sequence[np.ndarray], fixed: sp.coo_matrix,
+def _normal_equations(pairs: Sequence[_PairRows], weights: Sequence[np.ndarray],
+                      fixed: sp.coo_matrix,
                       pattern: tuple[np.ndarray, np.ndarray]) -> tuple[sp.csc_matrix, np.ndarray]:
     """A^T W A + ``fixed`` and A^T W b, summed pair by pair (each pair's 10 x 10 block
-    at ``pattern``, :func:`_normal_pattern`; ``designs``: each pair's
-    :meth:`_PairRows.design`): no matrix with a row per patch shift is ever built."""
+    at ``pattern``, :func:`_normal_pattern`): no matrix with a row per patch shift is
+    ever built."""
     n_unknown = fixed.shape[0]
     rhs = np.zeros(n_unknown)
     data = np.empty(100 * len(pairs) + fixed.nnz)
     blocks = data[:100 * len(pairs)].reshape(-1, 10, 10)
-    for k, (p, a, w) in enumerate(zip(pairs, designs, weights, strict=True)):
+    for k, (p, w) in enumerate(zip(pairs, weights, strict=True)):
+        a = p.design()
         aw = a * w[:, None]
         blocks[k] = aw.T @ a
         np.add.at(rhs, p.unknowns, aw.T @ p.shift)   # sums repeated unknowns, as += does not
@@ -328,10 +329,9 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     Notes
     -----
     The normal equations are summed pair by pair, so the working memory is the
-    Jacobians (with a 10 x 10 block per pair, ~12 kB a frame) and, during the solve,
-    each pair's rows (2N x 10: 1.25 times its two Jacobians), not a sparse matrix with
-    a row per patch shift (~170 kB a frame when built from Python lists); the solution
-    is the same to rounding (1e-12 relative on a 150-pair run).
+    Jacobians plus a 10 x 10 block per pair (~12 kB a frame), not a sparse matrix
+    with a row per patch shift (~170 kB a frame when built from Python lists); the
+    solution is the same to rounding (1e-12 relative on a 150-pair run).
     """
     frames = sorted(information)
     col = {f: 4 * k for k, f in enumerate(frames)}
@@ -343,15 +343,12 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
              + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
     pattern = _normal_pattern(pairs, fixed)
     weights = [1.0 / p.sigma**2 for p in pairs]
-    # each pair's rows, built once for the rounds (2N x 10 floats: a window's pairs
-    # hold ~1.3 times their Jacobians' memory while it is solved)
-    designs = [p.design() for p in pairs]
     x = np.zeros(n_unknown)
     for _ in range(iterations):
-        normal, rhs = _normal_equations(pairs, designs, weights, fixed, pattern)
+        normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
         x = spsolve(normal, rhs)
-        weights = [_huber(np.abs(a @ x[p.unknowns] - p.shift) / p.sigma) / p.sigma**2
-                   for p, a in zip(pairs, designs, strict=True)]
+        weights = [_huber(np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma) / p.sigma**2
+                   for p in pairs]
     errors = {f: x[col[f]:col[f] + 4] for f in frames}
     motions = {(p.i, p.j): x[p.unknowns[:2]] for p in pairs}
     return errors, motions

@@ -54,7 +54,7 @@ def test_costs_read_the_strips_as_prepared_once(holed_renderer: Renderer) -> Non
     first, second = _strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0)
     for pair in (first, second):
         for strip, prepared in zip(pair.strips, pair.comparable, strict=True):
-            np.testing.assert_array_equal(prepared.valid, np.isfinite(strip))
+            np.testing.assert_array_equal(prepared.valid, np.isfinite(strip).astype(np.float32))
             assert prepared.count == np.count_nonzero(np.isfinite(strip)) > 100
             np.testing.assert_array_equal(prepared.filled, np.nan_to_num(strip, nan=0.0))
     misfit = np.array([[strip_misfit(a, b) for b in second.strips] for a in first.strips])

@@ -45,8 +45,8 @@ MIN_PEAK = 0.05
 
 @dataclass(frozen=True)
 class _Comparable:
-    """What a comparison reads of a strip: its values with 0 where it has none
-    (float32), where it has them, and how many nodes that is."""
+    """What a comparison reads of a strip: its values with 0 where it has none and
+    where it has them (1/0), float32 both, and how many nodes that is."""
 
     filled: np.ndarray
     valid: np.ndarray
@@ -54,9 +54,8 @@ class _Comparable:
 
 
 def _comparable(strip: np.ndarray) -> _Comparable:
-    valid = np.isfinite(strip)
-    return _Comparable(np.where(valid, strip, 0).astype(np.float32), valid,
-                       int(np.count_nonzero(valid)))
+    filled, valid = fill_invalid(np.ascontiguousarray(strip, np.float32))
+    return _Comparable(filled, valid, int(np.count_nonzero(valid)))
 
 
 @dataclass(frozen=True)
@@ -148,7 +147,7 @@ def _compare(a: _Comparable, b: _Comparable) -> tuple[float, int]:
     if a.count < 100 or b.count < 100 or a.filled.shape != b.filled.shape:
         return np.nan, 0
     _, response = cv2.phaseCorrelate(b.filled, a.filled, _z_window(a.filled.shape))
-    return 1.0 - float(response), int(np.count_nonzero(a.valid & b.valid))
+    return 1.0 - float(response), int(np.count_nonzero(a.valid * b.valid))
 
 
 @functools.lru_cache(maxsize=8)

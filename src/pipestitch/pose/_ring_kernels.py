@@ -17,7 +17,7 @@ import numpy as np
 F32 = np.float32
 
 
-ROWS = 4   # rays whose box sums run side by side (independent additions)
+ROWS = 4   # rays whose box sums run side by side: _box_means' four named sums (keep 4)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -75,6 +75,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("mosaic._blend_kernels", "gain_ratios", "f4:2 f4:2 i8 f4:2 f4:2 i8 f4:1"),
     ("io._image_kernels", "scaled_uint8", "f4:2 f8"),
+    ("imaging.medians", "_middle_ranks", "f4:1 b1"),
+    ("imaging.medians", "_middle_ranks", "f4:1r b1"),   # a read-only array's own values
     # laser frames as decoded, LED frames as the run's cache shares them (read-only)
     ("imaging.scaling", "_scaled", "u1:2 f4 f4:2"),
     ("imaging.scaling", "_scaled", "u1:2r f4 f4:2"),

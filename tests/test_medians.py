@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from pipestitch.imaging import mad_sigma, median, nanmedian
+from pipestitch.imaging.medians import _middle_ranks
 
 FLOATS = st.sampled_from([np.float32, np.float64])
 
@@ -51,3 +52,45 @@ def test_other_dtypes_and_empty_arrays_are_left_to_numpy() -> None:
         warnings.simplefilter("ignore", RuntimeWarning)
         assert _same(median(np.array([], np.float64)), np.median(np.array([], np.float64)))
     assert np.isnan(nanmedian(np.full(4, np.nan, np.float32)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(hnp.arrays(np.float32, st.integers(1, 3000), elements=st.one_of(
+    st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-30, -3e38, float("inf"), float("-inf")]),
+    st.floats(-1e6, 1e6, width=32), st.just(float("nan")))))
+def test_float32_selection_is_numpys_with_ties_zeros_infinities_and_nan(
+        values: np.ndarray) -> None:
+    """The radix selection's float32 path: many ties, both zeros (where numpy's own
+    partition decides), infinities, values across all exponents, NaN anywhere."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # numpy's overflow, all-NaN
+        assert _same(median(values), np.median(values))
+        assert _same(nanmedian(values), np.nanmedian(values))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_middle_ranks_are_the_sorted_values(seed: int) -> None:
+    """Ranks count // 2 - 1 and count // 2 of the sorted non-NaN values, whichever of
+    the key's digits separates them (far apart, one ulp apart, equal)."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 200_000))
+    values = (rng.standard_normal(n) * 10.0 ** rng.integers(-30, 30)).astype(np.float32)
+    values[rng.integers(0, n, n // 10)] = np.nan
+    if seed % 2:   # values one ulp apart about the middle
+        ulp = np.spacing(np.float32(1.5))
+        values = np.where(np.isnan(values), values,
+                          np.float32(1.5) + np.sign(values) * ulp).astype(np.float32)
+    kept = np.sort(values[~np.isnan(values)])
+    middle, count = _middle_ranks(values, True)
+    assert count == kept.size
+    assert middle[1] == kept[count // 2] and middle[0] == kept[count // 2 - 1]
+    assert _middle_ranks(values, False)[1] == -1
+
+
+def test_read_only_and_strided_float32_arrays() -> None:
+    """As the frame cache shares frames and the ring's noise samples them."""
+    values = np.random.default_rng(3).standard_normal((300, 302)).astype(np.float32)
+    values.flags.writeable = False
+    for sample in (values, values[::3, ::3]):
+        assert _same(median(sample), np.median(sample))
+        assert mad_sigma(sample) == 1.4826 * float(np.median(np.abs(sample - np.median(sample))))

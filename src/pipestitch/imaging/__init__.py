@@ -2,7 +2,7 @@
 
 * :mod:`~pipestitch.imaging.blur`: Gaussian blurs of float32 images through OpenCV's
   fastest route for their size;
-* :mod:`~pipestitch.imaging.medians`: numpy's medians from one partition instead of two;
+* :mod:`~pipestitch.imaging.medians`: numpy's medians by a radix selection;
 * :mod:`~pipestitch.imaging.scaling`: integer frames to float32, scaled, as numpy does it.
 
 Imports no pipestitch package (OpenCV, numpy and numba only): any layer may import it.

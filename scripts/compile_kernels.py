@@ -46,6 +46,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
     ("pose._ring_kernels", "flatten_by_reflectance", "f4:2 f4:2 i8 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
+    ("pose._ring_kernels", "line_widths", "f4:2 i8:1 i8:1 i8"),
+    ("pose._ring_kernels", "centroids", "f4:2 f4:2 i8:1 i8:1 i8 f8:1"),
     ("pose._section_kernels", "fit_oval_offset", "f8:2 f8:1 f8 f8:1 f8:2"),
     ("camera.kernels", "rays_of", "RayKernel(i8 f8:1 f8:1 f8:1 f8:1 i8:1) f8:2"),
     ("camera.ocam", "_rho_of_points", "f8:2 f8:1 f8:1 f8:1 f8:1 i8:1"),

@@ -14,7 +14,6 @@ from pipestitch.pose.ring import (
     polar_grid,
     prepare_laser_frame,
     ring_band_px,
-    row_percentile,
 )
 from pipestitch.simulate.render import Optics, Renderer, WallTexture
 
@@ -183,24 +182,6 @@ def test_the_part_of_the_frame_the_rays_read_gives_the_whole_frames_samples(band
         np.testing.assert_array_equal(
             cv2.remap(part, part_x, part_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
             whole)
-
-
-def test_row_percentile_is_numpys_nanpercentile_per_row() -> None:
-    """The line-width background (one sort instead of numpy's per-row loop): the same
-    values, NaN ignored, NaN for a row without data."""
-    import warnings
-
-    rng = np.random.default_rng(0)
-    values = rng.normal(size=(300, 41))
-    values[rng.random(values.shape) < 0.1] = np.nan
-    values[3] = np.nan
-    values[4, 1:] = np.nan
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        expected = np.nanpercentile(values, 20, axis=1)
-    # the same interpolation of the same sorted values, but numpy rounds the weight
-    # another way: apart by 2e-16 at most here (an ulp of these values)
-    np.testing.assert_allclose(row_percentile(values, 20.0), expected, rtol=0, atol=1e-12)
 
 
 def test_a_line_thinner_than_the_sampling_resolves_is_searched_again_finer(

@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from pipestitch.pose._ring_kernels import flatten_by_reflectance, ridge_peaks
+from pipestitch.pose._ring_kernels import (
+    _percentile_20,
+    centroids,
+    flatten_by_reflectance,
+    line_widths,
+    ridge_peaks,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -42,3 +48,113 @@ def test_reflectance_division_is_opencvs_blurs_and_the_numpy_expression(
     got = flatten_by_reflectance(polar, local, box, 0.15, 0.15)
     np.testing.assert_array_equal(got, want)
     assert np.any(got == 0) and np.any(got != 0)
+
+
+# --- the line's width and the centroids: the numpy expressions they replace -------------
+
+def _row_percentile(values: np.ndarray, q: float) -> np.ndarray:
+    ordered = np.sort(values, axis=1)          # NaN last
+    n = np.count_nonzero(np.isfinite(values), axis=1)
+    pos = np.maximum(n - 1, 0) * (q / 100.0)
+    lo = np.floor(pos).astype(np.intp)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    rows = np.arange(len(values))
+    frac = pos - lo
+    out = ordered[rows, lo] * (1.0 - frac) + ordered[rows, hi] * frac
+    return np.where(n > 0, out, np.nan)
+
+
+def _crossing(profile: np.ndarray, below: np.ndarray, level: np.ndarray) -> np.ndarray:
+    first = np.argmax(below, axis=1)
+    found = below[np.arange(len(first)), first] & (first > 0)
+    first = np.where(found, first, 1)
+    rows = np.arange(len(first))
+    hi, lo = profile[rows, first - 1], profile[rows, first]
+    frac = np.where(hi > lo, (hi - level[:, 0]) / np.where(hi > lo, hi - lo, 1), 0.5)
+    return np.where(found, first - 1 + np.clip(np.nan_to_num(frac, nan=0.5), 0, 1), np.nan)
+
+
+def _numpy_line_widths(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+                       half: int) -> np.ndarray:
+    offsets = np.arange(-half, half + 1)
+    cols = idx[:, None] + offsets[None, :]
+    inside = (cols >= 0) & (cols < polar.shape[1])
+    profile = np.where(inside, polar[rows[:, None], np.clip(cols, 0, polar.shape[1] - 1)],
+                       np.nan)
+    base = _row_percentile(profile, 20.0)
+    peak = np.nanmax(profile[:, half - 2:half + 3], axis=1)
+    level = (base + (peak - base) / 2)[:, None]
+    below = ~(profile >= level)
+    fwhm = (_crossing(profile[:, half::-1], below[:, half::-1], level)
+            + _crossing(profile[:, half:], below[:, half:], level))
+    return np.where(np.isfinite(fwhm) & (peak > base), fwhm, np.nan)
+
+
+def _numpy_centroids(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+                     half: int, reach: np.ndarray) -> np.ndarray:
+    offsets = np.arange(-half, half + 1)
+    cols = np.clip(idx[:, None] + offsets[None, :], 0, polar.shape[1] - 1)
+    profile = polar[rows[:, None], cols]
+    base = np.minimum(profile[:, :1], profile[:, -1:])
+    peak = smooth[rows, idx][:, None]
+    weight = np.clip(profile - (base + 0.3 * (peak - base)), 0, None)
+    weight *= np.abs(offsets)[None, :] <= np.maximum(reach, 2)[:, None]
+    total = weight.sum(axis=1)
+    shift = np.where(total > 0, (weight * offsets).sum(axis=1) / np.where(total > 0, total, 1), 0)
+    return idx + shift
+
+
+def _polar_lines(n_rows: int, n_cols: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays with a Gaussian line each (widths 0.8-12 samples, some saturated, some by a
+    ray's end), a sloping background and noise; (polar, rows, idx of the brightest)."""
+    cols = np.arange(n_cols)
+    centre = RNG.uniform(-3, n_cols + 3, n_rows)
+    width = RNG.uniform(0.8, 12, n_rows)
+    height = RNG.uniform(0.05, 2.0, n_rows)
+    polar = (height[:, None] * np.exp(-0.5 * ((cols - centre[:, None]) / width[:, None]) ** 2)
+             + RNG.uniform(0, 0.3, n_rows)[:, None] * cols / n_cols
+             + RNG.normal(0, 0.02, (n_rows, n_cols))).astype(np.float32)
+    polar[::7] = np.minimum(polar[::7], np.float32(0.6))    # flat tops
+    polar[5, :] = 0.25                                      # a ray without a line
+    rows = np.repeat(np.arange(n_rows), 2)
+    idx = np.clip(np.repeat(np.rint(centre).astype(np.int64), 2)
+                  + RNG.integers(-3, 4, 2 * n_rows), 0, n_cols - 1)
+    idx[1::2] = RNG.integers(0, n_cols, n_rows)             # other candidates anywhere
+    return polar, rows, idx
+
+
+@pytest.mark.parametrize("half", [4, 16, 40])
+def test_line_widths_are_the_numpy_expressions(half: int) -> None:
+    """Windows past either end of a ray, centres below half maximum, flat tops, flat
+    rays: the same widths to the bit, NaN in the same places."""
+    polar, rows, idx = _polar_lines(600, 150)
+    got = line_widths(polar, rows, idx, half)
+    want = _numpy_line_widths(polar, rows, idx, half)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got).any() and np.isfinite(got).sum() > len(got) // 3
+
+
+@pytest.mark.parametrize("half", [2, 6, 15])
+def test_centroids_are_the_numpy_expressions(half: int) -> None:
+    """Windows clamped at a ray's ends, cut by each candidate's reach (none, 0, a few
+    samples), rays without weight: the same positions to the bit."""
+    polar, rows, idx = _polar_lines(600, 150)
+    smooth = cv2.GaussianBlur(polar, (0, 0), 1.5)
+    reach = RNG.choice([np.inf, 0.0, 1.0, 3.0, 7.0], len(idx))
+    got = centroids(polar, smooth, rows, idx, half, reach)
+    np.testing.assert_array_equal(got, _numpy_centroids(polar, smooth, rows, idx, half, reach))
+    assert np.any(got != idx) and np.any(got == idx)
+
+
+def test_percentile_of_a_window_is_the_sorted_rows_interpolation() -> None:
+    """NaN left out, infinities sorted among the values, rows of 0, 1 and 2 values."""
+    values = RNG.normal(size=(300, 41)).astype(np.float32)
+    values[RNG.random(values.shape) < 0.2] = np.nan
+    values[3] = np.nan
+    values[4, 1:] = np.nan
+    values[5, 2:] = np.nan
+    values[6, :3] = [-np.inf, np.inf, -np.inf]
+    want = _row_percentile(values, 20.0)
+    scratch = np.empty(41, np.float32)
+    got = [_percentile_20(row, int(np.isfinite(row).sum()), scratch) for row in values]
+    np.testing.assert_array_equal(got, want)

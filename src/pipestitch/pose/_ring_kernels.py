@@ -109,3 +109,153 @@ def ridge_peaks(ridge: np.ndarray, threshold: float,
             value[i, k] = v
             index[i, k] = j
     return index, value
+
+
+# --- the line's width and the candidates' centroids --------------------------------------
+# Both read a short window of each candidate's ray (tens of samples, ~700-2,000 rays a
+# frame): as numpy expressions each was a dozen gathers and reductions over (rays,
+# window) temporaries (1.3 ms a frame); here one pass a ray. Sums over a window are
+# numpy's pairwise sums (:func:`_window_sum`), so the values are the same to the bit.
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _window_sum(values: np.ndarray, zero: float) -> float:
+    """``values.sum()`` of a 1-D window as numpy forms it along a contiguous axis:
+    sequentially below 8 values, else in 8 interleaved partial sums added as a tree,
+    then the remainder (numpy's pairwise sum below its 128-value block), in the type
+    of ``zero`` (the values' own)."""
+    n = values.size
+    if n < 8:
+        res = zero
+        for i in range(n):
+            res += values[i]
+        return res
+    r0, r1, r2, r3 = values[0] + zero, values[1] + zero, values[2] + zero, values[3] + zero
+    r4, r5, r6, r7 = values[4] + zero, values[5] + zero, values[6] + zero, values[7] + zero
+    i = 8
+    while i < n - n % 8:
+        r0 += values[i]
+        r1 += values[i + 1]
+        r2 += values[i + 2]
+        r3 += values[i + 3]
+        r4 += values[i + 4]
+        r5 += values[i + 5]
+        r6 += values[i + 6]
+        r7 += values[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for k in range(i, n):
+        res += values[k]
+    return zero + res
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def centroids(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+              half: int, reach: np.ndarray) -> np.ndarray:
+    """Each candidate's centroid (samples) above its window's local background.
+
+    The window: samples ``idx - half .. idx + half`` of its row (clamped to the row),
+    cut to ``|offset| <= max(reach, 2)``. Background: the lower end value; weights:
+    the profile above ``background + 0.3 (smooth peak - background)``, floored at 0
+    (float32, as the numpy expressions); the centroid ``idx + sum(w·offset) / sum(w)``
+    (float64; ``idx`` where no weight).
+    """
+    n, n_cols = rows.size, polar.shape[1]
+    width = 2 * half + 1
+    weight = np.empty(width, np.float32)
+    moment = np.empty(width, np.float64)
+    out = np.empty(n, np.float64)
+    for c in range(n):
+        row, at = polar[rows[c]], idx[c]
+        first, last = row[min(max(at - half, 0), n_cols - 1)], row[min(at + half, n_cols - 1)]
+        base = first if first <= last or first != first else last   # np.minimum
+        cut = base + F32(0.3) * (smooth[rows[c], at] - base)
+        limit = max(reach[c], 2.0)
+        for k in range(width):
+            v = row[min(max(at - half + k, 0), n_cols - 1)] - cut
+            w = v if v >= F32(0) or v != v else F32(0)   # np.clip(., 0, None)
+            w *= F32(1) if abs(k - half) <= limit else F32(0)
+            weight[k] = w
+            moment[k] = np.float64(w) * (k - half)
+        total = _window_sum(weight, F32(0))
+        out[c] = at + (_window_sum(moment, 0.0) / total if total > F32(0) else 0.0)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def line_widths(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int) -> np.ndarray:
+    """Each candidate's full width at half maximum (samples), NaN where not measured.
+
+    The profile: samples ``idx - half .. idx + half`` of its row (NaN past the row's
+    ends); background its 20th percentile (linear interpolation between order
+    statistics, as ``numpy.percentile``), peak the largest of the middle five; each
+    side's half-maximum crossing interpolated between the last sample above and the
+    first below. NaN where a side never falls below half maximum or the peak is not
+    above the background. The same float32/float64 arithmetic as the numpy
+    expressions it replaces (:func:`pipestitch.pose.ring._line_sigma_px`).
+    """
+    n, n_cols, width = rows.size, polar.shape[1], 2 * half + 1
+    profile = np.empty(width, np.float32)
+    smallest = np.empty(width, np.float32)
+    out = np.empty(n, np.float64)
+    for c in range(n):
+        row, at = polar[rows[c]], idx[c]
+        finite = 0
+        for k in range(width):
+            col = at - half + k
+            profile[k] = row[col] if 0 <= col < n_cols else np.float32(np.nan)
+            finite += np.isfinite(profile[k])
+        base = _percentile_20(profile, finite, smallest)
+        peak = np.float32(np.nan)
+        for k in range(half - 2, half + 3):
+            if profile[k] == profile[k] and (peak != peak or profile[k] > peak):
+                peak = profile[k]
+        level = base + (peak - base) / 2
+        left = _crossing(profile, level, half, -1)
+        right = _crossing(profile, level, half, 1)
+        fwhm = left + right
+        out[c] = fwhm if np.isfinite(fwhm) and peak > base else np.nan
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _percentile_20(profile: np.ndarray, finite: int, smallest: np.ndarray) -> float:
+    """The 20th percentile of a window's ``finite`` finite values (NaN when none) as
+    :func:`pipestitch.pose.ring.row_percentile` takes it: the two order statistics
+    about rank 0.2 (finite - 1) of the values sorted with NaN left out (an infinity
+    sorted among them), from the smallest ones kept sorted in ``smallest`` (scratch)."""
+    if finite == 0:
+        return np.nan
+    pos = max(finite - 1, 0) * (20.0 / 100.0)
+    lo = int(np.floor(pos))
+    hi = min(lo + 1, max(finite - 1, 0))
+    kept = 0
+    for k in range(profile.size):
+        v = profile[k]
+        if v != v or (kept == hi + 1 and v >= smallest[hi]):
+            continue
+        j = min(kept, hi)
+        while j > 0 and smallest[j - 1] > v:
+            smallest[j] = smallest[j - 1]
+            j -= 1
+        smallest[j] = v
+        kept = min(kept + 1, hi + 1)
+    frac = pos - lo
+    return smallest[lo] * (1.0 - frac) + smallest[hi] * frac
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _crossing(profile: np.ndarray, level: float, half: int, direction: int) -> float:
+    """Samples from the middle ``half`` to where the profile first falls below ``level``
+    going ``direction`` (-1, 1), interpolated between the last sample above and the
+    first below (NaN past the window's end, or at the middle itself)."""
+    if not profile[half] >= level:
+        return np.nan
+    for j in range(1, half + 1):
+        lo = profile[half + direction * j]
+        if not lo >= level:   # NaN (outside the frame) counts as below
+            hi = profile[half + direction * (j - 1)]
+            frac = (hi - level) / (hi - lo) if hi > lo else 0.5
+            frac = 0.5 if frac != frac else frac
+            return j - 1 + min(max(frac, 0.0), 1.0)
+    return np.nan

@@ -26,10 +26,15 @@ import numpy as np
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
 from pipestitch.imaging import gaussian_blur, mad_sigma, scaled_float32
-from pipestitch.pose._ring_kernels import flatten_by_reflectance, ridge_peaks
+from pipestitch.pose._ring_kernels import (
+    centroids,
+    flatten_by_reflectance,
+    line_widths,
+    ridge_peaks,
+)
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
-           "prepare_laser_frame", "ring_band_px", "ring_centre", "row_percentile"]
+           "prepare_laser_frame", "ring_band_px", "ring_centre"]
 
 
 @dataclass(frozen=True)
@@ -381,73 +386,21 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     Measured on the unfiltered profile of the strongest half of the rays' best
     candidates: background the 20th percentile of a window of +-8 expected sigmas (wide
     enough for a line several times wider than expected), the half-maximum crossings
-    interpolated linearly on both sides of the peak. The median over the rays is what
-    a frame's scales are taken from (:func:`pipestitch.pose.fit.fit_pose`): the
+    interpolated linearly on both sides of the peak
+    (:func:`pipestitch.pose._ring_kernels.line_widths`). The median over the rays is
+    what a frame's scales are taken from (:func:`pipestitch.pose.fit.fit_pose`): the
     line's width sets how exactly its centre can be found. NaN with fewer than
     ``MIN_WIDTH_SAMPLES`` candidates.
     """
     if rows.size < MIN_WIDTH_SAMPLES:
         return float("nan")
     strong = snr >= np.median(snr)
-    rows, idx = rows[strong], idx[strong]
     half = max(4, int(np.ceil(8 * sigma_samples)))
-    offsets = np.arange(-half, half + 1)
-    cols = idx[:, None] + offsets[None, :]
-    inside = (cols >= 0) & (cols < polar.shape[1])
-    profile = np.where(inside, polar[rows[:, None], np.clip(cols, 0, polar.shape[1] - 1)],
-                       np.nan)
-    base = row_percentile(profile, 20.0)
-    peak = np.nanmax(profile[:, half - 2:half + 3], axis=1)
-    level = (base + (peak - base) / 2)[:, None]
-    below = ~(profile >= level)   # NaN (outside the frame) counts as below
-    sides = [_crossing(profile[:, half::-1], below[:, half::-1], level),
-             _crossing(profile[:, half:], below[:, half:], level)]
-    fwhm = sides[0] + sides[1]
-    fwhm = fwhm[np.isfinite(fwhm) & (peak > base)]
+    fwhm = line_widths(polar, rows[strong], idx[strong], half)
+    fwhm = fwhm[~np.isnan(fwhm)]
     if fwhm.size < MIN_WIDTH_SAMPLES // 2:
         return float("nan")
     return float(np.median(fwhm)) / FWHM_PER_SIGMA
-
-
-def row_percentile(values: np.ndarray, q: float) -> np.ndarray:
-    """Each row's ``q``-th percentile of its finite values, NaN for a row without one.
-
-    Linear interpolation, as ``np.nanpercentile(values, q, axis=1)`` gives, which loops
-    over the rows in Python (~30 ms a frame for the ring's ~700 rays); this sorts the
-    whole array once instead.
-
-    Parameters
-    ----------
-    values : numpy.ndarray, shape (N, M)
-        Rows of values; NaN are left out.
-    q : float
-        Percentile, 0 to 100.
-
-    Returns
-    -------
-    numpy.ndarray, shape (N,)
-    """
-    ordered = np.sort(values, axis=1)          # NaN last
-    n = np.count_nonzero(np.isfinite(values), axis=1)
-    pos = np.maximum(n - 1, 0) * (q / 100.0)
-    lo = np.floor(pos).astype(np.intp)
-    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    rows = np.arange(len(values))
-    frac = pos - lo
-    out = ordered[rows, lo] * (1.0 - frac) + ordered[rows, hi] * frac
-    return np.where(n > 0, out, np.nan)
-
-
-def _crossing(profile: np.ndarray, below: np.ndarray, level: np.ndarray) -> np.ndarray:
-    """Distance (samples) from column 0 to where each row first falls below ``level``,
-    interpolated between the last sample above and the first below; NaN if it never does."""
-    first = np.argmax(below, axis=1)
-    found = below[np.arange(len(first)), first] & (first > 0)
-    first = np.where(found, first, 1)
-    rows = np.arange(len(first))
-    hi, lo = profile[rows, first - 1], profile[rows, first]
-    frac = np.where(hi > lo, (hi - level[:, 0]) / np.where(hi > lo, hi - lo, 1), 0.5)
-    return np.where(found, first - 1 + np.clip(np.nan_to_num(frac, nan=0.5), 0, 1), np.nan)
 
 
 def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:
@@ -511,17 +464,11 @@ def _centroid(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.n
     +-``reach`` samples where given; the background is the lower of the window's two
     end values, so a sloping background (LED leakage, the far-wall glow) is not
     mistaken for signal. Saturated (flat-topped) peaks are handled correctly, which a
-    parabola fit is not.
+    parabola fit is not. (:func:`pipestitch.pose._ring_kernels.centroids`.)
     """
     half = max(2, int(np.ceil(3 * sigma_samples)))
-    offsets = np.arange(-half, half + 1)
-    cols = np.clip(idx[:, None] + offsets[None, :], 0, polar.shape[1] - 1)
-    profile = polar[rows[:, None], cols]
-    base = np.minimum(profile[:, :1], profile[:, -1:])
-    peak = smooth[rows, idx][:, None]
-    weight = np.clip(profile - (base + 0.3 * (peak - base)), 0, None)
-    if reach is not None:
-        weight *= np.abs(offsets)[None, :] <= np.maximum(reach, 2)[:, None]
-    total = weight.sum(axis=1)
-    shift = np.where(total > 0, (weight * offsets).sum(axis=1) / np.where(total > 0, total, 1), 0)
-    return idx + shift
+    if reach is None:
+        reach = np.full(len(idx), np.inf)
+    # one compiled signature: C-ordered indices (np.nonzero's rows of a 2-D array are not)
+    return centroids(polar, smooth, np.ascontiguousarray(rows), np.ascontiguousarray(idx), half,
+                     np.ascontiguousarray(reach, np.float64))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipestitch.imaging import scaled_float32
+from pipestitch.imaging import median, scaled_float32
 
 __all__ = ["blank_frame", "repair_pixels", "to_grey"]
 
@@ -110,7 +110,7 @@ def _clearly_a_picture(arr: np.ndarray) -> bool:
     full = 1.0 if sparse.dtype.kind == "f" else float(np.iinfo(sparse.dtype).max)
     values = sparse.astype(np.float32)
     with np.errstate(invalid="ignore"):
-        far = np.abs(values - np.median(values)) > 0.1 * full
+        far = np.abs(values - median(values)) > 0.1 * full
     return int(np.count_nonzero(far)) > 0.01 * sparse.size
 
 

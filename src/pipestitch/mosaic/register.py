@@ -25,7 +25,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 
 from pipestitch.geometry import WallGrid
-from pipestitch.imaging import mad_sigma
+from pipestitch.imaging import mad_sigma, median
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
@@ -189,13 +189,13 @@ def predict_motion(i: int, j: int, links: Sequence[Link],
     """
     k = j - i
     steps = _last_steps(links, 5)
-    rate_roll = float(np.median([ln.droll_deg for ln in steps])) if steps else 0.0
+    rate_roll = float(median(np.array([ln.droll_deg for ln in steps], float))) if steps else 0.0
     roll = (k * rate_roll, 5.0 * abs(k))
     if odometry_mm and i in odometry_mm and j in odometry_mm:
         dz = odometry_mm[j] - odometry_mm[i]
         return MotionPrior(dz, roll[0], 3.0 + 0.2 * abs(dz), roll[1])
     if steps:
-        step = float(np.median([ln.dz_mm for ln in steps]))
+        step = float(median(np.array([ln.dz_mm for ln in steps], float)))
         return MotionPrior(k * step, roll[0], max(3.0, abs(k * step) / 2), roll[1])
     return MotionPrior(0.0, roll[0], np.inf, roll[1])
 

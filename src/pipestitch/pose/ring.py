@@ -25,7 +25,7 @@ import numpy as np
 
 from pipestitch._runtime import scratch
 from pipestitch.camera import CameraModel
-from pipestitch.imaging import gaussian_blur, mad_sigma, scaled_float32
+from pipestitch.imaging import gaussian_blur, mad_sigma, median, scaled_float32
 from pipestitch.pose._ring_kernels import (
     centroids,
     flatten_by_reflectance,
@@ -348,7 +348,7 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
     # the noise and above a fraction of the typical ring response of this frame.
     strongest = np.max(ridge, axis=1)
-    typical = float(np.median(strongest[strongest > min_snr * noise])) if np.any(
+    typical = float(median(strongest[strongest > min_snr * noise])) if np.any(
         strongest > min_snr * noise) else np.inf
     # A broad glint also has a ridge maximum; a thin line has a much larger ridge
     # response relative to its height, so rank by the response itself.
@@ -394,13 +394,13 @@ def _line_sigma_px(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, snr: np
     """
     if rows.size < MIN_WIDTH_SAMPLES:
         return float("nan")
-    strong = snr >= np.median(snr)
+    strong = snr >= median(snr)
     half = max(4, int(np.ceil(8 * sigma_samples)))
     fwhm = line_widths(polar, rows[strong], idx[strong], half)
     fwhm = fwhm[~np.isnan(fwhm)]
     if fwhm.size < MIN_WIDTH_SAMPLES // 2:
         return float("nan")
-    return float(np.median(fwhm)) / FWHM_PER_SIGMA
+    return float(median(fwhm)) / FWHM_PER_SIGMA
 
 
 def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:

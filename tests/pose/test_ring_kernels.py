@@ -137,10 +137,10 @@ def test_line_widths_are_the_numpy_expressions(half: int) -> None:
 @pytest.mark.parametrize("half", [2, 6, 15])
 def test_centroids_are_the_numpy_expressions(half: int) -> None:
     """Windows clamped at a ray's ends, cut by each candidate's reach (none, 0, a few
-    samples), rays without weight: the same positions to the bit."""
+    samples, NaN: no sample), rays without weight: the same positions to the bit."""
     polar, rows, idx = _polar_lines(600, 150)
     smooth = cv2.GaussianBlur(polar, (0, 0), 1.5)
-    reach = RNG.choice([np.inf, 0.0, 1.0, 3.0, 7.0], len(idx))
+    reach = RNG.choice([np.inf, 0.0, 1.0, 3.0, 7.0, np.nan], len(idx))
     got = centroids(polar, smooth, rows, idx, half, reach)
     np.testing.assert_array_equal(got, _numpy_centroids(polar, smooth, rows, idx, half, reach))
     assert np.any(got != idx) and np.any(got == idx)

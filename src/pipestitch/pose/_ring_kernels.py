@@ -170,7 +170,7 @@ def centroids(polar: np.ndarray, smooth: np.ndarray, rows: np.ndarray, idx: np.n
         first, last = row[min(max(at - half, 0), n_cols - 1)], row[min(at + half, n_cols - 1)]
         base = first if first <= last or first != first else last   # np.minimum
         cut = base + F32(0.3) * (smooth[rows[c], at] - base)
-        limit = max(reach[c], 2.0)
+        limit = reach[c] if reach[c] > 2.0 or reach[c] != reach[c] else 2.0   # np.maximum
         for k in range(width):
             v = row[min(max(at - half + k, 0), n_cols - 1)] - cut
             w = v if v >= F32(0) or v != v else F32(0)   # np.clip(., 0, None)

@@ -220,10 +220,11 @@ def line_widths(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int)
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _percentile_20(profile: np.ndarray, finite: int, smallest: np.ndarray) -> float:
-    """The 20th percentile of a window's ``finite`` finite values (NaN when none) as
-    :func:`pipestitch.pose.ring.row_percentile` takes it: the two order statistics
-    about rank 0.2 (finite - 1) of the values sorted with NaN left out (an infinity
-    sorted among them), from the smallest ones kept sorted in ``smallest`` (scratch)."""
+    """The 20th percentile of a window's ``finite`` finite values (NaN when none): the
+    linear interpolation between the two order statistics about rank 0.2 (finite - 1)
+    of the values sorted with NaN left out (an infinity sorted among them), as the numpy
+    expression it replaces gives it (``numpy.sort`` of the rows, then the two ranks),
+    from the smallest values kept sorted in ``smallest`` (scratch)."""
     if finite == 0:
         return np.nan
     pos = max(finite - 1, 0) * (20.0 / 100.0)

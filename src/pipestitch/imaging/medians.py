@@ -1,20 +1,20 @@
 """Medians of large arrays: numpy's values, from a radix selection.
 
 ``numpy.median`` sorts no more than it must: it partitions the values about their
-middle rank(s) with introselect. On the machines this runs on that still costs
-0.6-0.8 ms for 92,640 float32 values (the sample a laser frame's ridge noise is
-measured on: one frame's ring takes two such medians), and numpy 2 partitions about
-two ranks (an even count) more slowly still. No library selects faster, so a float32
-array's middle values are found here by a radix selection (:func:`_middle_ranks`):
-each value's bits, mapped to an unsigned key that sorts as the floats do, are counted
-by their top 11 bits, the values in the bin that holds the middle rank are gathered,
-counted by their next 11 bits, and so on to the whole key: three counting passes,
-two of them over a few per cent of the values (~0.2 ms for those 92,640). The
-result is the values at the two middle ranks themselves, averaged as numpy averages
-them (in the array's float type): the same median to the bit. Where the middle is a
-zero, whose sign numpy's partition leaves to the order of the values, and for
-other dtypes, numpy's partition is used (about the upper middle rank only, the lower
-middle value being the largest below it).
+middle rank(s) with introselect. Where numpy's partition is not vectorised (numpy 2.4
+on the AMD machine of docs/benchmarks.md) that still costs 0.5-0.8 ms for 92,640
+float32 values (the sample a laser frame's ridge noise is measured on: one frame's
+ring takes two such medians), and partitioning about two ranks (an even count) takes
+longer still. No library selects faster, so a float32 array's middle values are found
+here by a radix selection (:func:`_middle_ranks`): each value's bits, mapped to an
+unsigned key that sorts as the floats do, are counted by their top 11 bits, the values
+in the bin that holds the middle rank are gathered, counted by their next 11 bits, and
+so on to the whole key: three counting passes, two of them over a few per cent of the
+values (~0.2 ms for those 92,640). The result is the values at the two middle ranks
+themselves, averaged as numpy averages them (in the array's float type): the same
+median to the bit. Where the middle is a zero, whose sign numpy's partition leaves to
+the order of the values, and for other dtypes, numpy's partition is used (about the
+upper middle rank only, the lower middle value being the largest below it).
 """
 
 from __future__ import annotations

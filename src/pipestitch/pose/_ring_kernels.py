@@ -122,8 +122,8 @@ def ridge_peaks(ridge: np.ndarray, threshold: float,
 def _window_sum(values: np.ndarray, zero: float) -> float:
     """``values.sum()`` of a 1-D window as numpy forms it along a contiguous axis:
     sequentially below 8 values, else in 8 interleaved partial sums added as a tree,
-    then the remainder (numpy's pairwise sum below its 128-value block), in the type
-    of ``zero`` (the values' own)."""
+    then the remainder (numpy's pairwise sum below its 128-value block; the centroids'
+    windows hold at most 49 values), in the type of ``zero`` (the values' own)."""
     n = values.size
     if n < 8:
         res = zero

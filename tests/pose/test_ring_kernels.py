@@ -8,6 +8,7 @@ import pytest
 
 from pipestitch.pose._ring_kernels import (
     _percentile_20,
+    _window_sum,
     centroids,
     flatten_by_reflectance,
     line_widths,
@@ -132,6 +133,15 @@ def test_line_widths_are_the_numpy_expressions(half: int) -> None:
     want = _numpy_line_widths(polar, rows, idx, half)
     np.testing.assert_array_equal(got, want)
     assert np.isnan(got).any() and np.isfinite(got).sum() > len(got) // 3
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_window_sums_are_numpys_sums(dtype: type) -> None:
+    """Sequential below 8 values, then 8 partial sums: the same sum as numpy's to the
+    bit, at every size up to numpy's 128-value block."""
+    for n in range(1, 129):
+        values = (RNG.standard_normal(n) * 10.0 ** RNG.uniform(-3, 3)).astype(dtype)
+        assert _window_sum(values, dtype(0)) == values.sum(), n
 
 
 @pytest.mark.parametrize("half", [2, 6, 15])

@@ -122,8 +122,12 @@ def ridge_peaks(ridge: np.ndarray, threshold: float,
 def _window_sum(values: np.ndarray, zero: float) -> float:
     """``values.sum()`` of a 1-D window as numpy forms it along a contiguous axis:
     sequentially below 8 values, else in 8 interleaved partial sums added as a tree,
-    then the remainder (numpy's pairwise sum below its 128-value block; the centroids'
-    windows hold at most 49 values), in the type of ``zero`` (the values' own)."""
+    then the remainder, in the type of ``zero`` (the values' own). That is numpy's
+    pairwise sum up to its 128-value block, which numpy splits longer runs into: a
+    centroid window is 6 line sigmas of samples and longer only for a line of more
+    than ~10 px sigma (an image over ~12,900 px wide, or a sigma given so), where the
+    sum's last bits may differ from numpy's (a recursion, as numpy's, is not cached
+    by numba)."""
     n = values.size
     if n < 8:
         res = zero

@@ -346,12 +346,12 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
     """
     if not fit_radius and nominal_radius_mm is None:
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
-    plane = LaserPlane.of(plane_distance_mm, plane_normal)
-    radius = np.nan if fit_radius else float(nominal_radius_mm)
+    radius = math.nan if fit_radius else float(nominal_radius_mm)
     noise = math.nan if noise_mm is None else float(noise_mm)
+    plane, constant = _constant_arguments(camera, plane_distance_mm, plane_normal, noise,
+                                          min_coverage, radius, detection.n_azimuths)
     try:
-        noise, out = _fit(_candidates(detection), detection.line_sigma_px, camera, plane,
-                          noise, seed, min_coverage, radius)
+        noise, out = _fit(detection, constant, camera, seed)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
         return PoseFit(False, "degenerate ring (the points do not determine a pose)",
                        coverage=detection.coverage)
@@ -435,13 +435,54 @@ class KernelFit(NamedTuple):
     ring_pixels: np.ndarray   # ... and their image pixels
 
 
-def _fit(candidates: _k.Candidates, sigma_px: float, camera: CameraModel, plane: LaserPlane,
-         noise_mm: float, seed: int, min_coverage: float,
-         radius: float) -> tuple[float, KernelFit]:
+class _Constant(NamedTuple):
+    """What a frame's fit takes that its ring does not change (:func:`_constant_arguments`)."""
+
+    plane: _k.Plane
+    settings: _k.FitSettings
+    fields: tuple | None   # fit_fields' arguments after the candidates, before the sigma
+
+
+# The fit's constant arguments by camera and settings (every frame of a run shares one
+# entry). Each entry holds its camera, so no other camera can take its id meanwhile.
+_CONSTANT: dict[tuple, tuple[CameraModel, LaserPlane, _Constant]] = {}
+_CONSTANT_ENTRIES = 64   # at most; then the dictionary starts again
+_NO_SAMPLES = np.empty((0, 5))   # RANSAC's samples before they are drawn (_fit); never written
+
+
+def _constant_arguments(camera: CameraModel, plane_distance_mm: float,
+                        plane_normal: np.ndarray | None, noise_mm: float, min_coverage: float,
+                        radius: float, n_azimuths: int) -> tuple[LaserPlane, _Constant]:
+    """The laser plane and the fit kernel's arguments that depend on the camera, the
+    plane and the settings only (:func:`fit_pose`'s; ``noise_mm`` and ``radius`` NaN:
+    from the frame), built once for each combination.
+
+    Right after a ring extraction the Python that builds them is cold: ~15 us a frame
+    (table1's frames) that a dictionary look-up replaces.
+    """
+    normal = None if plane_normal is None else tuple(np.ravel(plane_normal).tolist())
+    # NaN is a key by None: one NaN object is not equal to another
+    key = (id(camera), plane_distance_mm, normal, noise_mm if noise_mm == noise_mm else None,
+           min_coverage, radius if radius == radius else None, n_azimuths)
+    entry = _CONSTANT.get(key)
+    if entry is None:
+        plane = LaserPlane.of(plane_distance_mm, plane_normal)
+        on_plane = _kernel_plane(plane)
+        settings = _fit_settings(noise_mm, min_coverage, radius, n_azimuths)
+        kernel = getattr(camera, "ray_kernel", None)
+        fields = None if kernel is None else (int(n_azimuths), *kernel, *on_plane, *settings)
+        if len(_CONSTANT) >= _CONSTANT_ENTRIES:
+            _CONSTANT.clear()
+        entry = _CONSTANT[key] = (camera, plane, _Constant(on_plane, settings, fields))
+    return entry[1], entry[2]
+
+
+def _fit(detection: RingDetection, constant: _Constant, camera: CameraModel,
+         seed: int) -> tuple[float, KernelFit]:
     """(noise, the fit kernel's result) for a frame (:class:`KernelFit`).
 
-    ``noise_mm`` NaN takes the noise from the frame: its candidates and the line's
-    measured sigma ``sigma_px``, widened from the fit's residuals
+    ``constant.settings.noise_mm`` NaN takes the noise from the frame: its candidates
+    and the line's measured sigma, widened from the fit's residuals
     (:func:`pipestitch.pose._fit_kernels.fit_scaled`). What is unprojected
     (:func:`pipestitch.pose._fit_kernels.fit_query`): the candidates, then every
     ``stride``-th one moved one column, then one row (before the fit it is not known
@@ -458,28 +499,31 @@ def _fit(candidates: _k.Candidates, sigma_px: float, camera: CameraModel, plane:
     ``seed`` (reproducible), drawn only then. Inliers are then re-selected among all
     candidates, one per ray, until the set is stable (the start may have missed a
     stretch of the ring); the conic's Sampson distance is accurate to microns near the
-    curve, so this needs no nonlinear fit. ``radius`` NaN fits the radius, else holds
-    it. Refinement: :func:`_hypotheses`.
+    curve, so this needs no nonlinear fit. ``constant.settings.radius_mm`` NaN fits the
+    radius, else holds it. Refinement: :func:`_hypotheses`.
     """
-    settings = _fit_settings(noise_mm, min_coverage, radius, candidates.n_azimuths)
-    on_plane = _kernel_plane(plane)
-    kernel = getattr(camera, "ray_kernel", None)
-    sigma = float(sigma_px)
-
-    def run(uniforms: np.ndarray) -> tuple[float, float, tuple]:
-        if kernel is not None:
-            return _k.fit_fields(*candidates, *kernel, *on_plane, *settings, sigma, uniforms)
-        query, stride, found, valid = _k.fit_query(candidates)
-        if not _k.has_ring(candidates, found, settings):
-            return found, math.nan, _k.no_fit(_k.NO_RING, 0, settings.n_free)
-        rays = _as_points(camera.unproject(query))
-        return found, *_k.fit_scaled(rays, stride, valid, candidates, on_plane, settings,
-                                     sigma, uniforms)
-
-    found, noise, out = run(np.empty((0, 5)))
+    found, noise, out = _fit_with(detection, constant, camera, _NO_SAMPLES)
     if out[0] == _k.NEEDS_SAMPLES:
-        found, noise, out = run(np.random.default_rng(seed).random((RANSAC_TRIALS, 5)))
+        found, noise, out = _fit_with(detection, constant, camera, np.random.default_rng(
+            seed).random((RANSAC_TRIALS, 5)))
     return noise, KernelFit(found, *out)
+
+
+def _fit_with(detection: RingDetection, constant: _Constant, camera: CameraModel,
+              uniforms: np.ndarray) -> tuple[float, float, tuple]:
+    """(coverage, noise, :func:`pipestitch.pose._fit_kernels.fit_frame`'s tuple) of one
+    kernel pass with RANSAC's samples ``uniforms`` (:func:`_fit`)."""
+    sigma = float(detection.line_sigma_px)
+    if constant.fields is not None:
+        return _k.fit_fields(_as_points(detection.pixels), _as_index(detection.azimuth),
+                             _as_index(detection.rank), *constant.fields, sigma, uniforms)
+    candidates = _candidates(detection)
+    query, stride, found, valid = _k.fit_query(candidates)
+    if not _k.has_ring(candidates, found, constant.settings):
+        return found, math.nan, _k.no_fit(_k.NO_RING, 0, constant.settings.n_free)
+    rays = _as_points(camera.unproject(query))
+    return found, *_k.fit_scaled(rays, stride, valid, candidates, constant.plane,
+                                 constant.settings, sigma, uniforms)
 
 
 def _fit_settings(noise_mm: float, min_coverage: float, radius: float,

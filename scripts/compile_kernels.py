@@ -70,6 +70,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._register_kernels", "tapered_image", "f4:2 f4:2 f4:1"),
     ("mosaic._photometric_kernels", "contrast_and_dark", "f4:2 f4:2 f4:2 f4:2 f4"),
     ("mosaic._photometric_kernels", "masked_contrast", "f4:2 u1:2 f4:2"),
+    ("mosaic._photometric_kernels", "ccs_modulus", "f4:2"),
     ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f4:2"),
     ("mosaic._flat_field_kernels", "fall_off_at", "f4:2 f4:2 f8 f8 f8 f8:1 f4:2"),
     ("mosaic._flat_field_kernels", "ring_index", "f4:2 f4:2 f8 f8 f8 i8"),

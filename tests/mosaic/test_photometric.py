@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from pipestitch.geometry import PipeSection, Pose, laser_ring
@@ -48,16 +49,22 @@ def test_frames_that_share_under_half_the_window_give_no_evidence(
 
 
 def test_costs_read_the_strips_as_prepared_once(holed_renderer: Renderer) -> None:
-    # The pair's costs come from each strip prepared once (its filled values, validity
-    # and count): the same misfits as comparing the strips themselves, whose data are
-    # NaN-free only where they were valid.
+    # The pair's costs come from each strip prepared once (its validity, count and
+    # spectrum): the misfits are 1 - cv2.phaseCorrelate's peak of the strips themselves,
+    # with 0 where they have no data, to the bit.
     first, second = _strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0)
     for pair in (first, second):
         for strip, prepared in zip(pair.strips, pair.comparable, strict=True):
             np.testing.assert_array_equal(prepared.valid, np.isfinite(strip).astype(np.float32))
             assert prepared.count == np.count_nonzero(np.isfinite(strip)) > 100
-            np.testing.assert_array_equal(prepared.filled, np.nan_to_num(strip, nan=0.0))
+            assert prepared.shape == strip.shape
     misfit = np.array([[strip_misfit(a, b) for b in second.strips] for a in first.strips])
+    window = cv2.createHanningWindow(first.strips[0].shape[::-1], cv2.CV_32F)
+    window = np.tile(window[window.shape[0] // 2], (window.shape[0], 1))   # along z only
+    expected = np.array([[1.0 - cv2.phaseCorrelate(np.nan_to_num(b, nan=0.0),
+                                                   np.nan_to_num(a, nan=0.0), window)[1]
+                          for b in second.strips] for a in first.strips])
+    np.testing.assert_array_equal(misfit, expected)
     costs = pair_costs(first, second)
     # 0 at the best-agreeing combination, N_eff/2 log(U / U_min) elsewhere (capped)
     assert costs[np.unravel_index(np.argmin(misfit), misfit.shape)] == 0.0

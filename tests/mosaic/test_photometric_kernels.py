@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from pipestitch.imaging import gaussian_blur, nanmedian
-from pipestitch.mosaic.photometric import _contrast
+from pipestitch.mosaic._photometric_kernels import ccs_modulus
+from pipestitch.mosaic.photometric import _contrast, _peak_response, _spectrum, _z_window
 
 
 def _numpy_contrast(strip: np.ndarray) -> np.ndarray:
@@ -41,3 +42,52 @@ def test_contrast_is_the_numpy_expressions_to_the_bit(case: str) -> None:
     np.testing.assert_array_equal(got, _numpy_contrast(strip))
     if case == "textured":
         assert np.isfinite(got).mean() > 0.5   # the comparison is not empty
+
+
+def _numpy_modulus(spectrum: np.ndarray) -> np.ndarray:
+    """OpenCV's ``magSpectrums`` of a packed (CCS) one-channel spectrum, as numpy
+    expressions: each (re, im) pair's modulus in float64 rounded once at its real
+    part, 0 at its imaginary part, |x| at the purely real entries."""
+    rows, cols = spectrum.shape
+    wide = spectrum.astype(np.float64)
+    out = np.zeros_like(spectrum)
+    last = cols - 1 if cols % 2 == 0 else cols
+    out[:, 1:last:2] = np.sqrt(wide[:, 1:last:2] ** 2 + wide[:, 2:last + 1:2] ** 2)
+    for c in {0, cols - 1} if cols % 2 == 0 else {0}:
+        end = rows - 1 if rows % 2 == 0 else rows
+        out[1:end:2, c] = np.sqrt(wide[1:end:2, c] ** 2 + wide[2:end + 1:2, c] ** 2)
+        out[0, c] = abs(spectrum[0, c])
+        if rows % 2 == 0:
+            out[rows - 1, c] = abs(spectrum[rows - 1, c])
+    return out
+
+
+@pytest.mark.parametrize("shape", [(600, 120), (81, 45), (64, 33), (45, 64)])
+def test_ccs_modulus_is_opencvs_magnitude_to_the_bit(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    spectrum = cv2.dft(rng.standard_normal(shape).astype(np.float32), flags=cv2.DFT_REAL_OUTPUT)
+    product = cv2.mulSpectrums(spectrum, spectrum[::-1].copy(), 0, conjB=True)
+    got = ccs_modulus(product)
+    np.testing.assert_array_equal(got, _numpy_modulus(product))
+    # the quotient OpenCV's phase correlation forms: unit modulus wherever there is one
+    unit = cv2.divSpectrums(product, got, 0, conjB=False)
+    assert np.allclose(ccs_modulus(unit)[got > 1e-3], 1.0, atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(584, 112), (584, 100), (97, 61), (64, 40), (43, 25)])
+def test_peak_response_is_phase_correlates_to_the_bit(shape: tuple[int, int]) -> None:
+    # strips of texture, the second shifted and partly blank (as unseen wall is), and
+    # sizes OpenCV pads to its DFT sizes in either direction or not at all (64 x 40), and
+    # odd ones (43 x 25 -> 45 x 25)
+    rng = np.random.default_rng(shape[1])
+    texture = cv2.GaussianBlur(rng.random((shape[0] + 20, shape[1] + 20)).astype(np.float32),
+                               (0, 0), 1.2)
+    for trial in range(4):
+        a = np.ascontiguousarray(texture[:shape[0], :shape[1]])
+        b = np.ascontiguousarray(texture[3 + trial:3 + trial + shape[0], 5:5 + shape[1]])
+        b = b + np.float32(0.02) * rng.standard_normal(shape).astype(np.float32)
+        b[:, :trial * 7] = 0.0
+        window = _z_window(shape)
+        # phaseCorrelate tapers its inputs in place when it pads nothing: copies
+        _, expected = cv2.phaseCorrelate(b.copy(), a.copy(), window)
+        assert _peak_response(_spectrum(b), _spectrum(a)) == expected

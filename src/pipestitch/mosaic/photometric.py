@@ -23,7 +23,7 @@ import numpy as np
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.imaging import gaussian_blur, nanmedian
-from pipestitch.mosaic._photometric_kernels import contrast_and_dark, masked_contrast
+from pipestitch.mosaic._photometric_kernels import ccs_modulus, contrast_and_dark, masked_contrast
 from pipestitch.mosaic._unwrap_kernels import fill_invalid
 from pipestitch.mosaic.unwrap import unwrap
 from pipestitch.pose.fit import PoseFit
@@ -45,17 +45,47 @@ MIN_PEAK = 0.05
 
 @dataclass(frozen=True)
 class _Comparable:
-    """What a comparison reads of a strip: its values with 0 where it has none and
-    where it has them (1/0), float32 both, and how many nodes that is."""
+    """What a comparison reads of a strip: its shape, where it has values (1/0,
+    float32), how many nodes that is, and the spectrum ``cv2.phaseCorrelate`` takes of
+    it (:func:`_spectrum`)."""
 
-    filled: np.ndarray
+    shape: tuple[int, int]
     valid: np.ndarray
     count: int
+    spectrum: np.ndarray
 
 
 def _comparable(strip: np.ndarray) -> _Comparable:
     filled, valid = fill_invalid(np.ascontiguousarray(strip, np.float32))
-    return _Comparable(filled, valid, int(np.count_nonzero(valid)))
+    return _Comparable(filled.shape, valid, int(np.count_nonzero(valid)), _spectrum(filled))
+
+
+def _spectrum(filled: np.ndarray) -> np.ndarray:
+    """The DFT ``cv2.phaseCorrelate`` takes of a strip (its values with 0 where it has
+    none): tapered by :func:`_z_window`, zero-padded to OpenCV's optimal DFT size,
+    packed (CCS) float32. Each strip is compared four times; its spectrum is taken once.
+    """
+    rows, cols = filled.shape
+    tapered = np.multiply(filled, _z_window(filled.shape))
+    padded = cv2.copyMakeBorder(tapered, 0, cv2.getOptimalDFTSize(rows) - rows, 0,
+                                cv2.getOptimalDFTSize(cols) - cols, cv2.BORDER_CONSTANT, value=0)
+    return cv2.dft(padded, flags=cv2.DFT_REAL_OUTPUT)
+
+
+def _peak_response(spectrum_b: np.ndarray, spectrum_a: np.ndarray) -> float:
+    """``cv2.phaseCorrelate(b, a, window)``'s response from the strips' :func:`_spectrum`:
+    its steps after the two DFTs, to the bit (the cross-power spectrum divided by its
+    modulus, the inverse DFT shifted to centre its zero, and the sum over a 5 x 5
+    window around the first maximum, cut at the edges, over the number of cells)."""
+    product = cv2.mulSpectrums(spectrum_b, spectrum_a, 0, conjB=True)
+    unit = cv2.divSpectrums(product, ccs_modulus(product), 0, conjB=False)
+    surface = np.fft.fftshift(cv2.idft(unit))
+    _, _, _, (col, row) = cv2.minMaxLoc(surface)
+    total = 0.0
+    # row by row in float64, as OpenCV sums them
+    for value in surface[max(row - 2, 0):row + 3, max(col - 2, 0):col + 3].ravel().tolist():
+        total += value
+    return total / surface.size
 
 
 @dataclass(frozen=True)
@@ -63,7 +93,8 @@ class StripPair:
     """Local-contrast strips of one frame for its two hypotheses (NaN = no data).
 
     Each strip is compared four times (two hypotheses of the frame before and of the
-    frame after): what the comparisons read of it is prepared once, with the strips.
+    frame after): what the comparisons read of it, its spectrum included, is prepared
+    once, with the strips (on the pose pass's workers).
     """
 
     strips: tuple[np.ndarray, ...]
@@ -144,10 +175,10 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
 
 def _compare(a: _Comparable, b: _Comparable) -> tuple[float, int]:
     """:func:`_misfit` of two prepared strips."""
-    if a.count < 100 or b.count < 100 or a.filled.shape != b.filled.shape:
+    if a.count < 100 or b.count < 100 or a.shape != b.shape:
         return np.nan, 0
-    _, response = cv2.phaseCorrelate(b.filled, a.filled, _z_window(a.filled.shape))
-    return 1.0 - float(response), int(np.count_nonzero(a.valid * b.valid))
+    response = _peak_response(b.spectrum, a.spectrum)
+    return 1.0 - response, int(np.count_nonzero(a.valid * b.valid))
 
 
 @functools.lru_cache(maxsize=8)

@@ -18,6 +18,7 @@ probe.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -55,18 +56,31 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     about the axis and adds z times the pipe axis seen from the probe
     (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
     """
-    n_r = -(-(grid.n_rows - 1) // step) + 1
     n_c = -(-(grid.n_cols - 1) // step) + 1
-    theta = np.deg2rad(grid.theta0_deg + np.arange(n_r) * step * grid.deg_per_px)
     z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
-    ring = section.points(theta, np.zeros_like(theta))
-    axis = pose.rotation_world_probe()[2]   # world z in the probe frame: to_probe's row 2
-    seen = pose.to_probe(ring)
+    ring = _ring(section, grid.theta0_deg, grid.deg_per_px, step,
+                 -(-(grid.n_rows - 1) // step) + 1)
+    # Pose.to_probe's (p - t) @ R, with R and t made once for the ring and the axis
+    rotation, translation = pose.rotation_world_probe(), pose.translation_world_probe()
+    axis = rotation[2]   # world z in the probe frame: to_probe's row 2
+    seen = (ring - translation) @ rotation
     if profile is None:
         return ring, z, np.ones_like(z), node_points(seen, z, axis, np.zeros(3), np.empty(0))
-    origin = pose.to_probe(np.zeros((1, 3)))[0]   # the pipe axis at z = 0
+    origin = ((np.zeros((1, 3)) - translation) @ rotation)[0]   # the pipe axis at z = 0
     scale = np.asarray(profile.at(z), float)
     return ring, z, scale, node_points(seen, z, axis, origin, scale)
+
+
+@functools.lru_cache(maxsize=256)
+def _ring(section: PipeSection, theta0_deg: float, deg_per_px: float, step: int,
+          n_rows: int) -> np.ndarray:
+    """The wall points (rows, 3) at z = 0 of every ``step``-th row of a grid from
+    ``theta0_deg`` at ``deg_per_px``, ``n_rows`` of them; read-only: a run's strips
+    share a few sections and grids (the same ring in a third of the calls)."""
+    theta = np.deg2rad(theta0_deg + np.arange(n_rows) * step * deg_per_px)
+    ring = section.points(theta, np.zeros_like(theta))
+    ring.flags.writeable = False
+    return ring
 
 
 @dataclass(frozen=True)

@@ -89,6 +89,28 @@ def test_a_run_larger_than_the_budget_is_decoded_once_into_the_spill_file(
     assert ds.reads[2] == 2
 
 
+@pytest.mark.parametrize("where", ["memory", "spill file"])
+def test_released_frames_are_decoded_again_and_the_dataset_stays_open(
+        where: str, tmp_path: Path) -> None:
+    # After the last pass that reads them the kept frames are let go (the spill file
+    # closed, the memory freed); a later read still gets its frame, decoded again and
+    # not kept, and the dataset stays open until close().
+    ds = MixedDataset(4)
+    budget = 10**6 if where == "memory" else 100
+    cache = CachedLedFrames(ds, budget_bytes=budget, spill_dir=tmp_path)
+    for i in range(4):
+        cache.read_led(i)
+    assert (cache._bytes > 0) == (where == "memory")
+    assert (cache.spilled_bytes > 0) == (where == "spill file")
+    cache.release()
+    assert cache._bytes == 0 and cache._file is None and not ds.closed
+    for _ in range(2):
+        np.testing.assert_array_equal(cache.read_led(1), ds.frame(1))
+    assert ds.reads[1] == 3 and cache._bytes == 0
+    cache.close()
+    assert ds.closed
+
+
 def test_the_spill_file_stays_within_its_budget(tmp_path: Path) -> None:
     ds = FakeDataset(6)
     cache = CachedLedFrames(ds, budget_bytes=0, spill_dir=tmp_path, spill_budget_bytes=2500)

@@ -48,8 +48,9 @@ class CachedLedFrames:
 
     Whether the run fits is judged from the first frame read (all frames of a run have
     one size). Every other attribute is the wrapped dataset's. Thread-safe; frames are
-    returned read-only (callers convert them, never write into them). :meth:`close`
-    closes (and so deletes) the spill file and the dataset.
+    returned read-only (callers convert them, never write into them). :meth:`release`
+    forgets the kept frames and closes (and so deletes) the spill file; :meth:`close`
+    also closes the dataset.
 
     Parameters
     ----------
@@ -104,7 +105,7 @@ class CachedLedFrames:
             self._blank.pop(index, None)   # a new decode: judged again when asked
             if self._mode is None:
                 self._mode = self._choose_mode(frame.nbytes * self._dataset.n_pairs)
-            if self._mode == "memory" and index not in self._frames:
+            if self._mode == "memory" and not self._closing and index not in self._frames:
                 self._frames[index] = frame
                 self._bytes += frame.nbytes
                 while self._bytes > self._budget:   # a frame of another size: stay bounded
@@ -132,10 +133,20 @@ class CachedLedFrames:
         return self._end
 
     def close(self) -> None:
-        """Close (and so delete) the spill file, then the dataset (a video's decoder)."""
+        """:meth:`release`, then close the dataset (a video's decoder)."""
+        self.release()
+        close = getattr(self._dataset, "close", None)
+        if close is not None:
+            close()
+
+    def release(self) -> None:
+        """Forget the kept frames and close (and so delete) the spill file: for after the
+        last pass that reads them. Later reads decode each time (idempotent)."""
         with self._lock:
             self._closing = True
             self._spilled.clear()
+            self._frames.clear()
+            self._bytes = 0
             # a read or write under way ends within milliseconds; one that an interrupt
             # left counted must not hold the run's exit
             # (one still counted then stays open until exit: its descriptor is not reused)
@@ -143,9 +154,6 @@ class CachedLedFrames:
                 if self._file is not None:
                     self._file.close()
                 self._file = None
-        close = getattr(self._dataset, "close", None)
-        if close is not None:
-            close()
 
     def _choose_mode(self, run_bytes: int) -> str:
         """Memory when the run fits the budget, else a spill file when one can be made

@@ -13,6 +13,7 @@ import bisect
 import itertools
 import math
 import shutil
+import threading
 import time
 from collections.abc import Collection, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -583,6 +584,10 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         result, written, no_mosaic = _mosaic_or_reason(dataset, views, settings, timer,
                                                        show_progress, out, declared,
                                                        occluders)
+        if isinstance(dataset, CachedLedFrames):
+            # The stitch was the last pass to read the LED frames: the spill file (up to
+            # gigabytes) is freed beside the outputs' writing, not after it (~0.2 s).
+            threading.Thread(target=dataset.release, name="release LED frames").start()
     finally:
         # a run that stops (Ctrl-C, an error, no pose) does not wait for a mask it drops
         ahead.shutdown(wait=False, cancel_futures=True)

@@ -4,6 +4,10 @@ blocks, overview, vignetting.
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -109,6 +113,37 @@ def test_overview_keeps_the_wall_image_convention() -> None:
     data = out > 0
     assert np.abs(out[data] - np.broadcast_to(expect, out.shape)[data]).max() <= 1.01
     assert not data[:, 4000 // 3].any() and data[:, 4003 // 3 + 1].all()
+
+
+_OVERVIEW_DIGEST = """
+import hashlib, sys
+import numpy as np
+from pipestitch.geometry import WallGrid
+from pipestitch.mosaic.blend import Overview
+grid = WallGrid(radius_mm=30.0, deg_per_px=360 / 1513, mm_per_px_axial=0.1, z0_mm=0.0,
+                n_cols=2400)
+image = np.clip(np.random.default_rng(5).normal(128, 40, (1513, 2400)), 1, 255).astype(np.uint8)
+ov = Overview(grid, max_pixels=1_000_000)
+start = 0
+for w in [int(v) for v in sys.argv[1].split(",")]:
+    ov.push(image[:, start:start + w])
+    start += w
+print(hashlib.sha256(ov.finish().tobytes()).hexdigest())
+"""
+
+
+def test_the_overview_is_the_same_whatever_the_threads_and_blocks() -> None:
+    """mosaic.png's reduced pixels are summed in one order: the same bits with one BLAS
+    thread or two and with the mosaic pushed in blocks of other widths (a dense matrix
+    product's blocking, and so its last bits, followed the threads BLAS had: a pixel
+    here and there one grey level off between two runs of the same dataset)."""
+    digests = set()
+    for threads, widths in (("1", "2400"), ("2", "2400"), ("2", "1,2,3,700,999,695")):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
+        done = subprocess.run([sys.executable, "-c", _OVERVIEW_DIGEST, widths], env=env,
+                              capture_output=True, text=True, check=True)
+        digests.add(done.stdout.strip())
+    assert len(digests) == 1
 
 
 def test_a_long_run_samples_at_most_profile_frames_frames_evenly() -> None:

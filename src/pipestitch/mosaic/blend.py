@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import scipy.sparse
 
 from pipestitch.geometry import WallGrid
 from pipestitch.imaging import median
@@ -277,7 +278,14 @@ class Overview:
                              mm_per_px_axial=f * mm, z0_mm=grid.z0_mm + (f - 1) / 2 * mm,
                              n_cols=n_cols)
         self.image = np.zeros((n_rows, n_cols), np.uint8)
-        self._rows = _row_weights(grid.n_rows, n_rows).astype(np.float32) if f > 1 else None
+        self._rows: scipy.sparse.csr_array | None = None
+        if f > 1:
+            # each output row averages ~f + 1 input rows: a sparse product, summed in one
+            # order (a dense sgemm's blocking, and so its last bits, follows the threads
+            # BLAS has at the time; and it multiplies all the zeros)
+            rows = _row_weights(grid.n_rows, n_rows).astype(np.float32)
+            self._rows = scipy.sparse.csr_array(rows)
+            self._row_totals = rows.sum(axis=1, keepdims=True)
         self._carry = np.zeros((grid.n_rows, 0), np.uint8)
         self._col = 0
 
@@ -307,7 +315,7 @@ class Overview:
         sums = self._rows @ np.add.reduceat(data.astype(np.float32), starts, axis=1)
         counts = self._rows @ np.add.reduceat(valid, starts, axis=1)
         widths = np.diff(np.append(starts, data.shape[1])).astype(np.float32)
-        enough = counts >= 0.5 * self._rows.sum(axis=1, keepdims=True) * widths[None, :]
+        enough = counts >= 0.5 * self._row_totals * widths[None, :]
         out = np.where(enough, np.rint(sums / np.maximum(counts, 1e-6)), 0)
         self.image[:, self._col:self._col + starts.size] = np.clip(out, 0, 255).astype(np.uint8)
         self._col += starts.size

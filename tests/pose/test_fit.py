@@ -231,6 +231,42 @@ def test_fused_kernel_fits_as_the_unproject_path(camera: str) -> None:
         assert not no_ring.ok and no_ring.reason.startswith("ring not found")
 
 
+def test_fits_alternating_lenses_and_settings_are_each_fitted_alone() -> None:
+    """The fit's arguments that depend on the camera and the settings only are kept
+    between frames (pose.fit._constant_arguments): fits alternating between two lenses,
+    a held radius, a given noise and numpy-typed arguments are, to the bit, what each
+    gives fitted alone."""
+    from pipestitch.pose import fit as fit_module
+
+    ocam = default_camera("half")
+    opencv = OpenCVFisheyeModel(310.0, 310.0, 611.5, 511.5, (-0.01, 0.002, 0.0, 0.0), 1224,
+                                1024)
+    base = np.random.default_rng(3).uniform(0.6, 0.75, (36, 40)).astype(np.float32)
+    texture = _texture(np.kron(base, np.ones((100, 60), np.float32)), 65.0)
+    dets = {}
+    for cam in (ocam, opencv):
+        laser, led = Renderer(cam, PipeSection.circle(65.0), texture, D).render_pair(
+            Pose.from_degrees(3.0, -2.0, 4.0, -3.0), np.random.default_rng(5))
+        dets[id(cam)] = detect_ring(laser, cam, reflectance=led)
+    calls = [(ocam, {}), (opencv, {}), (ocam, {"fit_radius": False, "nominal_radius_mm": 32.5}),
+             (opencv, {"noise_mm": 0.05}), (ocam, {"min_coverage": 0.3})]
+
+    def summary(fit) -> list:
+        return [(as_vec(h.pose).tolist(), h.radius_mm, h.cost, h.std) for h in fit.hypotheses]
+
+    alone = []
+    for cam, kw in calls:
+        fit_module._CONSTANT.clear()
+        alone.append(summary(fit_pose(dets[id(cam)], cam, D, **kw)))
+    fit_module._CONSTANT.clear()
+    for k in range(2 * len(calls)):
+        cam, kw = calls[k % len(calls)]
+        typed = {key: np.float64(v) for key, v in kw.items() if isinstance(v, float)}
+        fit = fit_pose(dets[id(cam)], cam, np.float64(D), **{**kw, **typed})
+        assert fit.ok and summary(fit) == alone[k % len(calls)]
+    assert len(fit_module._CONSTANT) == len(calls)
+
+
 def test_first_order_px_rms_matches_projecting_the_model() -> None:
     """rms_px to first order (residual moved along its ray in the plane, turned into
     pixels with the local pixel -> plane Jacobian) against projecting the model ring

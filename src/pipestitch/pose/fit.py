@@ -462,8 +462,9 @@ def _constant_arguments(camera: CameraModel, plane_distance_mm: float,
     """
     normal = None if plane_normal is None else tuple(np.ravel(plane_normal).tolist())
     # NaN is a key by None: one NaN object is not equal to another
-    key = (id(camera), plane_distance_mm, normal, noise_mm if noise_mm == noise_mm else None,
-           min_coverage, radius if radius == radius else None, n_azimuths)
+    key = (id(camera), float(plane_distance_mm), normal,
+           noise_mm if noise_mm == noise_mm else None, float(min_coverage),
+           radius if radius == radius else None, int(n_azimuths))
     entry = _CONSTANT.get(key)
     if entry is None:
         plane = LaserPlane.of(plane_distance_mm, plane_normal)

@@ -63,7 +63,7 @@ def _numpy_modulus(spectrum: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("shape", [(600, 120), (81, 45), (64, 33), (45, 64)])
-def test_ccs_modulus_is_opencvs_magnitude_to_the_bit(shape: tuple[int, int]) -> None:
+def test_ccs_modulus_is_opencvs_magnitude_written_in_numpy(shape: tuple[int, int]) -> None:
     rng = np.random.default_rng(shape[0] * 1000 + shape[1])
     spectrum = cv2.dft(rng.standard_normal(shape).astype(np.float32), flags=cv2.DFT_REAL_OUTPUT)
     product = cv2.mulSpectrums(spectrum, spectrum[::-1].copy(), 0, conjB=True)
@@ -74,20 +74,24 @@ def test_ccs_modulus_is_opencvs_magnitude_to_the_bit(shape: tuple[int, int]) -> 
     assert np.allclose(ccs_modulus(unit)[got > 1e-3], 1.0, atol=1e-5)
 
 
-@pytest.mark.parametrize("shape", [(584, 112), (584, 100), (97, 61), (64, 40), (43, 25)])
+@pytest.mark.parametrize("shape", [(584, 112), (584, 100), (97, 61), (64, 40), (43, 25),
+                                   (64, 45), (45, 64)])
 def test_peak_response_is_phase_correlates_to_the_bit(shape: tuple[int, int]) -> None:
     # strips of texture, the second shifted and partly blank (as unseen wall is), and
-    # sizes OpenCV pads to its DFT sizes in either direction or not at all (64 x 40), and
-    # odd ones (43 x 25 -> 45 x 25)
+    # sizes OpenCV pads to its DFT sizes in either direction or not at all (64 x 40), odd
+    # ones (43 x 25 -> 45 x 25) and of mixed parity; the last trial shifts by about half
+    # the strip, so the peak's 5 x 5 window is cut at the surface's edge
     rng = np.random.default_rng(shape[1])
     texture = cv2.GaussianBlur(rng.random((shape[0] + 20, shape[1] + 20)).astype(np.float32),
                                (0, 0), 1.2)
-    for trial in range(4):
-        a = np.ascontiguousarray(texture[:shape[0], :shape[1]])
+    a = np.ascontiguousarray(texture[:shape[0], :shape[1]])
+    for trial in range(5):
         b = np.ascontiguousarray(texture[3 + trial:3 + trial + shape[0], 5:5 + shape[1]])
+        if trial == 4:
+            b = np.roll(a, (shape[0] // 2 - 1, shape[1] // 2 - 1), axis=(0, 1))
         b = b + np.float32(0.02) * rng.standard_normal(shape).astype(np.float32)
         b[:, :trial * 7] = 0.0
         window = _z_window(shape)
-        # phaseCorrelate tapers its inputs in place when it pads nothing: copies
+        # copies: phaseCorrelate may taper its inputs in place where it pads nothing
         _, expected = cv2.phaseCorrelate(b.copy(), a.copy(), window)
         assert _peak_response(_spectrum(b), _spectrum(a)) == expected

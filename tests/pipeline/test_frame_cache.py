@@ -89,7 +89,7 @@ def test_a_run_larger_than_the_budget_is_decoded_once_into_the_spill_file(
     assert ds.reads[2] == 2
 
 
-@pytest.mark.parametrize("where", ["memory", "spill file"])
+@pytest.mark.parametrize("where", ["memory", "spill file", "spill file, closed on a thread"])
 def test_released_frames_are_decoded_again_and_the_dataset_stays_open(
         where: str, tmp_path: Path) -> None:
     # After the last pass that reads them the kept frames are let go (the spill file
@@ -101,9 +101,14 @@ def test_released_frames_are_decoded_again_and_the_dataset_stays_open(
     for i in range(4):
         cache.read_led(i)
     assert (cache._bytes > 0) == (where == "memory")
-    assert (cache.spilled_bytes > 0) == (where == "spill file")
-    cache.release()
+    assert (cache.spilled_bytes > 0) == (where != "memory")
+    spill = cache._file
+    cache.release(close_in_background=where.endswith("thread"))
     assert cache._bytes == 0 and cache._file is None and not ds.closed
+    for thread in threading.enumerate():
+        if thread.name == "close the spill file":
+            thread.join()
+    assert spill is None or spill.closed
     for _ in range(2):
         np.testing.assert_array_equal(cache.read_led(1), ds.frame(1))
     assert ds.reads[1] == 3 and cache._bytes == 0

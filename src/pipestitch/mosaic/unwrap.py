@@ -58,7 +58,8 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     """
     n_c = -(-(grid.n_cols - 1) // step) + 1
     z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
-    ring = _ring(section, grid.theta0_deg, grid.deg_per_px, step,
+    ring = _ring(float(section.a_mm), float(section.b_mm), float(section.angle),
+                 float(grid.theta0_deg), float(grid.deg_per_px), int(step),
                  -(-(grid.n_rows - 1) // step) + 1)
     # Pose.to_probe's (p - t) @ R, with R and t made once for the ring and the axis
     rotation, translation = pose.rotation_world_probe(), pose.translation_world_probe()
@@ -72,13 +73,14 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
 
 
 @functools.lru_cache(maxsize=256)
-def _ring(section: PipeSection, theta0_deg: float, deg_per_px: float, step: int,
-          n_rows: int) -> np.ndarray:
-    """The wall points (rows, 3) at z = 0 of every ``step``-th row of a grid from
-    ``theta0_deg`` at ``deg_per_px``, ``n_rows`` of them; read-only: a run's strips
-    share a few sections and grids (the same ring in a third of the calls)."""
+def _ring(a_mm: float, b_mm: float, angle: float, theta0_deg: float, deg_per_px: float,
+          step: int, n_rows: int) -> np.ndarray:
+    """The wall points (rows, 3) at z = 0 of the section (``a_mm``, ``b_mm``, ``angle``)
+    at every ``step``-th row of a grid from ``theta0_deg`` at ``deg_per_px``, ``n_rows``
+    of them; read-only: a run's strips share a few sections and grids (the same ring in
+    a third of the calls). Keyed by plain numbers: the same values, the same ring."""
     theta = np.deg2rad(theta0_deg + np.arange(n_rows) * step * deg_per_px)
-    ring = section.points(theta, np.zeros_like(theta))
+    ring = PipeSection(a_mm, b_mm, angle).points(theta, np.zeros_like(theta))
     ring.flags.writeable = False
     return ring
 

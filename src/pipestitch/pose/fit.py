@@ -348,8 +348,10 @@ def fit_pose(detection: RingDetection, camera: CameraModel, plane_distance_mm: f
         raise ValueError("fit_pose: nominal_radius_mm is needed when fit_radius is False")
     radius = math.nan if fit_radius else float(nominal_radius_mm)
     noise = math.nan if noise_mm is None else float(noise_mm)
-    plane, constant = _constant_arguments(camera, plane_distance_mm, plane_normal, noise,
-                                          min_coverage, radius, detection.n_azimuths)
+    # plain numbers: the settings are built from what keys them (_constant_arguments)
+    plane, constant = _constant_arguments(camera, float(plane_distance_mm), plane_normal,
+                                          noise, float(min_coverage), radius,
+                                          int(detection.n_azimuths))
     try:
         noise, out = _fit(detection, constant, camera, seed)
     except np.linalg.LinAlgError:   # singular normal equations: the points span too little
@@ -454,17 +456,16 @@ def _constant_arguments(camera: CameraModel, plane_distance_mm: float,
                         plane_normal: np.ndarray | None, noise_mm: float, min_coverage: float,
                         radius: float, n_azimuths: int) -> tuple[LaserPlane, _Constant]:
     """The laser plane and the fit kernel's arguments that depend on the camera, the
-    plane and the settings only (:func:`fit_pose`'s; ``noise_mm`` and ``radius`` NaN:
-    from the frame), built once for each combination.
+    plane and the settings only (:func:`fit_pose`'s, as Python numbers; ``noise_mm``
+    and ``radius`` NaN: from the frame), built once for each combination.
 
-    Right after a ring extraction the Python that builds them is cold: ~15 us a frame
+    Right after a ring extraction the Python that builds them is cold: ~17 us a frame
     (table1's frames) that a dictionary look-up replaces.
     """
     normal = None if plane_normal is None else tuple(np.ravel(plane_normal).tolist())
     # NaN is a key by None: one NaN object is not equal to another
-    key = (id(camera), float(plane_distance_mm), normal,
-           noise_mm if noise_mm == noise_mm else None, float(min_coverage),
-           radius if radius == radius else None, int(n_azimuths))
+    key = (id(camera), plane_distance_mm, normal, noise_mm if noise_mm == noise_mm else None,
+           min_coverage, radius if radius == radius else None, n_azimuths)
     entry = _CONSTANT.get(key)
     if entry is None:
         plane = LaserPlane.of(plane_distance_mm, plane_normal)

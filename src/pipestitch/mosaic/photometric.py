@@ -45,11 +45,10 @@ MIN_PEAK = 0.05
 
 @dataclass(frozen=True)
 class _Comparable:
-    """What a comparison reads of a strip: its shape, where it has values (1/0,
-    float32), how many nodes that is, and the spectrum ``cv2.phaseCorrelate`` takes of
-    it (:func:`_spectrum`)."""
+    """What a comparison reads of a strip: where it has values (1/0, float32, the
+    strip's shape), how many nodes that is, and the spectrum ``cv2.phaseCorrelate``
+    takes of it (:func:`_spectrum`)."""
 
-    shape: tuple[int, int]
     valid: np.ndarray
     count: int
     spectrum: np.ndarray
@@ -57,7 +56,7 @@ class _Comparable:
 
 def _comparable(strip: np.ndarray) -> _Comparable:
     filled, valid = fill_invalid(np.ascontiguousarray(strip, np.float32))
-    return _Comparable(filled.shape, valid, int(np.count_nonzero(valid)), _spectrum(filled))
+    return _Comparable(valid, int(np.count_nonzero(valid)), _spectrum(filled))
 
 
 def _spectrum(filled: np.ndarray) -> np.ndarray:
@@ -175,7 +174,7 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
 
 def _compare(a: _Comparable, b: _Comparable) -> tuple[float, int]:
     """:func:`_misfit` of two prepared strips."""
-    if a.count < 100 or b.count < 100 or a.shape != b.shape:
+    if a.count < 100 or b.count < 100 or a.valid.shape != b.valid.shape:
         return np.nan, 0
     response = _peak_response(b.spectrum, a.spectrum)
     return 1.0 - response, int(np.count_nonzero(a.valid * b.valid))

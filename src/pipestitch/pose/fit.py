@@ -69,7 +69,7 @@ KEPT_POINTS = 720     # a frame's ring inliers kept for later fits (RingPoints),
 # The fit's result types (Hypothesis, RingPoints, PoseFit) are slotted dataclasses, not
 # frozen ones, and are read-only by convention (nothing assigns to them after the fit): a
 # frozen dataclass sets each field through object.__setattr__, and right after a ring
-# extraction, with that path's code cold, a frame's five such objects took ~15 us more
+# extraction, with that path's code cold, a frame's four such objects took ~15 us more
 # (table1's protocol, paired), ~6 % of the fit.
 @dataclass(slots=True)
 class Hypothesis:

@@ -13,8 +13,10 @@ from pipestitch.pose._fit_kernels import (
     Plane,
     conic_through,
     lu,
+    plain_pass,
     ransac_conic,
     solve_vector,
+    sum_squares,
     sym_eig,
     wall_pass,
 )
@@ -386,6 +388,14 @@ def test_wall_pass_matches_finite_differences(normal) -> None:
     np.testing.assert_allclose(jtj, jac.T @ jac, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(jtwj, (jac * weight[:, None]).T @ jac, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(jtwr, (jac * weight[:, None]).T @ resid, rtol=1e-6, atol=1e-9)
+    # the mirror's lean pass: the same residuals and unweighted J^T J (the same
+    # arithmetic a point, summed in its own vectorised loop: a few ulps)
+    plain_resid, plain_jtj = plain_pass(x, uv[:, 0].copy(), uv[:, 1].copy(),
+                                        Plane(D, plane.normal, plane.basis))
+    np.testing.assert_array_equal(plain_resid, resid)
+    np.testing.assert_allclose(plain_jtj, jtj, rtol=1e-13, atol=1e-13 * np.abs(jtj).max())
+    # the residuals' sum of squares, reassociated: a few ulps of numpy's
+    assert sum_squares(resid) == pytest.approx(float(resid @ resid), rel=1e-13)
 
 
 @pytest.mark.parametrize(("fit_radius", "normal"), [(True, None), (False, None), (True, TILTED)])

@@ -320,6 +320,16 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
     return total
 
 
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
+def sum_squares(a: np.ndarray) -> float:
+    """Σ a² of a long vector (a ring's residuals): reassociated, so LLVM vectorises it
+    (:func:`dot`'s plain loop is one chain of dependent additions, ~4x slower here)."""
+    total = 0.0
+    for i in range(a.size):
+        total += a[i] * a[i]
+    return total
+
+
 # --- the conic of the ring in the plane -------------------------------------------
 
 @numba.njit(cache=True, error_model="numpy")
@@ -923,6 +933,46 @@ def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane,
     return (resid, f_scale**2 * cost, wrr, jtwj, np.array([g0, g1, g2, g3, -swr]), jtj)
 
 
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
+def plain_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray,
+               plane: Plane) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals and unweighted J^T J of :func:`wall_pass` alone (no loss, no
+    weights): what the mirror of an optimum needs (:func:`refine_both`), at about half
+    the arithmetic a point."""
+    k = _point_coefficients(x, plane)
+    n = u.size
+    resid = np.empty(n)
+    h00 = h01 = h02 = h03 = h11 = h12 = h13 = h22 = h23 = h33 = 0.0
+    s0 = s1 = s2 = s3 = 0.0
+    for i in range(n):
+        ui, vi = u[i], v[i]
+        qx = k[0, 0] + k[0, 1] * ui + k[0, 2] * vi
+        qy = k[1, 0] + k[1, 1] * ui + k[1, 2] * vi
+        rho = np.sqrt(qx * qx + qy * qy)
+        nx, ny = qx / rho, qy / rho
+        j0 = (nx * (k[2, 0] + k[2, 1] * ui + k[2, 2] * vi)
+              + ny * (k[3, 0] + k[3, 1] * ui + k[3, 2] * vi))
+        j1 = (nx * (k[4, 0] + k[4, 1] * ui + k[4, 2] * vi)
+              + ny * (k[5, 0] + k[5, 1] * ui + k[5, 2] * vi))
+        resid[i] = rho - x[4]
+        h00 += j0 * j0
+        h01 += j0 * j1
+        h02 += j0 * nx
+        h03 += j0 * ny
+        h11 += j1 * j1
+        h12 += j1 * nx
+        h13 += j1 * ny
+        h22 += nx * nx
+        h23 += nx * ny
+        h33 += ny * ny
+        s0 += j0
+        s1 += j1
+        s2 += nx
+        s3 += ny
+    return resid, _symmetric5((h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2,
+                               h33, -s3, float(n)))
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _symmetric5(upper: tuple[float, ...]) -> np.ndarray:
     """The symmetric 5 x 5 matrix with the upper triangle ``upper`` (15 values, row by row)."""
@@ -1005,8 +1055,8 @@ def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane, n
     """
     x, cost, resid, jtj = gauss_newton(start, u, v, plane, n_free, f_scale)
     mirror = mirror_of(x, plane)
-    m_pass = wall_pass(mirror, u, v, plane, f_scale)
-    return x, cost, resid, jtj, mirror, m_pass[0], m_pass[5]
+    m_resid, m_jtj = plain_pass(mirror, u, v, plane)
+    return x, cost, resid, jtj, mirror, m_resid, m_jtj
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -1056,10 +1106,11 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
         summary[0, j], summary[1, j] = x[j], mirror[j]
     # the mirror's residuals are the optimum's (the same conic: equal to ~1e-14 mm), so
     # their correlation along the ring is one figure for both
-    corr = correlation_factor_on(resid, *harmonic_basis(u, v))
+    corr = correlation_factor(resid, u, v)
     for h, (r, h_jtj) in enumerate(((resid, jtj), (m_resid, m_jtj))):
-        summary[h, SUMMARY_RMS] = np.sqrt(dot(r, r) / r.size)
-        sigma, pose_info, ok = uncertainty(r, h_jtj, n_free)
+        squares = sum_squares(r)
+        summary[h, SUMMARY_RMS] = np.sqrt(squares / r.size)
+        sigma, pose_info, ok = uncertainty(squares, r.size, h_jtj, n_free)
         for i in range(4):
             for j in range(4):
                 info[h, i, j] = pose_info[i, j]
@@ -1256,23 +1307,37 @@ def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=FAST)
-def harmonic_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Harmonics 0-2 of the points' angle about the plane's centre, (n, 5): 1, cos, sin,
-    cos 2, sin 2 (from u / r and v / r: no trigonometric call), and their normal
-    matrix (5, 5, with a ridge of 1e-9 n). One for both hypotheses of a frame.
+def correlation_factor(resid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """How many times fewer independent residuals a ring holds than points, from their
+    autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it is
+    significant (above 2 / sqrt(n); at most a quarter of the points' lags).
 
-    The normal matrix's 15 sums are scalars in one loop (vectorised; a loop over the
-    5 x 5 entries of each point took five times as long)."""
-    n = u.size
-    basis = np.empty((n, 5))
-    # sums over the points: x_ of x, x_y of x times y
+    The points (plane coordinates ``u``, ``v``) are in ray order. Neighbouring rays read
+    overlapping pixels of the line, and speckle, a smudge on the lens or an arc of faint
+    line move whole stretches of the ring together; the variance of a fit to n such
+    residuals is about this many times that of n independent ones (the effective sample
+    size of a correlated series). The residuals' harmonics 0-2 around the ring are
+    removed first: a section the model does not hold (an oval fitted as a circle) leaves
+    a cos 2 theta pattern that the pose's parameters are orthogonal to. The harmonics
+    come from u / r and v / r (no trigonometric call), their normal matrix has a ridge
+    of 1e-9 n.
+
+    Every sum over the points is a scalar in a reassociated loop, which LLVM vectorises:
+    a plain sum is one chain of dependent additions, several times slower on a ring's
+    ~1,400 points; results move by float rounding only, the same on every call.
+    """
+    n = resid.size
+    if n < 8:
+        return 1.0
+    cos, sin = np.empty(n), np.empty(n)
+    # sums over the points: x_ of x, x_y of x times y; e_x of the residual times x
     c_ = s_ = c2_ = s2_ = c_c = c_s = c_c2 = c_s2 = s_s = s_c2 = s_s2 = c2_c2 = c2_s2 = 0.0
-    s2_s2 = 0.0
+    s2_s2 = e_ = e_c = e_s = e_c2 = e_s2 = 0.0
     for i in range(n):
         r = np.sqrt(u[i] * u[i] + v[i] * v[i])
         c, s = (u[i] / r, v[i] / r) if r > 0.0 else (1.0, 0.0)
-        c2, s2 = c * c - s * s, 2.0 * s * c
-        basis[i, 0], basis[i, 1], basis[i, 2], basis[i, 3], basis[i, 4] = 1.0, c, s, c2, s2
+        cos[i], sin[i] = c, s
+        c2, s2, e = c * c - s * s, 2.0 * s * c, resid[i]
         c_ += c
         s_ += s
         c2_ += c2
@@ -1287,60 +1352,31 @@ def harmonic_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray
         c2_c2 += c2 * c2
         c2_s2 += c2 * s2
         s2_s2 += s2 * s2
+        e_ += e
+        e_c += e * c
+        e_s += e * s
+        e_c2 += e * c2
+        e_s2 += e * s2
     ridge = 1e-9 * n
     normal = np.array([[n + ridge, c_, s_, c2_, s2_], [c_, c_c + ridge, c_s, c_c2, c_s2],
                        [s_, c_s, s_s + ridge, s_c2, s_s2], [c2_, c_c2, s_c2, c2_c2 + ridge, c2_s2],
                        [s2_, c_s2, s_s2, c2_s2, s2_s2 + ridge]])
-    return basis, normal
-
-
-@numba.njit(cache=True, error_model="numpy")
-def correlation_factor(resid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
-    """How many times fewer independent residuals a ring holds than points, from their
-    autocorrelation along the ring: 1 + 2 (rho_1 + rho_2 + ...), summed while it is
-    significant (above 2 / sqrt(n); at most a quarter of the points' lags).
-
-    The points (plane coordinates ``u``, ``v``) are in ray order. Neighbouring rays read
-    overlapping pixels of the line, and speckle, a smudge on the lens or an arc of faint
-    line move whole stretches of the ring together; the variance of a fit to n such
-    residuals is about this many times that of n independent ones (the effective sample
-    size of a correlated series). The residuals' harmonics 0-2 around the ring are
-    removed first: a section the model does not hold (an oval fitted as a circle) leaves
-    a cos 2 theta pattern that the pose's parameters are orthogonal to.
-    """
-    if resid.size < 8:
-        return 1.0
-    basis, normal = harmonic_basis(u, v)
-    return correlation_factor_on(resid, basis, normal)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def correlation_factor_on(resid: np.ndarray, basis: np.ndarray, normal: np.ndarray) -> float:
-    """:func:`correlation_factor` with the points' :func:`harmonic_basis` given."""
-    n = resid.size
-    if n < 8:
-        return 1.0
-    rhs = np.zeros((5, 1))
-    for i in range(n):
-        for a in range(5):
-            rhs[a, 0] += basis[i, a] * resid[i]
-    coef = solve(normal, rhs)
+    k0, k1, k2, k3, k4 = solve_vector(normal, np.array([e_, e_c, e_s, e_c2, e_s2]))
     rest = np.empty(n)
+    var = 0.0
     for i in range(n):
-        fitted = 0.0
-        for a in range(5):
-            fitted += basis[i, a] * coef[a, 0]
-        rest[i] = resid[i] - fitted
-    var = dot(rest, rest)
+        c, s = cos[i], sin[i]
+        rest[i] = resid[i] - (k0 + k1 * c + k2 * s + k3 * (c * c - s * s) + k4 * (2.0 * s * c))
+        var += rest[i] * rest[i]
     if var <= 0.0:
         return 1.0
     floor = 2.0 / np.sqrt(n)
     factor = 1.0
     for k in range(1, n // 4):
-        c = 0.0
+        lagged = 0.0
         for i in range(n - k):
-            c += rest[i] * rest[i + k]
-        rho = c / var
+            lagged += rest[i] * rest[i + k]
+        rho = lagged / var
         if rho <= floor:
             break
         factor += 2.0 * rho
@@ -1348,17 +1384,18 @@ def correlation_factor_on(resid: np.ndarray, basis: np.ndarray, normal: np.ndarr
 
 
 @numba.njit(cache=True, error_model="numpy")
-def uncertainty(resid: np.ndarray, jtj: np.ndarray,
+def uncertainty(squares: float, n: int, jtj: np.ndarray,
                 n_free: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """1-sigma of the free parameters and the pose's 4 x 4 information matrix.
 
-    From the plain (unweighted) J^T J and residuals, as if the residuals were
+    From the plain (unweighted) J^T J and the sum of the ``n`` residuals' squares
+    (:func:`sum_squares`), as if the residuals were
     independent (:func:`correlation_factor` says by how much they are not); with the
     radius free (n_free 5) it is marginalised out of the information (Schur
     complement). ``ok`` False (sigma NaN) when the information is singular.
     """
-    dof = max(1, resid.size - n_free)
-    info = jtj[:n_free, :n_free] / max(dot(resid, resid) / dof, 1e-12)
+    dof = max(1, n - n_free)
+    info = jtj[:n_free, :n_free] / max(squares / dof, 1e-12)
     pose_info = info[:4, :4].copy()
     if n_free == 5:   # loops, not np.outer and an array expression: less code to compile
         scale = max(info[4, 4], 1e-300)

@@ -480,15 +480,16 @@ def test_occluders_found_while_posing_are_the_mosaic_stage_s_own(dataset: Path,
 
 def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
     """The run's modules load without matplotlib (its import is ~0.25 s of every start),
-    without PyAV (only a video needs it) and without scipy.stats and scipy.signal (~0.5 s
-    and 30 MB); the report's first figure (:func:`pipestitch.report.html.agg_pyplot`)
+    without PyAV (only a video needs it), without scipy.stats and scipy.signal (~0.5 s
+    and 30 MB) and without scipy.optimize (~0.15 s; the section fit's rare fallback
+    imports it); the report's first figure (:func:`pipestitch.report.html.agg_pyplot`)
     loads matplotlib."""
     import subprocess
     import sys
 
     code = ("import sys, pipestitch.pipeline.run, pipestitch.pipeline.review; "
             "print(any(m in sys.modules for m in ('matplotlib', 'av', 'scipy.stats', "
-            "'scipy.signal'))); "
+            "'scipy.signal', 'scipy.optimize'))); "
             "from pipestitch.report.html import agg_pyplot; agg_pyplot(); "
             "print('matplotlib.pyplot' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
@@ -68,9 +69,9 @@ def test_a_solution_on_the_bounds_is_left_to_scipy(monkeypatch: pytest.MonkeyPat
     _, converged = fit_oval_offset(rotated, x0, 0.01, SECTION_X_SCALE, SECTION_BOUNDS)
     assert not converged
     calls = []
-    real = section_module.least_squares
-    monkeypatch.setattr(section_module, "least_squares",
-                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    # fit_section imports it when it needs it (scipy.optimize is slow to import)
+    monkeypatch.setattr(scipy.optimize, "least_squares",
+                        lambda *a, **k: calls.append(1) or least_squares(*a, **k))
     fit = section_module.fit_section(points, Pose(0.0, 0.0, 0.0, 0.0), 30.0, noise_mm=0.01)
     assert calls and fit.section.ovality == pytest.approx(0.5, abs=1e-6)   # c on its bound
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, rot_x, rot_y
@@ -181,6 +180,10 @@ def _fit_offset_and_section(points_mm: np.ndarray, tilt: np.ndarray, x0: np.ndar
                                    SECTION_X_SCALE, SECTION_BOUNDS)
     if converged:
         return x
+
+    # imported here: scipy.optimize (and the scipy.spatial it loads) takes ~0.15 s to
+    # import, and this fallback is rare, so a run that never takes it does not pay that
+    from scipy.optimize import least_squares
 
     def fun(v: np.ndarray) -> np.ndarray:
         return oval_residuals(np.concatenate([tilt, v]), points_mm)

@@ -871,19 +871,9 @@ def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane,
     # weighted sums over the Jacobian entries (a0..a3) = (j0, j1, nx, ny): w a b, w a, w a r
     w00 = w01 = w02 = w03 = w11 = w12 = w13 = w22 = w23 = w33 = 0.0
     wa0 = wa1 = wa2 = wa3 = g0 = g1 = g2 = g3 = 0.0
-    # unweighted: a b and a
-    h00 = h01 = h02 = h03 = h11 = h12 = h13 = h22 = h23 = h33 = 0.0
-    s0 = s1 = s2 = s3 = 0.0
+    plain = PLAIN_ZERO   # unweighted: a b and a (_add_products)
     for i in range(n):
-        ui, vi = u[i], v[i]
-        qx = k[0, 0] + k[0, 1] * ui + k[0, 2] * vi
-        qy = k[1, 0] + k[1, 1] * ui + k[1, 2] * vi
-        rho = np.sqrt(qx * qx + qy * qy)
-        nx, ny = qx / rho, qy / rho
-        j0 = (nx * (k[2, 0] + k[2, 1] * ui + k[2, 2] * vi)
-              + ny * (k[3, 0] + k[3, 1] * ui + k[3, 2] * vi))
-        j1 = (nx * (k[4, 0] + k[4, 1] * ui + k[4, 2] * vi)
-              + ny * (k[5, 0] + k[5, 1] * ui + k[5, 2] * vi))
+        rho, nx, ny, j0, j1 = _wall_point(k, u[i], v[i])
         r = rho - x[4]
         resid[i] = r
         root = np.sqrt(1.0 + (r * inv_f) * (r * inv_f))
@@ -911,26 +901,12 @@ def wall_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane,
         g1 += a1 * r
         g2 += a2 * r
         g3 += a3 * r
-        h00 += j0 * j0
-        h01 += j0 * j1
-        h02 += j0 * nx
-        h03 += j0 * ny
-        h11 += j1 * j1
-        h12 += j1 * nx
-        h13 += j1 * ny
-        h22 += nx * nx
-        h23 += nx * ny
-        h33 += ny * ny
-        s0 += j0
-        s1 += j1
-        s2 += nx
-        s3 += ny
+        plain = _add_products(plain, j0, j1, nx, ny)
     # the radius column of the Jacobian is -1
     jtwj = _symmetric5((w00, w01, w02, w03, -wa0, w11, w12, w13, -wa1, w22, w23, -wa2, w33,
                         -wa3, sw))
-    jtj = _symmetric5((h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2, h33, -s3,
-                       float(n)))
-    return (resid, f_scale**2 * cost, wrr, jtwj, np.array([g0, g1, g2, g3, -swr]), jtj)
+    return (resid, f_scale**2 * cost, wrr, jtwj, np.array([g0, g1, g2, g3, -swr]),
+            _plain_jtj(plain, n))
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=FAST)
@@ -942,35 +918,53 @@ def plain_pass(x: np.ndarray, u: np.ndarray, v: np.ndarray,
     k = _point_coefficients(x, plane)
     n = u.size
     resid = np.empty(n)
-    h00 = h01 = h02 = h03 = h11 = h12 = h13 = h22 = h23 = h33 = 0.0
-    s0 = s1 = s2 = s3 = 0.0
+    plain = PLAIN_ZERO
     for i in range(n):
-        ui, vi = u[i], v[i]
-        qx = k[0, 0] + k[0, 1] * ui + k[0, 2] * vi
-        qy = k[1, 0] + k[1, 1] * ui + k[1, 2] * vi
-        rho = np.sqrt(qx * qx + qy * qy)
-        nx, ny = qx / rho, qy / rho
-        j0 = (nx * (k[2, 0] + k[2, 1] * ui + k[2, 2] * vi)
-              + ny * (k[3, 0] + k[3, 1] * ui + k[3, 2] * vi))
-        j1 = (nx * (k[4, 0] + k[4, 1] * ui + k[4, 2] * vi)
-              + ny * (k[5, 0] + k[5, 1] * ui + k[5, 2] * vi))
+        rho, nx, ny, j0, j1 = _wall_point(k, u[i], v[i])
         resid[i] = rho - x[4]
-        h00 += j0 * j0
-        h01 += j0 * j1
-        h02 += j0 * nx
-        h03 += j0 * ny
-        h11 += j1 * j1
-        h12 += j1 * nx
-        h13 += j1 * ny
-        h22 += nx * nx
-        h23 += nx * ny
-        h33 += ny * ny
-        s0 += j0
-        s1 += j1
-        s2 += nx
-        s3 += ny
-    return resid, _symmetric5((h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2,
-                               h33, -s3, float(n)))
+        plain = _add_products(plain, j0, j1, nx, ny)
+    return resid, _plain_jtj(plain, n)
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
+def _wall_point(k: np.ndarray, ui: float, vi: float) -> tuple[float, float, float, float,
+                                                               float]:
+    """The plane point (ui, vi)'s distance rho from the axis, the unit wall normal
+    (nx, ny) there and the tilt columns (j0, j1) of its Jacobian row
+    (:func:`wall_pass`; ``k`` from :func:`_point_coefficients`)."""
+    qx = k[0, 0] + k[0, 1] * ui + k[0, 2] * vi
+    qy = k[1, 0] + k[1, 1] * ui + k[1, 2] * vi
+    rho = np.sqrt(qx * qx + qy * qy)
+    nx, ny = qx / rho, qy / rho
+    j0 = (nx * (k[2, 0] + k[2, 1] * ui + k[2, 2] * vi)
+          + ny * (k[3, 0] + k[3, 1] * ui + k[3, 2] * vi))
+    j1 = (nx * (k[4, 0] + k[4, 1] * ui + k[4, 2] * vi)
+          + ny * (k[5, 0] + k[5, 1] * ui + k[5, 2] * vi))
+    return rho, nx, ny, j0, j1
+
+
+# The unweighted sums of a pass: the ten products of (j0, j1, nx, ny) (upper triangle,
+# row by row), then the four themselves. A tuple of scalars, which LLVM keeps in
+# registers and vectorises as separate sums.
+PLAIN_ZERO = (0.0,) * 14
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
+def _add_products(sums: tuple, j0: float, j1: float, nx: float, ny: float) -> tuple:
+    """``sums`` (:data:`PLAIN_ZERO`'s order) with one point's products added."""
+    h00, h01, h02, h03, h11, h12, h13, h22, h23, h33, s0, s1, s2, s3 = sums
+    return (h00 + j0 * j0, h01 + j0 * j1, h02 + j0 * nx, h03 + j0 * ny, h11 + j1 * j1,
+            h12 + j1 * nx, h13 + j1 * ny, h22 + nx * nx, h23 + nx * ny, h33 + ny * ny,
+            s0 + j0, s1 + j1, s2 + nx, s3 + ny)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _plain_jtj(sums: tuple, n: int) -> np.ndarray:
+    """The unweighted J^T J (5 x 5) of ``n`` points' :func:`_add_products` sums (the
+    radius column of the Jacobian is -1)."""
+    h00, h01, h02, h03, h11, h12, h13, h22, h23, h33, s0, s1, s2, s3 = sums
+    return _symmetric5((h00, h01, h02, h03, -s0, h11, h12, h13, -s1, h22, h23, -s2, h33, -s3,
+                        float(n)))
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -6,6 +6,8 @@ noise resampled with OpenCV's bilinear remap (what the unwrap does) many times o
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from pipestitch.mosaic.noise import (
     contrast_noise,
     estimate_noise,
     patch_noise,
+    patch_noise_sums,
     patch_table,
 )
 
@@ -83,6 +86,12 @@ def test_noise_fields_match_remapped_white_noise() -> None:
     np.testing.assert_array_equal(kept, patch_table(fields, window))
     assert fields.patch_table(window.copy()) is kept
     assert fields.patch_table(window[:32, :32].copy()) is not kept
+    # many patches at once: each row the patch's own sums (rows wrap, columns clip)
+    rows, cols = np.array([0, 7, 30, 47, 95]), np.array([0, 13, 40, 79, 500])
+    many = patch_noise_sums(kept, fields.step, rows, cols)
+    assert many.shape == (5, 4) and many.flags.c_contiguous
+    for (r, c), got in zip(zip(rows, cols, strict=True), many, strict=True):
+        assert tuple(got) == dataclasses.astuple(patch_noise(kept, fields.step, r, c))
     # Monte-Carlo error of the mean ~2 %; the model's phase average and its every-4th-node
     # fields add a few per cent
     assert sums.d_x == pytest.approx(np.mean(d_x), rel=0.15)

@@ -9,7 +9,10 @@ import pytest
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
+    link_patches,
     patches_valid,
+    polish,
+    polish_patches,
     residual_moments,
     shifted_residual_moments,
     tapered_image,
@@ -139,3 +142,60 @@ def test_tapered_image_is_the_float32_expression() -> None:
     got = tapered_image(contrast, weight, taper)
     np.testing.assert_array_equal(got, want)
     assert np.isnan(got[3, 4]) and np.any(got == 0)
+
+
+def _textured(shape: tuple[int, int]) -> np.ndarray:
+    return cv2.GaussianBlur(RNG.normal(size=shape).astype(np.float32), (0, 0), 1.5)
+
+
+@pytest.mark.parametrize("shift", [(5, 12), (-70, -3), (0, 0)])
+def test_link_patches_are_the_fancy_indexed_patches_less_their_weighted_mean(
+        shift: tuple[int, int]) -> None:
+    # What each patch of a link was before: rows wrapped by fancy indexing, gated by
+    # cv2.meanStdDev, less numpy.dot's weighted mean (the same BLAS dot, to the bit).
+    size, step, min_std = 16, 12, 0.05
+    second = _textured((60, 70))
+    first = np.roll(second, (-shift[0], -shift[1]), axis=(0, 1))
+    second[10:50, 20:60] *= np.float32(0.01)   # flat: some patches gated out, by either
+    first[:30, :35] *= np.float32(0.01)
+    valid = patches_valid(np.ones(first.shape, bool), np.ones(second.shape, bool), size,
+                          step, *shift)
+    weight = cv2.createHanningWindow((size, size), cv2.CV_32F)
+    total = float(weight.sum(dtype=np.float64))
+    a, b, where = link_patches(first, second, valid, step, *shift, weight, total, min_std)
+    want = []
+    for k, m in zip(*np.nonzero(valid), strict=True):
+        c, r = int(k) * step, int(m) * step
+        rows_j = np.arange(r, r + size) % second.shape[0]
+        rows_i = (rows_j + shift[0]) % second.shape[0]
+        pb, pa = second[rows_j, c:c + size], first[rows_i, c + shift[1]:c + shift[1] + size]
+        if min(cv2.meanStdDev(pb)[1][0, 0], cv2.meanStdDev(pa)[1][0, 0]) < min_std:
+            continue
+        pa, pb = (p - np.float32(float(np.dot(weight.ravel(), p.ravel())) / total)
+                  for p in (pa, pb))
+        want.append((pa, pb, (r, c, int(rows_i[0]), c + shift[1])))
+    assert 0 < len(want) < valid.sum()
+    np.testing.assert_array_equal(a, np.array([w[0] for w in want]))
+    np.testing.assert_array_equal(b, np.array([w[1] for w in want]))
+    np.testing.assert_array_equal(where, np.array([w[2] for w in want]))
+
+
+def test_polish_patches_polish_each_pair_as_polish_does() -> None:
+    size = 32
+    weight = cv2.createHanningWindow((size, size), cv2.CV_32F)
+    first = np.stack([_textured((size, size)) for _ in range(4)])
+    second = np.stack([np.roll(f, (1, 2), axis=(0, 1)) for f in first])
+    starts = np.array([[2.0, 1.0], [1.7, 1.2], [np.nan, 0.0], [2.4, 0.6]])
+    noise = np.tile([1e-3, -2e-3, 0.5, 0.4], (4, 1))
+    for sums in (np.empty((0, 4)), noise):
+        got = polish_patches(first, second, weight, starts, 3, sums, 0.1)
+        for k in range(4):
+            if not np.isfinite(starts[k]).all():
+                np.testing.assert_array_equal(got[k], starts[k])
+                continue
+            moments = gradient_moments(first[k], weight)
+            want = polish(first[k], second[k], weight, *starts[k], 3,
+                          sums[k] if len(sums) else np.empty(0), *moments, 0.1)
+            assert tuple(got[k]) == want
+        if not len(sums):   # and the steps go to the true shift (2, 1)
+            assert np.allclose(got[[0, 1, 3]], [2.0, 1.0], atol=0.05), got

@@ -1,6 +1,8 @@
 """Compiled inner loops of registration (numba): packed cross-power spectra, the
 weighted correlation peak, the Lucas-Kanade polish of a sub-pixel shift, the tapered
-registration image and which patches of two strips lie wholly on valid nodes.
+registration image, which patches of two strips lie wholly on valid nodes, and a
+link's patches cut out, gated by their contrast and less their weighted mean at once
+(per patch in Python that bookkeeping cost about as much as the patch's correlation).
 
 Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectra,
 and the polish reads a cubic-shifted patch in one pass instead of warping a copy
@@ -236,6 +238,143 @@ def shifted_residual_moments(img: np.ndarray, moved: np.ndarray, weight: np.ndar
             bx += e * gx[c]
             by += e * gy[c]
     return bx, by
+
+
+@numba.njit(cache=True, nogil=True)
+def polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray, dx: float, dy: float,
+           iterations: int, noise: np.ndarray, a11: float, a12: float, a22: float,
+           min_signal_share: float) -> tuple[float, float]:
+    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)`` (finite
+    ``dx``, ``dy``; see :func:`pipestitch.mosaic.register.phase_shift`).
+
+    ``a11``, ``a12``, ``a22``: ``first``'s :func:`gradient_moments` under ``weight``.
+    ``noise``: empty,
+    or what ``first``'s noise adds to the residual moments and to the Hessian's diagonal
+    (d_x, d_y, h_x, h_y), subtracted from both unless that would leave less than
+    ``min_signal_share`` of the Hessian. Stops when a step leaves the linear range
+    (more than a pixel: the start is kept from there) or falls below 1e-3 px.
+    """
+    d_x = d_y = 0.0
+    if noise.size and min(a11 - noise[2] - min_signal_share * a11,
+                          a22 - noise[3] - min_signal_share * a22) > 0:
+        a11, a22, d_x, d_y = a11 - noise[2], a22 - noise[3], noise[0], noise[1]
+    det = a11 * a22 - a12 * a12
+    if det <= 1e-12 * max(a11 * a22, 1e-30):
+        return dx, dy
+    n_rows, n_cols = second.shape
+    for _ in range(iterations):
+        # back(x) = second(x + d) = first(x - delta) ~ first(x) - grad(first) . delta
+        if dx == np.floor(dx) and dy == np.floor(dy) and abs(dx) < n_cols and abs(dy) < n_rows:
+            # Whole pixels (a correlation peak): cubic interpolation there is a copy,
+            # so the moments read ``second`` shifted instead of a warped copy.
+            bx, by = residual_moments(first, second, weight, int(dy), int(dx))
+        else:
+            bx, by = shifted_residual_moments(first, second, weight, dx, dy)
+        bx, by = -(bx + d_x), -(by + d_y)
+        step_x, step_y = (a22 * bx - a12 * by) / det, (a11 * by - a12 * bx) / det
+        if abs(step_x) > 1 or abs(step_y) > 1:
+            break
+        dx, dy = dx + step_x, dy + step_y
+        if abs(step_x) < 1e-3 and abs(step_y) < 1e-3:
+            break
+    return dx, dy
+
+
+@numba.njit(cache=True, nogil=True)
+def polish_patches(first: np.ndarray, second: np.ndarray, weight: np.ndarray,
+                   shifts: np.ndarray, iterations: int, noise: np.ndarray,
+                   min_signal_share: float) -> np.ndarray:
+    """:func:`polish` of each pair of patches ``first[k]``, ``second[k]`` from
+    ``shifts[k]`` (dx, dy), with ``noise[k]`` (none when ``noise`` has no rows); a
+    non-finite start is kept. Returns the polished shifts (n, 2)."""
+    out = shifts.copy()
+    none = np.empty(0)
+    for k in range(first.shape[0]):
+        dx, dy = shifts[k, 0], shifts[k, 1]
+        if not (np.isfinite(dx) and np.isfinite(dy)):
+            continue
+        a11, a12, a22 = gradient_moments(first[k], weight)
+        out[k, 0], out[k, 1] = polish(first[k], second[k], weight, dx, dy, iterations,
+                                      noise[k] if noise.shape[0] else none, a11, a12, a22,
+                                      min_signal_share)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _patch_std(patch: np.ndarray) -> float:
+    """Standard deviation of a patch (float64 sums, as ``cv2.meanStdDev``; eight partial
+    sums in a fixed order, so that they run side by side)."""
+    flat = patch.ravel()
+    total = np.zeros(8)
+    squares = np.zeros(8)
+    n = flat.size - flat.size % 8
+    for i in range(0, n, 8):
+        for lane in range(8):
+            v = np.float64(flat[i + lane])
+            total[lane] += v
+            squares[lane] += v * v
+    for i in range(n, flat.size):
+        v = np.float64(flat[i])
+        total[0] += v
+        squares[0] += v * v
+    mean = total.sum() / flat.size
+    return np.sqrt(max(squares.sum() / flat.size - mean * mean, 0.0))
+
+
+@numba.njit(cache=True, nogil=True)
+def minus_weighted_mean(patch: np.ndarray, weight: np.ndarray, total: float) -> None:
+    """``patch`` less its mean weighted by ``weight`` (flat, float32) whose sum is
+    ``total``, in place: the dot product in float32 by BLAS (``numpy.dot``'s ``sdot``)."""
+    flat = patch.ravel()
+    mean = F32(np.float64(np.dot(weight, flat)) / total)
+    for i in range(flat.size):
+        flat[i] = flat[i] - mean
+
+
+@numba.njit(cache=True, nogil=True)
+def link_patches(first: np.ndarray, second: np.ndarray, valid: np.ndarray, step: int,
+                 shift_rows: int, shift_cols: int, weight: np.ndarray, weight_total: float,
+                 min_std: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The patches of a link that :func:`patches_valid` found valid, textured enough.
+
+    Patch (k, m) of ``second`` starts at column ``k·step`` and row ``m·step`` (rows
+    wrap), its counterpart in ``first`` ``shift_cols`` columns and ``shift_rows`` rows
+    on; both are ``weight``'s size (square). A pair is kept when both standard
+    deviations reach ``min_std``; each kept patch less its mean weighted by ``weight``
+    (whose sum is ``weight_total``). Returns the first's and the second's patches
+    (n, size, size) float32, in the order of ``numpy.nonzero(valid)``, and each pair's
+    (row, column) in ``second`` and (row, column) in ``first`` (n, 4).
+    """
+    size = weight.shape[0]
+    n_rows = second.shape[0]
+    flat_weight = weight.ravel()
+    count = 0
+    for v in valid.ravel():
+        count += v
+    a = np.empty((count, size, size), np.float32)
+    b = np.empty((count, size, size), np.float32)
+    where = np.empty((count, 4), np.int64)
+    n = 0
+    for k in range(valid.shape[0]):
+        for m in range(valid.shape[1]):
+            if not valid[k, m]:
+                continue
+            c, r = k * step, m * step
+            c1 = c + shift_cols
+            for i in range(size):
+                b[n, i, :] = second[(r + i) % n_rows, c:c + size]
+            if _patch_std(b[n]) < min_std:
+                continue
+            for i in range(size):
+                a[n, i, :] = first[(r + i + shift_rows) % n_rows, c1:c1 + size]
+            if _patch_std(a[n]) < min_std:
+                continue
+            minus_weighted_mean(a[n], flat_weight, weight_total)
+            minus_weighted_mean(b[n], flat_weight, weight_total)
+            where[n, 0], where[n, 1] = r, c
+            where[n, 2], where[n, 3] = (r + shift_rows) % n_rows, c1
+            n += 1
+    return a[:n], b[:n], where[:n]
 
 
 @numba.njit(cache=True, nogil=True)

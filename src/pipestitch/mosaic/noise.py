@@ -43,7 +43,7 @@ from scipy.special import gammaincinv
 from pipestitch.mosaic import _noise_kernels as _k
 
 __all__ = ["ContrastNoise", "NoiseModel", "PatchNoise", "contrast_noise", "estimate_noise",
-           "patch_noise", "patch_table"]
+           "patch_noise", "patch_noise_sums", "patch_table"]
 
 # A second difference in both directions: zero on any linear shading (LED fall-off,
 # vignetting), sum of squares 36.
@@ -226,7 +226,15 @@ def patch_table(noise: ContrastNoise, window: np.ndarray) -> np.ndarray:
 def patch_noise(table: np.ndarray, step: int, row0: int, col0: int) -> PatchNoise:
     """The noise sums of the template patch whose first strip row is ``row0`` (wrapping)
     and first column ``col0``, from :func:`patch_table` (fields every ``step`` nodes)."""
+    sums = patch_noise_sums(table, step, np.array([row0]), np.array([col0]))[0]
+    return PatchNoise(*(float(v) for v in sums))
+
+
+def patch_noise_sums(table: np.ndarray, step: int, rows0: np.ndarray,
+                     cols0: np.ndarray) -> np.ndarray:
+    """:func:`patch_noise` of many patches (first rows ``rows0``, first columns
+    ``cols0``): (n, 4) float64, columns in :class:`PatchNoise`'s order."""
     half = step // 2
-    i = ((row0 + half) // step) % table.shape[1]
-    k = min((col0 + half) // step, table.shape[2] - 1)
-    return PatchNoise(*(float(v) for v in table[:, i, k]))
+    i = ((np.asarray(rows0, np.int64) + half) // step) % table.shape[1]
+    k = np.minimum((np.asarray(cols0, np.int64) + half) // step, table.shape[2] - 1)
+    return np.ascontiguousarray(table[:, i, k].T, np.float64)

@@ -34,9 +34,9 @@ from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
-from pipestitch.mosaic._register_kernels import patches_valid
-from pipestitch.mosaic.noise import ContrastNoise, patch_noise
-from pipestitch.mosaic.register import phase_shift
+from pipestitch.mosaic._register_kernels import link_patches, patches_valid, polish_patches
+from pipestitch.mosaic.noise import ContrastNoise, patch_noise_sums
+from pipestitch.mosaic.register import MIN_SIGNAL_SHARE, weight_total
 
 __all__ = ["PatchShifts", "node_jacobian", "pair_jacobians", "patch_shifts", "refinement_windows",
            "solve_in_windows", "solve_pose_errors"]
@@ -50,6 +50,7 @@ PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
 PATCHES_AROUND = 12
 # the patches' taper, shared by every link (never written to)
 _PATCH_WINDOW = cv2.createHanningWindow((PATCH_PX, PATCH_PX), cv2.CV_32F)
+_WINDOW_TOTAL = weight_total(_PATCH_WINDOW)
 MIN_RESPONSE = 0.1
 MIN_CONTRAST = 0.01          # patches flatter than this (std of local contrast) are skipped
 SHIFT_SIGMA_PX = 0.15        # 1-sigma of a patch shift at response 1
@@ -99,36 +100,29 @@ def patch_shifts(first: np.ndarray, first_valid: np.ndarray, second: np.ndarray,
     step = max(PATCH_STEP_PX, n_rows // PATCHES_AROUND)
     dr, dc = round(motion_px[0]), round(motion_px[1])
     win = _PATCH_WINDOW
-    table = None if first_noise is None else first_noise.patch_table(win)
     valid = patches_valid(np.ascontiguousarray(first_valid, np.bool_),
                           np.ascontiguousarray(second_valid, np.bool_), PATCH_PX, step, dr, dc)
-    nodes, shifts, responses = [], [], []
-    for k, m in zip(*np.nonzero(valid), strict=True):
-        c, c1, r = int(k) * step, int(k) * step + dc, int(m) * step
-        rows_j = np.arange(r, r + PATCH_PX) % n_rows
-        rows_i = (rows_j + dr) % n_rows
-        b = second[rows_j, c:c + PATCH_PX]
-        a = first[rows_i, c1:c1 + PATCH_PX]
-        if _std(b) < MIN_CONTRAST or _std(a) < MIN_CONTRAST:
-            continue
-        noise = (None if table is None
-                 else patch_noise(table, first_noise.step, int(rows_i[0]), c1))
-        sx, sy, resp = phase_shift(a, b, win, iterations=3, noise=noise)
-        if resp < MIN_RESPONSE or max(abs(sx), abs(sy)) > PATCH_PX / 4:
-            continue
-        # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.
-        nodes.append((r + (PATCH_PX - 1) / 2, c + (PATCH_PX - 1) / 2))
-        shifts.append((dr - sy, dc - sx))
-        responses.append(resp)
+    # every patch pair at once, less its weighted mean (phase_shift's first step)
+    a, b, where = link_patches(np.asarray(first, np.float32), np.asarray(second, np.float32),
+                               valid, step, dr, dc, win, _WINDOW_TOTAL, MIN_CONTRAST)
+    peaks = np.empty((len(where), 2))
+    response = np.empty(len(where))
+    for k in range(len(where)):
+        peaks[k], response[k] = cv2.phaseCorrelate(a[k], b[k], win)
+    noise = (np.empty((0, 4)) if first_noise is None
+             else patch_noise_sums(first_noise.patch_table(win), first_noise.step,
+                                   where[:, 2], where[:, 3]))
+    sx, sy = polish_patches(a, b, win, peaks, 3, noise, MIN_SIGNAL_SHARE).T
+    # max(|sx|, |sy|) as Python's max takes it (a NaN first is kept, as it compares false)
+    largest = np.where(np.abs(sy) > np.abs(sx), np.abs(sy), np.abs(sx))
+    keep = ~(response < MIN_RESPONSE) & ~(largest > PATCH_PX / 4)
+    # b(x) = a(x - s): the wall at b's x is at a's x - s, i.e. strip i's n + d - s.
+    nodes = where[keep, :2] + (PATCH_PX - 1) / 2
+    shifts = np.stack([dr - sy[keep], dc - sx[keep]], axis=1)
     # float32: a run's patch shifts are all held until its refinement (1e-5 px here)
-    return PatchShifts(i, j, np.array(nodes, np.float32).reshape(-1, 2),
-                       np.array(shifts, np.float32).reshape(-1, 2),
-                       np.array(responses, np.float32))
-
-
-def _std(patch: np.ndarray) -> float:
-    """Standard deviation of a patch (``cv2.meanStdDev``: a fifth of ``np.std``'s time)."""
-    return float(cv2.meanStdDev(patch)[1][0, 0])
+    return PatchShifts(i, j, nodes.astype(np.float32).reshape(-1, 2),
+                       shifts.astype(np.float32).reshape(-1, 2),
+                       response[keep].astype(np.float32))
 
 
 def node_jacobian(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,

@@ -29,8 +29,8 @@ from pipestitch.imaging import mad_sigma, median
 from pipestitch.mosaic._register_kernels import (
     cross_power_ccs,
     gradient_moments,
-    residual_moments,
-    shifted_residual_moments,
+    minus_weighted_mean,
+    polish,
     tapered_image,
     weighted_peak,
 )
@@ -112,18 +112,25 @@ def phase_shift(first: np.ndarray, second: np.ndarray, window: np.ndarray | None
 
 def _minus_weighted_mean(image: np.ndarray, weight: np.ndarray | None) -> np.ndarray:
     """``image`` less its mean weighted by ``weight`` (None: the plain mean), float32."""
-    image = np.ascontiguousarray(image, np.float32)
     if weight is None:
+        image = np.ascontiguousarray(image, np.float32)
         return image - np.float32(image.mean(dtype=np.float64))
-    weight = np.ascontiguousarray(weight, np.float32)
-    total = max(float(weight.sum(dtype=np.float64)), 1e-12)
-    return image - np.float32(float(np.dot(weight.ravel(), image.ravel())) / total)
+    out = np.array(image, np.float32, order="C")
+    minus_weighted_mean(out, np.ascontiguousarray(weight, np.float32).ravel(),
+                        weight_total(weight))
+    return out
+
+
+def weight_total(weight: np.ndarray) -> float:
+    """The sum of a weighting window as :func:`phase_shift` divides by (float64)."""
+    return max(float(np.asarray(weight, np.float32).sum(dtype=np.float64)), 1e-12)
 
 
 def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx: float,
             dy: float, iterations: int, noise: PatchNoise | None = None,
             moments: tuple[float, float, float] | None = None) -> tuple[float, float]:
-    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``.
+    """Lucas-Kanade steps on a translation d with ``second(x) = first(x - d)``
+    (:func:`~pipestitch.mosaic._register_kernels.polish`).
 
     ``weight`` None weighs every pixel 1. ``noise``: the expected share of ``first``'s
     noise in the residual moments and in the Hessian's diagonal, subtracted from both
@@ -139,30 +146,10 @@ def _polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray | None, dx
     weight = (np.zeros((0, 0), np.float32) if weight is None
               else np.ascontiguousarray(weight, np.float32))
     a11, a12, a22 = gradient_moments(first, weight) if moments is None else moments
-    d_x = d_y = 0.0
-    if noise is not None and min(a11 - noise.h_x - MIN_SIGNAL_SHARE * a11,
-                                 a22 - noise.h_y - MIN_SIGNAL_SHARE * a22) > 0:
-        a11, a22, d_x, d_y = a11 - noise.h_x, a22 - noise.h_y, noise.d_x, noise.d_y
-    det = a11 * a22 - a12 * a12
-    if det <= 1e-12 * max(a11 * a22, 1e-30):
-        return float(dx), float(dy)
-    n_rows, n_cols = second.shape
-    for _ in range(iterations):
-        # back(x) = second(x + d) = first(x - delta) ~ first(x) - grad(first) . delta
-        if float(dx).is_integer() and float(dy).is_integer() and abs(dx) < n_cols \
-                and abs(dy) < n_rows:
-            # Whole pixels (a correlation peak): cubic interpolation there is a copy,
-            # so the kernel reads ``second`` shifted instead of a warped copy.
-            bx, by = residual_moments(first, second, weight, int(dy), int(dx))
-        else:
-            bx, by = shifted_residual_moments(first, second, weight, dx, dy)
-        bx, by = -(bx + d_x), -(by + d_y)
-        step_x, step_y = (a22 * bx - a12 * by) / det, (a11 * by - a12 * bx) / det
-        if abs(step_x) > 1 or abs(step_y) > 1:
-            break  # not in the linear range: keep the correlation's estimate
-        dx, dy = dx + step_x, dy + step_y
-        if abs(step_x) < 1e-3 and abs(step_y) < 1e-3:
-            break
+    sums = (np.empty(0) if noise is None
+            else np.array([noise.d_x, noise.d_y, noise.h_x, noise.h_y], float))
+    dx, dy = polish(first, second, weight, float(dx), float(dy), iterations, sums,
+                    float(a11), float(a12), float(a22), MIN_SIGNAL_SHARE)
     return float(dx), float(dy)
 
 

@@ -238,7 +238,9 @@ def _rho_of_points(pts: np.ndarray, pol: np.ndarray, dpol: np.ndarray, rho_table
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+# fastmath as ``ray_loop``'s, set here: a kernel without it would take that of whichever
+# caller compiled it first (``ray_loop`` or ``_rho_of_points``), and its bits with it
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
 def _horner(coef: np.ndarray, x: float) -> float:
     """Polynomial with ascending coefficients at x (as numpy's ``polyval`` sums it)."""
     f = coef[-1]

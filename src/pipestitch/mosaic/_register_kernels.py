@@ -301,6 +301,17 @@ def polish_patches(first: np.ndarray, second: np.ndarray, weight: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True)
+def _copy_rows(strip: np.ndarray, row: int, col: int, out: np.ndarray) -> None:
+    """``out`` = the strip's rows from ``row`` on (wrapping) and columns from ``col`` on,
+    ``out``'s size (element loops, not slice assignments: less to compile)."""
+    n_rows = strip.shape[0]
+    for i in range(out.shape[0]):
+        src, dst = strip[(row + i) % n_rows], out[i]
+        for j in range(out.shape[1]):
+            dst[j] = src[col + j]
+
+
+@numba.njit(cache=True, nogil=True)
 def _patch_std(patch: np.ndarray) -> float:
     """Standard deviation of a patch (float64 sums, as ``cv2.meanStdDev``; eight partial
     sums in a fixed order, so that they run side by side)."""
@@ -361,12 +372,10 @@ def link_patches(first: np.ndarray, second: np.ndarray, valid: np.ndarray, step:
                 continue
             c, r = k * step, m * step
             c1 = c + shift_cols
-            for i in range(size):
-                b[n, i, :] = second[(r + i) % n_rows, c:c + size]
+            _copy_rows(second, r, c, b[n])
             if _patch_std(b[n]) < min_std:
                 continue
-            for i in range(size):
-                a[n, i, :] = first[(r + i + shift_rows) % n_rows, c1:c1 + size]
+            _copy_rows(first, r + shift_rows, c1, a[n])
             if _patch_std(a[n]) < min_std:
                 continue
             minus_weighted_mean(a[n], flat_weight, weight_total)

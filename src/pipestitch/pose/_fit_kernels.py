@@ -42,6 +42,10 @@ RMS_POINTS = 128               # px RMS on ~this many ring points: an RMS to ~6 
 MONOMIALS = np.array([[2, 0], [1, 1], [0, 2], [1, 0], [0, 1], [0, 0]])   # x^i y^j of a conic
 # Float options of the vectorised loops: reassociation lets LLVM sum in vector lanes.
 FAST = {"reassoc", "contract", "nsz", "arcp"}
+# A kernel that sets no ``fastmath`` takes its caller's when compiled as its callee, and
+# keeps it for every caller after (numba's flags inheritance): so each kernel a FAST one
+# calls sets its own, or its code would depend on which caller compiled it first
+# (tests/test_kernel_flags.py).
 
 
 # --- the kernels' named inputs ----------------------------------------------------------
@@ -232,7 +236,7 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=False)
 def solve_vector(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x with a x = b for a vector b (see :func:`solve`)."""
     return solve(a, b.reshape(b.size, 1))[:, 0].copy()
@@ -749,7 +753,7 @@ def ring_scale(candidates: Candidates, camera: RayKernel, plane: Plane, n_points
 
 # --- pose <-> conic -------------------------------------------------------------------
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=False)
 def rotation_rows(alpha: float, beta: float) -> np.ndarray:
     """(6, 3): rows 0-1 of R = Rx(alpha)·Ry(beta), then of dR/dalpha, then of dR/dbeta."""
     ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
@@ -825,7 +829,7 @@ def mirror_of(x: np.ndarray, plane: Plane) -> np.ndarray:
 
 # --- robust least squares of the radial residuals ---------------------------------------
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _point_coefficients(x: np.ndarray, plane: Plane) -> np.ndarray:
     """(6, 3) K: row k of :func:`rotation_rows` applied to the plane point of (u, v) is
     K[k, 0] + K[k, 1] u + K[k, 2] v; the offset (dx, dy) is added to rows 0 and 1."""
@@ -958,7 +962,7 @@ def _add_products(sums: tuple, j0: float, j1: float, nx: float, ny: float) -> tu
             s0 + j0, s1 + j1, s2 + nx, s3 + ny)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _plain_jtj(sums: tuple, n: int) -> np.ndarray:
     """The unweighted J^T J (5 x 5) of ``n`` points' :func:`_add_products` sums (the
     radius column of the Jacobian is -1)."""
@@ -967,7 +971,7 @@ def _plain_jtj(sums: tuple, n: int) -> np.ndarray:
                         float(n)))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _symmetric5(upper: tuple[float, ...]) -> np.ndarray:
     """The symmetric 5 x 5 matrix with the upper triangle ``upper`` (15 values, row by row)."""
     m00, m01, m02, m03, m04, m11, m12, m13, m14, m22, m23, m24, m33, m34, m44 = upper

@@ -16,35 +16,35 @@ import importlib
 import inspect
 import pkgutil
 import textwrap
+from collections.abc import Callable
+from types import ModuleType
 
 from numba.core.registry import CPUDispatcher
 
 import pipestitch
 
 
+def _modules() -> list[ModuleType]:
+    """Every pipestitch module (not the command line's ``__main__``, which runs it)."""
+    return [importlib.import_module(info.name)
+            for info in pkgutil.walk_packages(pipestitch.__path__, "pipestitch.")
+            if not info.name.endswith("__main__")]
+
+
 def _kernels() -> dict[int, CPUDispatcher]:
     """Every numba kernel defined in pipestitch, by id."""
-    found = {}
-    for info in pkgutil.walk_packages(pipestitch.__path__, "pipestitch."):
-        if info.name.endswith("__main__"):   # runs the command line
-            continue
-        module = importlib.import_module(info.name)
-        for value in vars(module).values():
-            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == info.name:
-                found[id(value)] = value
-    return found
+    return {id(value): value for module in _modules() for value in vars(module).values()
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == module.__name__}
 
 
-def _callees(kernel: CPUDispatcher) -> set[int]:
-    """The kernels ``kernel``'s source calls (names and module attributes resolved)."""
-    tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
-    names = kernel.py_func.__globals__
+def _called(tree: ast.AST, names: dict) -> set[int]:
+    """The kernels the calls in ``tree`` name (plain names and module attributes,
+    resolved in ``names``)."""
     out = set()
     for node in ast.walk(tree):
         if not isinstance(node, ast.Call):
             continue
-        func = node.func
-        target = None
+        func, target = node.func, None
         if isinstance(func, ast.Name):
             target = names.get(func.id)
         elif isinstance(func, ast.Attribute) and isinstance(func.value, ast.Name):
@@ -54,7 +54,26 @@ def _callees(kernel: CPUDispatcher) -> set[int]:
     return out
 
 
-def _own(kernel: CPUDispatcher) -> frozenset | None:
+def _called_from_python() -> set[int]:
+    """The kernels that pipestitch's Python code (outside the kernels) calls."""
+    out = set()
+    for module in _modules():
+        tree = ast.parse(inspect.getsource(module))
+        for node in ast.walk(tree):   # the kernels' own bodies left out
+            if isinstance(node, ast.FunctionDef) and isinstance(
+                    vars(module).get(node.name), CPUDispatcher):
+                node.body = []
+        out |= _called(tree, vars(module))
+    return out
+
+
+def _callees(kernel: CPUDispatcher) -> set[int]:
+    """The kernels ``kernel``'s source calls."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(kernel.py_func)))
+    return _called(tree, kernel.py_func.__globals__)
+
+
+def _fastmath(kernel: CPUDispatcher) -> frozenset | None:
     """The kernel's own fastmath flags, or None when it sets none (it inherits)."""
     if "fastmath" not in kernel.targetoptions:
         return None
@@ -64,30 +83,45 @@ def _own(kernel: CPUDispatcher) -> frozenset | None:
     return frozenset(value) if value else frozenset()
 
 
-def test_each_kernel_has_one_possible_fastmath() -> None:
+def _error_model(kernel: CPUDispatcher) -> str | None:
+    """The kernel's own error model, or None when it sets none (it inherits)."""
+    return kernel.targetoptions.get("error_model")
+
+
+def _ambiguous(option: Callable[[CPUDispatcher], object], default: object) -> list[str]:
+    """The kernels that could be compiled with two values of an inherited ``option``:
+    their own, else any their callers can have (``default`` when called from Python, or
+    called by no kernel: from a test or a user)."""
     kernels = _kernels()
     assert len(kernels) > 100   # the walk found the package's kernels
-    calls = {k: _callees(d) for k, d in kernels.items()}
     callers: dict[int, set[int]] = {k: set() for k in kernels}
-    for k, callees in calls.items():
-        for c in callees & kernels.keys():
+    for k, d in kernels.items():
+        for c in _callees(d) & kernels.keys():
             callers[c].add(k)
-    # what each kernel can be compiled with: its own flags, else its callers' (and the
-    # default, no flags, when nothing compiled calls it: a call from Python)
-    possible = {k: ({_own(d)} if _own(d) is not None
-                    else set() if callers[k] else {frozenset()})
-                for k, d in kernels.items()}
+    own = {k: option(d) for k, d in kernels.items()}
+    python = _called_from_python()
+    possible = {k: {own[k]} if own[k] is not None
+                else {default} if k in python or not callers[k] else set()
+                for k in kernels}
     changed = True
     while changed:
         changed = False
-        for k, d in kernels.items():
-            if _own(d) is not None:
-                continue
-            new = set().union(*(possible[c] for c in callers[k])) if callers[k] else possible[k]
-            if not new <= possible[k]:
-                possible[k] |= new
-                changed = True
-    ambiguous = sorted(f"{d.py_func.__module__}.{d.py_func.__name__}: "
-                       f"{sorted(sorted(p) for p in possible[k])}"
-                       for k, d in kernels.items() if len(possible[k]) > 1)
+        for k in kernels:
+            if own[k] is None and callers[k]:
+                new = set().union(*(possible[c] for c in callers[k]))
+                if not new <= possible[k]:
+                    possible[k] |= new
+                    changed = True
+    return sorted(f"{d.py_func.__module__}.{d.py_func.__name__}: {sorted(map(str, possible[k]))}"
+                  for k, d in kernels.items() if len(possible[k]) > 1)
+
+
+def test_each_kernel_has_one_possible_fastmath() -> None:
+    ambiguous = _ambiguous(_fastmath, frozenset())
+    assert not ambiguous, ambiguous
+
+
+def test_each_kernel_has_one_possible_error_model() -> None:
+    # inherited the same way: "python" raises on a division by zero, "numpy" gives inf
+    ambiguous = _ambiguous(_error_model, "python")
     assert not ambiguous, ambiguous

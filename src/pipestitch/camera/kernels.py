@@ -29,7 +29,9 @@ from pipestitch.camera.base import OCAM, OPENCV_FISHEYE, RayKernel
 __all__ = ["rays_of"]
 
 
-@numba.njit(cache=True, nogil=True)
+# error_model set, as the fit that calls it sets its own (docs/conventions.md, "Compiled
+# kernels"): a division by zero gives inf, never an exception, whoever calls it
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def rays_of(camera: RayKernel, pixels: np.ndarray) -> np.ndarray:
     """Unit rays of pixels through the model a RayKernel names.
 

@@ -238,9 +238,11 @@ def _rho_of_points(pts: np.ndarray, pol: np.ndarray, dpol: np.ndarray, rho_table
     return out
 
 
-# fastmath as ``ray_loop``'s, set here: a kernel without it would take that of whichever
-# caller compiled it first (``ray_loop`` or ``_rho_of_points``), and its bits with it
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
+# Float options as ``ray_loop``'s, set here: a kernel without them takes those of whichever
+# caller compiles it first (``ray_loop`` or ``_rho_of_points``), and its bits with them
+# (docs/conventions.md, "Compiled kernels")
+@numba.njit(cache=True, nogil=True, error_model="numpy",
+            fastmath={"reassoc", "contract", "arcp"})
 def _horner(coef: np.ndarray, x: float) -> float:
     """Polynomial with ascending coefficients at x (as numpy's ``polyval`` sums it)."""
     f = coef[-1]
@@ -250,7 +252,8 @@ def _horner(coef: np.ndarray, x: float) -> float:
 
 
 # reassociation and contraction only (NaN and inf keep their meaning: the NaN tests below)
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
+@numba.njit(cache=True, nogil=True, error_model="numpy",
+            fastmath={"reassoc", "contract", "arcp"})
 def ray_loop(pixels: np.ndarray, pol: np.ndarray, affine: np.ndarray, max_rho: float) -> np.ndarray:
     """Unit rays (SPEC probe frame) of pixels (col, row); NaN beyond ``max_rho`` or NaN.
 

@@ -135,7 +135,7 @@ class OpenCVFisheyeModel:
         return np.array([[self.fx, self.skew * self.fx, self.cx], [0, self.fy, self.cy], [0, 0, 1]])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _distort_at(theta: float, k: np.ndarray) -> tuple[float, float]:
     """theta_d(theta) = theta (1 + k1 theta² + ... + k4 theta⁸) and its derivative."""
     t2 = theta * theta
@@ -153,7 +153,7 @@ def _distort_all(theta: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return thetad, slope
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def ray_loop(pixels: np.ndarray, intrinsics: np.ndarray, k: np.ndarray,
              theta_table: np.ndarray, thetad_table: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Unit rays of pixels (col, row); NaN beyond the table's largest theta_d or NaN.

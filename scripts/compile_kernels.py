@@ -206,6 +206,32 @@ def source_key() -> str:
     return h.hexdigest()
 
 
+def clear_cache() -> int:
+    """Delete pipestitch's kernels from numba's on-disk cache; return how many files.
+
+    Numba invalidates a cached kernel when its own source file changes, not when a
+    kernel it calls (and compiled into its own code) changes in another file: a fit
+    cached before an edit of the camera's ``ray_loop`` would keep the old loop. So a
+    compile after any kernel source changed starts from an empty cache. The cache is
+    the ``__pycache__`` folders beside the sources, or under ``NUMBA_CACHE_DIR`` when
+    that is set (numba's own sub-folder for each source folder).
+    """
+    from numba.core.caching import _CacheLocator
+
+    folders = {p.parent for p in SRC.rglob("*.py")}
+    places = {f / "__pycache__" for f in folders}
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        root = Path(os.environ["NUMBA_CACHE_DIR"])
+        places |= {root / _CacheLocator.get_suitable_cache_subpath(str(f / "x.py"))
+                   for f in folders}
+    removed = 0
+    for place in places:
+        for f in [*place.glob("*.nbi"), *place.glob("*.nbc")]:
+            f.unlink(missing_ok=True)
+            removed += 1
+    return removed
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring.
 
@@ -237,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.stamp is not None and args.stamp.is_file() and args.stamp.read_text() == key:
         return 0
     t0 = time.perf_counter()
+    clear_cache()   # a kernel's callees may have changed in other files
     shares = [g for g in groups(max(1, args.jobs)) if g]
     print(f"compiling the numba kernels ({len(shares)} processes, once: up to a minute) ...",
           file=sys.stderr)

@@ -86,3 +86,33 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-3000:]
     added = json.loads(proc.stdout.strip().splitlines()[-1])
     assert added == {}, f"compiled at run time, not by scripts/compile_kernels.py: {added}"
+
+
+def test_a_compile_starts_from_an_empty_cache(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    # A cached caller keeps the callees it was compiled with when only their file
+    # changes, so the set-up removes every cached kernel of the package first: beside
+    # the sources, and under NUMBA_CACHE_DIR when that is set; nothing else.
+    from numba.core.caching import _CacheLocator
+
+    ck = _load_script()
+    src = tmp_path / "src" / "pipestitch"
+    (src / "camera" / "__pycache__").mkdir(parents=True)
+    (src / "camera" / "ocam.py").write_text("")
+    (src / "__init__.py").write_text("")
+    user = tmp_path / "user-cache"
+    under = user / _CacheLocator.get_suitable_cache_subpath(str(src / "camera" / "ocam.py"))
+    under.mkdir(parents=True)
+    cached = [src / "camera" / "__pycache__" / "ocam._horner-244.py311.nbi",
+              src / "camera" / "__pycache__" / "ocam._horner-244.py311.1.nbc",
+              under / "ocam.ray_loop-254.py311.nbi"]
+    kept = [src / "camera" / "__pycache__" / "ocam.cpython-311.pyc",
+            user / "other_0123" / "theirs.f-1.py311.nbi"]
+    for f in cached + kept:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_bytes(b"x")
+    monkeypatch.setattr(ck, "SRC", src)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(user))
+    assert ck.clear_cache() == 3
+    assert not any(f.exists() for f in cached)
+    assert all(f.exists() for f in kept)

@@ -13,9 +13,10 @@ no ``ray_kernel``; callers then use ``unproject``.
 
 Development note: numba's on-disk cache of a kernel is invalidated by edits to its own
 file only, not to the files of the compiled functions it calls. After editing a
-model's ``ray_loop``, delete the ``__pycache__`` folders of ``camera`` and of
-``pipestitch`` (``pose._fit_kernels.fit_pixels`` calls it through :func:`rays_of`), or
-the cached callers keep the old loop.
+model's ``ray_loop``, run ``scripts/compile_kernels.py`` (``scripts/setup-env.sh`` does
+when a kernel source changed): it starts from an empty cache, so the cached callers
+(``pose._fit_kernels.fit_fields`` calls the loop through :func:`rays_of`) do not keep
+the old loop.
 """
 
 from __future__ import annotations

@@ -212,21 +212,27 @@ def clear_cache() -> int:
     Numba invalidates a cached kernel when its own source file changes, not when a
     kernel it calls (and compiled into its own code) changes in another file: a fit
     cached before an edit of the camera's ``ray_loop`` would keep the old loop. So a
-    compile after any kernel source changed starts from an empty cache. The cache is
-    the ``__pycache__`` folders beside the sources, or under ``NUMBA_CACHE_DIR`` when
-    that is set (numba's own sub-folder for each source folder).
+    compile after any kernel source changed starts from an empty cache. Each module's
+    kernels are looked for where numba keeps them: under ``NUMBA_CACHE_DIR`` when that
+    is set, else in the ``__pycache__`` beside the source when it is writable, else in
+    the user's numba cache folder (numba's own sub-folder for each source folder).
     """
     from numba.core.caching import _CacheLocator
+    from numba.misc.appdirs import AppDirs
 
-    folders = {p.parent for p in SRC.rglob("*.py")}
-    places = {f / "__pycache__" for f in folders}
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        root = Path(os.environ["NUMBA_CACHE_DIR"])
-        places |= {root / _CacheLocator.get_suitable_cache_subpath(str(f / "x.py"))
-                   for f in folders}
+    user = os.environ.get("NUMBA_CACHE_DIR")
     removed = 0
-    for place in places:
-        for f in [*place.glob("*.nbi"), *place.glob("*.nbc")]:
+    for source in SRC.rglob("*.py"):
+        beside = source.parent / "__pycache__"
+        if user:
+            place = Path(user) / _CacheLocator.get_suitable_cache_subpath(str(source))
+        elif os.access(source.parent, os.W_OK) and (not beside.exists()
+                                                     or os.access(beside, os.W_OK)):
+            place = beside
+        else:
+            place = (Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
+                     / _CacheLocator.get_suitable_cache_subpath(str(source)))
+        for f in [*place.glob(f"{source.stem}.*.nbi"), *place.glob(f"{source.stem}.*.nbc")]:
             f.unlink(missing_ok=True)
             removed += 1
     return removed

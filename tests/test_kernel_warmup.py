@@ -91,28 +91,38 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
 def test_a_compile_starts_from_an_empty_cache(tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
     # A cached caller keeps the callees it was compiled with when only their file
-    # changes, so the set-up removes every cached kernel of the package first: beside
-    # the sources, and under NUMBA_CACHE_DIR when that is set; nothing else.
+    # changes, so the set-up removes every cached kernel of the package first, where
+    # numba keeps them: beside the sources, or under NUMBA_CACHE_DIR when that is set
+    # (then the folders beside the sources are not numba's and are left alone).
     from numba.core.caching import _CacheLocator
 
     ck = _load_script()
     src = tmp_path / "src" / "pipestitch"
-    (src / "camera" / "__pycache__").mkdir(parents=True)
+    beside = src / "camera" / "__pycache__"
+    beside.mkdir(parents=True)
     (src / "camera" / "ocam.py").write_text("")
     (src / "__init__.py").write_text("")
     user = tmp_path / "user-cache"
     under = user / _CacheLocator.get_suitable_cache_subpath(str(src / "camera" / "ocam.py"))
-    under.mkdir(parents=True)
-    cached = [src / "camera" / "__pycache__" / "ocam._horner-244.py311.nbi",
-              src / "camera" / "__pycache__" / "ocam._horner-244.py311.1.nbc",
-              under / "ocam.ray_loop-254.py311.nbi"]
-    kept = [src / "camera" / "__pycache__" / "ocam.cpython-311.pyc",
-            user / "other_0123" / "theirs.f-1.py311.nbi"]
-    for f in cached + kept:
-        f.parent.mkdir(parents=True, exist_ok=True)
-        f.write_bytes(b"x")
+    files = {"beside": [beside / "ocam._horner-244.py311.nbi",
+                        beside / "ocam._horner-244.py311.1.nbc"],
+             "under": [under / "ocam.ray_loop-254.py311.nbi"],
+             "kept": [beside / "ocam.cpython-311.pyc", under / "other.f-1.py311.nbi",
+                      user / "theirs_0123" / "ocam.f-1.py311.nbi"]}
+
+    def make() -> None:
+        for f in [f for group in files.values() for f in group]:
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_bytes(b"x")
+
     monkeypatch.setattr(ck, "SRC", src)
+    make()
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert ck.clear_cache() == 2
+    assert not any(f.exists() for f in files["beside"])
+    assert all(f.exists() for f in files["under"] + files["kept"])
+    make()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(user))
-    assert ck.clear_cache() == 3
-    assert not any(f.exists() for f in cached)
-    assert all(f.exists() for f in kept)
+    assert ck.clear_cache() == 1
+    assert not any(f.exists() for f in files["under"])
+    assert all(f.exists() for f in files["beside"] + files["kept"])

@@ -2,7 +2,8 @@
 weighted correlation peak, the Lucas-Kanade polish of a sub-pixel shift, the tapered
 registration image, which patches of two strips lie wholly on valid nodes, and a
 link's patches cut out, gated by their contrast and less their weighted mean at once
-(per patch in Python that bookkeeping cost about as much as the patch's correlation).
+(done per patch in Python, that bookkeeping cost nearly as much as the patch's
+correlation).
 
 Why hand-written: OpenCV has no modulus normalisation of its packed (CCS) spectra,
 and the polish reads a cubic-shifted patch in one pass instead of warping a copy
@@ -248,10 +249,9 @@ def polish(first: np.ndarray, second: np.ndarray, weight: np.ndarray, dx: float,
     ``dx``, ``dy``; see :func:`pipestitch.mosaic.register.phase_shift`).
 
     ``a11``, ``a12``, ``a22``: ``first``'s :func:`gradient_moments` under ``weight``.
-    ``noise``: empty,
-    or what ``first``'s noise adds to the residual moments and to the Hessian's diagonal
-    (d_x, d_y, h_x, h_y), subtracted from both unless that would leave less than
-    ``min_signal_share`` of the Hessian. Stops when a step leaves the linear range
+    ``noise``: empty, or what ``first``'s noise adds to the residual moments and to the
+    Hessian's diagonal (d_x, d_y, h_x, h_y), subtracted from both unless that would
+    leave less than ``min_signal_share`` of the Hessian. Stops when a step leaves the linear range
     (more than a pixel: the start is kept from there) or falls below 1e-3 px.
     """
     d_x = d_y = 0.0

@@ -6,7 +6,8 @@ a kernel called both from a ``fastmath`` kernel and from one without (or from Py
 would then compute differently, in its last bits, with the order in which a process
 happened to compile them: the set-up's order against a first run's, which once moved
 outputs at ~1e-12. So each kernel must have a single possible ``fastmath``: its own, or
-the one every caller passes on.
+the one every caller passes on. ``error_model`` is inherited the same way (whether a
+division by zero raises), so it is held to the same rule.
 """
 
 from __future__ import annotations

@@ -4,11 +4,13 @@
 run`` loads the compiled kernels (about 1 s) instead of compiling them (about a
 minute on 2 cores). Each kernel that Python code calls is compiled for the one
 signature a run calls it with (:data:`KERNELS`); the kernels it calls are compiled with
-it. The work is split over processes: the pose fit's kernel tree alone is about two
-thirds of it, so one process compiles the fit while another compiles its refinement
-subtree first (ready in the cache before the fit reaches it: numba loads a callee from
-the cache when it has it) and then the other kernels (on a shared 2-core machine: 52 s
-in one process, 27-39 s in two).
+it. A pool of processes takes the entries in list order, each as a process comes free.
+The pose fit's tree is most of the work, so its two independent halves come first
+(its refinement and its ring selection, compiled at once by two processes) and its
+entry after them (:data:`WAITS_FOR`): numba then loads the halves from the cache
+instead of compiling them again. Numba compiles each kernel (with the code of every
+kernel it calls) into its own machine code, so a kernel that only one other calls,
+from one place, is inlined into it (``inline="always"``) rather than compiled twice.
 
 ``tests/test_kernel_warmup.py`` checks that a run after this compiles nothing new: a
 kernel whose signature changes must change here too.
@@ -23,11 +25,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib
+import multiprocessing
 import os
 import re
-import subprocess
 import sys
 import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
@@ -39,10 +43,12 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 PLANE = "Plane(f8 f8:1r f8:2r)"
 FIT_SETTINGS = "FitSettings(f8 f8 i8 f8 i8 i8)"
 KERNELS: tuple[tuple[str, str, str], ...] = (
+    # the fit's two halves as fit_frame calls them, then the fit (see WAITS_FOR)
+    ("pose._fit_kernels", "refine_frame", f"f8:1 f8:2 b1:1 i8 {PLANE} {FIT_SETTINGS}"),
+    ("pose._fit_kernels", "select_ring",
+     f"f8:2 Candidates(f8:2 i8:1A i8:1A i8) {PLANE} {FIT_SETTINGS} f8:2"),
     ("pose._fit_kernels", "fit_fields",   # Candidates, RayKernel, Plane, FitSettings
      "f8:2 i8:1A i8:1A i8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8:1r f8:2r f8 f8 i8 f8 i8 i8 f8 f8:2"),
-    # fit_fields' refinement subtree as fit_frame calls it (compiled apart in parallel)
-    ("pose._fit_kernels", "refine_frame", f"f8:1 f8:2 b1:1 i8 {PLANE} {FIT_SETTINGS}"),
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
     ("pose._ring_kernels", "flatten_by_reflectance", "f4:2 f4:2 i8 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
@@ -90,9 +96,11 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("io._image_kernels", "png_unfilter", "u1:1r i8 i8 i8 u1:1"),
     ("io._image_kernels", "png_paeth_filter", "u1:2r i8"),
 )
-BIG = ("pose._fit_kernels", "fit_fields")     # the big kernel tree: a process of its own
-FIRST = ("pose._fit_kernels", "refine_frame")  # ... its subtree, first in the next one
-AFTER_BIG = ("mosaic._unwrap_kernels", "mask_strip")   # after the tree, to balance
+# An entry that calls others compiles after them, so that it loads them from the cache.
+WAITS_FOR: dict[tuple[str, str], tuple[tuple[str, str], ...]] = {
+    ("pose._fit_kernels", "fit_fields"): (("pose._fit_kernels", "refine_frame"),
+                                          ("pose._fit_kernels", "select_ring")),
+}
 
 
 def parse_types(text: str, namespace: object = None) -> tuple:
@@ -136,29 +144,27 @@ def _scalar_or_array(token: str) -> object:
     return types.Array(scalars[name], int(rest.rstrip("Ar")), layout, readonly="r" in rest)
 
 
-def groups(n_jobs: int) -> list[list[int]]:
-    """Indices into :data:`KERNELS` for each process, in compile order.
+def next_entry(pending: list[int], done: set[int]) -> int | None:
+    """The first of ``pending`` (indices into :data:`KERNELS`, in compile order) whose
+    entries in :data:`WAITS_FOR` are all ``done``; None when each still waits.
 
     Parameters
     ----------
-    n_jobs : int
-        Processes (1: everything in one).
+    pending : list of int
+        Entries not yet started.
+    done : set of int
+        Entries compiled.
 
     Returns
     -------
-    list of list of int
-        One list per process.
+    int or None
+        The entry to start next.
     """
     index = {entry[:2]: i for i, entry in enumerate(KERNELS)}
-    big, first, after = index[BIG], index[FIRST], index[AFTER_BIG]
-    rest = [i for i in range(len(KERNELS)) if i not in (big, first, after)]
-    if n_jobs <= 1:
-        return [[first, big, after, *rest]]
-    out: list[list[int]] = [[big, after], [first]]
-    out += [[] for _ in range(n_jobs - 2)]
-    for k, i in enumerate(rest):     # the rest round-robin over the other processes
-        out[1 + k % (n_jobs - 1)].append(i)
-    return out
+    for i in pending:
+        if all(index[key] in done for key in WAITS_FOR.get(KERNELS[i][:2], ())):
+            return i
+    return None
 
 
 def compile_entries(indices: list[int]) -> float:
@@ -238,6 +244,55 @@ def clear_cache() -> int:
     return removed
 
 
+def compile_all(n_jobs: int, verbose: bool = False) -> int:
+    """Compile every :data:`KERNELS` entry in a pool of processes; return how many failed.
+
+    Each process that comes free takes the next entry :func:`next_entry` allows. A
+    failed entry counts as done: a kernel that calls it compiles it itself.
+
+    Parameters
+    ----------
+    n_jobs : int
+        Processes.
+    verbose : bool
+        Print each entry's time and process.
+
+    Returns
+    -------
+    int
+        Entries not compiled.
+    """
+    pending, done, failed = list(range(len(KERNELS))), set(), 0
+    running: dict[Future, int] = {}
+    with ProcessPoolExecutor(n_jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        while pending or running:
+            while len(running) < n_jobs and (i := next_entry(pending, done)) is not None:
+                pending.remove(i)
+                running[pool.submit(_compile_one, i)] = i
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in finished:
+                i = running.pop(future)
+                done.add(i)
+                try:
+                    seconds, pid = future.result()
+                except Exception as error:   # reported; the kernel compiles on first use
+                    failed += 1
+                    print(f"compile_kernels: {KERNELS[i][1]}: {type(error).__name__}: "
+                          f"{error}", file=sys.stderr)
+                    if isinstance(error, BrokenProcessPool):
+                        return failed + len(running) + len(pending)
+                    continue
+                if verbose:
+                    print(f"  {seconds:5.1f} s  process {pid}: {KERNELS[i][1]}",
+                          file=sys.stderr)
+    return failed
+
+
+def _compile_one(i: int) -> tuple[float, int]:
+    """(seconds, process id) of compiling :data:`KERNELS` entry ``i`` in a pool process."""
+    return compile_entries([i]), os.getpid()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring.
 
@@ -255,33 +310,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="processes (default: 2, or 1 on one core)")
     parser.add_argument("--stamp", type=Path, help="skip when this file holds the key")
-    parser.add_argument("--verbose", action="store_true", help="each process's time")
-    parser.add_argument("--entries", help=argparse.SUPPRESS)   # a child process's share
+    parser.add_argument("--verbose", action="store_true", help="each kernel's time")
     args = parser.parse_args(argv)
-    if args.entries is not None:
-        indices = [int(i) for i in args.entries.split(",") if i]
-        seconds = compile_entries(indices)
-        if args.verbose:
-            print(f"  {seconds:5.1f} s: " + ", ".join(KERNELS[i][1] for i in indices),
-                  file=sys.stderr)
-        return 0
     key = source_key()
     if args.stamp is not None and args.stamp.is_file() and args.stamp.read_text() == key:
         return 0
     t0 = time.perf_counter()
     clear_cache()   # a kernel's callees may have changed in other files
-    shares = [g for g in groups(max(1, args.jobs)) if g]
-    print(f"compiling the numba kernels ({len(shares)} processes, once: up to a minute) ...",
+    jobs = max(1, args.jobs)
+    print(f"compiling the numba kernels ({jobs} processes, once: up to a minute) ...",
           file=sys.stderr)
-    procs = [subprocess.Popen([sys.executable, __file__, "--entries", ",".join(map(str, g)),
-                               *(["--verbose"] if args.verbose else [])]) for g in shares]
-    failed = sum(p.wait() != 0 for p in procs)
+    failed = compile_all(jobs, args.verbose)
     if failed:
-        print(f"compile_kernels: {failed} of {len(procs)} processes failed; the kernels "
-              "left will compile on first use", file=sys.stderr)
+        print(f"compile_kernels: {failed} of {len(KERNELS)} kernels failed; they will "
+              "compile on first use", file=sys.stderr)
         return 1
     print(f"compiled {len(KERNELS)} kernels in {time.perf_counter() - t0:.1f} s "
-          f"({len(procs)} processes)", file=sys.stderr)
+          f"({jobs} processes)", file=sys.stderr)
     if args.stamp is not None:
         args.stamp.write_text(key)
     return 0

@@ -7,7 +7,9 @@ would then compute differently, in its last bits, with the order in which a proc
 happened to compile them: the set-up's order against a first run's, which once moved
 outputs at ~1e-12. So each kernel must have a single possible ``fastmath``: its own, or
 the one every caller passes on. ``error_model`` is inherited the same way (whether a
-division by zero raises), so it is held to the same rule.
+division by zero raises), so it is held to the same rule. A kernel inlined into its
+callers (``inline="always"``) is compiled with each caller's options whatever its own,
+and with its own only when Python calls it: it too must come out with one.
 """
 
 from __future__ import annotations
@@ -92,7 +94,8 @@ def _error_model(kernel: CPUDispatcher) -> str | None:
 def _ambiguous(option: Callable[[CPUDispatcher], object], default: object) -> list[str]:
     """The kernels that could be compiled with two values of an inherited ``option``:
     their own, else any their callers can have (``default`` when called from Python, or
-    called by no kernel: from a test or a user)."""
+    called by no kernel: from a test or a user); an inlined kernel any its callers can
+    have, and its own (else ``default``) when called from outside kernels."""
     kernels = _kernels()
     assert len(kernels) > 100   # the walk found the package's kernels
     callers: dict[int, set[int]] = {k: set() for k in kernels}
@@ -100,15 +103,16 @@ def _ambiguous(option: Callable[[CPUDispatcher], object], default: object) -> li
         for c in _callees(d) & kernels.keys():
             callers[c].add(k)
     own = {k: option(d) for k, d in kernels.items()}
+    inlined = {k for k, d in kernels.items() if d.targetoptions.get("inline") == "always"}
     python = _called_from_python()
-    possible = {k: {own[k]} if own[k] is not None
-                else {default} if k in python or not callers[k] else set()
-                for k in kernels}
+    outside = {k for k in kernels if k in python or not callers[k]}
+    possible = {k: ({own[k] if own[k] is not None else default} if k in outside else set())
+                if own[k] is None or k in inlined else {own[k]} for k in kernels}
     changed = True
     while changed:
         changed = False
         for k in kernels:
-            if own[k] is None and callers[k]:
+            if (own[k] is None or k in inlined) and callers[k]:
                 new = set().union(*(possible[c] for c in callers[k]))
                 if not new <= possible[k]:
                     possible[k] |= new

@@ -68,11 +68,26 @@ def test_every_listed_kernel_exists_and_parses() -> None:
         assert len(types) == kernel.py_func.__code__.co_argcount, (module, name)
 
 
-def test_groups_cover_every_kernel_once() -> None:
+def test_every_entry_starts_once_and_after_what_it_waits_for() -> None:
+    # Two processes, each finishing its entries in the order they started: every entry
+    # starts once, and one that waits for others (the fit) only after they finished.
     ck = _load_script()
-    for jobs in (1, 2, 3, 4):
-        flat = [i for group in ck.groups(jobs) for i in group]
-        assert sorted(flat) == list(range(len(ck.KERNELS)))
+    index = {entry[:2]: i for i, entry in enumerate(ck.KERNELS)}
+    waits = {index[k]: {index[w] for w in v} for k, v in ck.WAITS_FOR.items()}
+    assert waits, "the fit waits for its halves"
+    assert all(max(w) < k for k, w in waits.items()), "what an entry waits for comes first"
+    pending, done, running, started = list(range(len(ck.KERNELS))), set(), [], []
+    while pending or running:
+        while len(running) < 2 and (i := ck.next_entry(pending, done)) is not None:
+            assert waits.get(i, set()) <= done
+            pending.remove(i)
+            running.append(i)
+            started.append(i)
+        done.add(running.pop(0))
+    assert sorted(started) == list(range(len(ck.KERNELS)))
+    fit = index[("pose._fit_kernels", "fit_fields")]
+    assert ck.next_entry([fit], set()) is None
+    assert ck.next_entry([fit], waits[fit]) == fit
 
 
 @pytest.mark.slow   # a simulated run and the pipeline in a child process

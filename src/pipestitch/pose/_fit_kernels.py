@@ -46,6 +46,13 @@ FAST = {"reassoc", "contract", "nsz", "arcp"}
 # keeps it for every caller after (numba's flags inheritance): so each kernel a FAST one
 # calls sets its own, or its code would depend on which caller compiled it first
 # (tests/test_kernel_flags.py).
+# Numba compiles each kernel into machine code of its own that holds every kernel it
+# calls, so a chain of kernels is optimised and compiled again at each level. A kernel
+# that only one other calls, as a step of it (the fit's entry levels fit_pixels,
+# fit_scaled and fit_frame; refine_both, mirror_of; initial_conic, reselect), is inlined
+# into it instead (``inline="always"``: numba's own inlining, the same arithmetic under
+# the caller's options), which takes ~15 s off the set-up's compile. RANSAC's loop
+# (ransac_conic) stays apart: inlined into select_ring it slowed every frame's fit.
 
 
 # --- the kernels' named inputs ----------------------------------------------------------
@@ -481,7 +488,7 @@ def conic_normalised(coef: np.ndarray, scale: float) -> tuple[np.ndarray, np.nda
     return q / norm, lin / norm, coef[5] / norm
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def initial_conic(pts: np.ndarray, rank: np.ndarray, threshold: float) -> tuple[
         np.ndarray, float, np.ndarray, bool, np.ndarray]:
     """Conic of every ray's strongest candidate, and its inliers among all candidates.
@@ -570,7 +577,7 @@ def one_per_azimuth(resid: np.ndarray, azimuth: np.ndarray, threshold: float) ->
     return keep
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def reselect(pts: np.ndarray, azimuth: np.ndarray, keep: np.ndarray, coef: np.ndarray,
              scale: float, threshold: float,
              dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -812,7 +819,7 @@ def model_conic(x: np.ndarray, plane: Plane) -> tuple[np.ndarray, np.ndarray, fl
     return matmul(a_t, a_mat), matvec(a_t, c), dot(c, c) - x[4] ** 2
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def mirror_of(x: np.ndarray, plane: Plane) -> np.ndarray:
     """The other pose of x's own conic (farthest in |d alpha| + |d beta|), same radius."""
     sols = conic_poses(*model_conic(x, plane), plane)
@@ -1042,7 +1049,7 @@ def gauss_newton(x: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane, n_fr
     return x, cost, resid, jtj
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def refine_both(start: np.ndarray, u: np.ndarray, v: np.ndarray, plane: Plane, n_free: int,
                 f_scale: float) -> tuple[
         np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1119,7 +1126,7 @@ def refine_frame(start: np.ndarray, uv: np.ndarray, kept: np.ndarray, stride: in
     return summary, cost, rms_px, info
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def fit_frame(rays: np.ndarray, stride: int, candidates: Candidates, plane: Plane,
               settings: FitSettings, uniforms: np.ndarray) -> tuple:
     """A frame's whole fit in one call: :func:`select_ring`, then :func:`refine_frame`
@@ -1197,7 +1204,7 @@ def _with_noise(settings: FitSettings, noise_mm: float) -> FitSettings:
                        settings.min_hit, settings.max_points)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def fit_scaled(rays: np.ndarray, stride: int, valid: np.ndarray, candidates: Candidates,
                plane: Plane, settings: FitSettings, line_sigma_px: float,
                uniforms: np.ndarray) -> tuple:
@@ -1249,7 +1256,7 @@ def fit_scaled(rays: np.ndarray, stride: int, valid: np.ndarray, candidates: Can
     return noise, out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings: FitSettings,
                line_sigma_px: float, uniforms: np.ndarray) -> tuple:
     """:func:`fit_query`, the camera's rays of it and :func:`fit_scaled`: one entry.

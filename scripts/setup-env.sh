@@ -1,6 +1,7 @@
 # Sourced by ./run-tests and ./run-demo: create .venv with Python >= 3.11 and install
-# pipestitch (editable, with test extras, versions from constraints.txt) when
-# pyproject.toml or constraints.txt changed since the last install; then write the
+# pipestitch (editable, versions from constraints.txt; with the test extras for
+# ./run-tests) when pyproject.toml or constraints.txt changed since the last install, or
+# the test extras are wanted and missing; then write the
 # package's bytecode, and compile the numba kernels into their cache when they changed
 # since the last compile.
 PY=""
@@ -17,13 +18,23 @@ if [ ! -x .venv/bin/python ]; then
   echo "setting up .venv with $PY ..." >&2
   "$PY" -m venv .venv
 fi
+# The stamp holds the hash of pyproject.toml and constraints.txt, then "test" when the
+# test tools are installed too: ./run-tests sets setup_extras=test before sourcing this,
+# ./run-demo needs none (pytest, playwright and the rest: ~10 s of a first install).
 stamp=.venv/.pipestitch-installed
 want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
-if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+extras=${setup_extras:-}
+have=$(cat "$stamp" 2>/dev/null || true)
+if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $extras" ]; }; then
   echo "installing pipestitch and its dependencies into .venv ..." >&2
   .venv/bin/python -m pip install --quiet --upgrade pip >&2
-  .venv/bin/python -m pip install --quiet -c constraints.txt -e '.[test]' >&2
-  echo "$want" > "$stamp"
+  # bytecode written below by all cores, not by pip on one
+  .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
+    -e ".${extras:+[$extras]}" >&2
+  .venv/bin/python -c 'import compileall, sysconfig as s
+for d in {s.get_path("purelib"), s.get_path("platlib")}: compileall.compile_dir(d, quiet=2, workers=0)' \
+    >/dev/null 2>&1 || true
+  echo "$want${extras:+ $extras}" > "$stamp"
 fi
 # The package's bytecode, written here: a run then reads it even where
 # PYTHONDONTWRITEBYTECODE is set (as in many containers), instead of compiling every

@@ -9,8 +9,8 @@ The pose fit's tree is most of the work, so its two independent halves come firs
 (its refinement and its ring selection, compiled at once by two processes) and its
 entry after them (:data:`WAITS_FOR`): numba then loads the halves from the cache
 instead of compiling them again. Numba compiles each kernel (with the code of every
-kernel it calls) into its own machine code, so a kernel that only one other calls,
-from one place, is inlined into it (``inline="always"``) rather than compiled twice.
+kernel it calls) into its own machine code, so a kernel that only one other calls, as
+a step of it, is inlined into it (``inline="always"``) rather than compiled twice.
 
 ``tests/test_kernel_warmup.py`` checks that a run after this compiles nothing new: a
 kernel whose signature changes must change here too.
@@ -264,28 +264,35 @@ def compile_all(n_jobs: int, verbose: bool = False) -> int:
     """
     pending, done, failed = list(range(len(KERNELS))), set(), 0
     running: dict[Future, int] = {}
-    with ProcessPoolExecutor(n_jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        while pending or running:
-            while len(running) < n_jobs and (i := next_entry(pending, done)) is not None:
-                pending.remove(i)
-                running[pool.submit(_compile_one, i)] = i
-            finished, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in finished:
-                i = running.pop(future)
-                done.add(i)
-                try:
-                    seconds, pid = future.result()
-                except Exception as error:   # reported; the kernel compiles on first use
-                    failed += 1
-                    print(f"compile_kernels: {KERNELS[i][1]}: {type(error).__name__}: "
-                          f"{error}", file=sys.stderr)
-                    if isinstance(error, BrokenProcessPool):
-                        return failed + len(running) + len(pending)
-                    continue
-                if verbose:
-                    print(f"  {seconds:5.1f} s  process {pid}: {KERNELS[i][1]}",
-                          file=sys.stderr)
-    return failed
+    try:
+        with ProcessPoolExecutor(n_jobs,
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            while pending or running:
+                while len(running) < n_jobs and (i := next_entry(pending, done)) is not None:
+                    pending.remove(i)
+                    running[pool.submit(_compile_one, i)] = i
+                if not running:   # only if WAITS_FOR named an entry that never starts
+                    break
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    i = running.pop(future)
+                    done.add(i)
+                    try:
+                        seconds, pid = future.result()
+                    except BrokenProcessPool:
+                        raise
+                    except Exception as error:   # reported; compiled on first use
+                        failed += 1
+                        print(f"compile_kernels: {KERNELS[i][1]}: "
+                              f"{type(error).__name__}: {error}", file=sys.stderr)
+                        continue
+                    if verbose:
+                        print(f"  {seconds:5.1f} s  process {pid}: {KERNELS[i][1]}",
+                              file=sys.stderr)
+    except BrokenProcessPool as error:   # a process died (e.g. out of memory)
+        print(f"compile_kernels: {error}", file=sys.stderr)
+        return failed + 1 + len(running) + len(pending)
+    return failed + len(pending)
 
 
 def _compile_one(i: int) -> tuple[float, int]:

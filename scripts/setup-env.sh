@@ -28,11 +28,13 @@ have=$(cat "$stamp" 2>/dev/null || true)
 if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $extras" ]; }; then
   echo "installing pipestitch and its dependencies into .venv ..." >&2
   .venv/bin/python -m pip install --quiet --upgrade pip >&2
-  # bytecode written below by all cores, not by pip on one
+  # bytecode written below by all cores, not by pip on one, and not for the packages'
+  # own test suites (a quarter of their sources, never imported by a run)
   .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
     -e ".${extras:+[$extras]}" >&2
-  .venv/bin/python -c 'import compileall, sysconfig as s
-for d in {s.get_path("purelib"), s.get_path("platlib")}: compileall.compile_dir(d, quiet=2, workers=0)' \
+  .venv/bin/python -c 'import compileall, re, sysconfig as s
+for d in {s.get_path("purelib"), s.get_path("platlib")}:
+    compileall.compile_dir(d, quiet=2, workers=0, rx=re.compile(r"[/\\]tests?[/\\]"))' \
     >/dev/null 2>&1 || true
   echo "$want${extras:+ $extras}" > "$stamp"
 fi

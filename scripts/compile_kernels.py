@@ -190,9 +190,9 @@ def compile_entries(indices: list[int]) -> float:
 
 
 def source_key() -> str:
-    """Key of what the compiled cache depends on: the kernel modules (path, size and
-    modification time, as numba's cache checks them), this file, the interpreter, numba's
-    version and the cache folder.
+    """Key of what the compiled cache depends on: every module that defines a kernel
+    (path, size and modification time, as numba's cache checks them), this file, the
+    interpreter, numba's version and the cache folder.
 
     Returns
     -------
@@ -201,8 +201,9 @@ def source_key() -> str:
     """
     from importlib.metadata import version
 
-    files = sorted({*SRC.rglob("*kernels.py"), SRC / "camera" / "ocam.py",
-                    SRC / "camera" / "opencv_fisheye.py", Path(__file__).resolve()})
+    kernel_modules = (f for f in SRC.rglob("*.py")
+                      if "numba.njit" in f.read_text(encoding="utf-8"))
+    files = sorted({*kernel_modules, Path(__file__).resolve()})
     h = hashlib.sha256()
     for f in files:
         st = f.stat()

@@ -103,6 +103,30 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
     assert added == {}, f"compiled at run time, not by scripts/compile_kernels.py: {added}"
 
 
+def test_the_set_up_key_covers_every_module_with_a_kernel(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    # The set-up compiles again (from an empty cache) when the key changes: an edit of
+    # any module that defines a kernel must change it, whatever the module's name.
+    import os
+
+    ck = _load_script()
+    src = tmp_path / "pipestitch"
+    (src / "imaging").mkdir(parents=True)
+    files = {"kernels": src / "_ring_kernels.py", "other": src / "imaging" / "medians.py",
+             "plain": src / "imaging" / "plain.py"}
+    files["kernels"].write_text("@numba.njit(cache=True)\ndef f(): pass\n")
+    files["other"].write_text("@numba.njit(cache=True, nogil=True)\ndef g(): pass\n")
+    files["plain"].write_text("def h(): pass\n")
+    monkeypatch.setattr(ck, "SRC", src)
+    key = ck.source_key()
+    for name, changes in (("kernels", True), ("other", True), ("plain", False)):
+        stat = files[name].stat()
+        os.utime(files[name], ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+        assert (ck.source_key() != key) == changes, name
+        key = ck.source_key()
+
+
 def test_a_compile_starts_from_an_empty_cache(tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
     # A cached caller keeps the callees it was compiled with when only their file

@@ -190,9 +190,9 @@ def compile_entries(indices: list[int]) -> float:
 
 
 def source_key() -> str:
-    """Key of what the compiled cache depends on: every module that defines a kernel
-    (path, size and modification time, as numba's cache checks them), this file, the
-    interpreter, numba's version and the cache folder.
+    """Key of what the compiled cache depends on: the stamp numba's cache of the kernels
+    carries (:func:`pipestitch._runtime.kernel_sources.sources_stamp`: every file kernel
+    code comes from), this file, the interpreter, numba's version and the cache folder.
 
     Returns
     -------
@@ -201,28 +201,25 @@ def source_key() -> str:
     """
     from importlib.metadata import version
 
-    kernel_modules = (f for f in SRC.rglob("*.py")
-                      if "numba.njit" in f.read_text(encoding="utf-8"))
-    files = sorted({*kernel_modules, Path(__file__).resolve()})
-    h = hashlib.sha256()
-    for f in files:
-        st = f.stat()
-        h.update(f"{f}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-    h.update(f"{sys.executable}|{version('numba')}|{os.environ.get('NUMBA_CACHE_DIR', '')}"
-             .encode())
+    from pipestitch._runtime.kernel_sources import sources_stamp
+
+    h = hashlib.sha256(Path(__file__).read_bytes())
+    h.update(f"{sources_stamp()}|{sys.executable}|{version('numba')}|"
+             f"{os.environ.get('NUMBA_CACHE_DIR', '')}".encode())
     return h.hexdigest()
 
 
 def clear_cache() -> int:
     """Delete pipestitch's kernels from numba's on-disk cache; return how many files.
 
-    Numba invalidates a cached kernel when its own source file changes, not when a
-    kernel it calls (and compiled into its own code) changes in another file: a fit
-    cached before an edit of the camera's ``ray_loop`` would keep the old loop. So a
-    compile after any kernel source changed starts from an empty cache. Each module's
-    kernels are looked for where numba keeps them: under ``NUMBA_CACHE_DIR`` when that
-    is set, else in the ``__pycache__`` beside the source when it is writable, else in
-    the user's numba cache folder (numba's own sub-folder for each source folder).
+    Every cached kernel of the package carries the stamp of all the kernel sources
+    (:mod:`pipestitch._runtime.kernel_cache`), so after a change to any of them numba
+    loads none of the old ones; a compile still starts from an empty cache so that the
+    files of a kernel renamed or removed, and of the old stamps, do not stay behind.
+    Each module's kernels are looked for where numba keeps them: under
+    ``NUMBA_CACHE_DIR`` when that is set, else in the ``__pycache__`` beside the source
+    when it is writable, else in the user's numba cache folder (numba's own sub-folder
+    for each source folder).
     """
     from numba.core.caching import _CacheLocator
     from numba.misc.appdirs import AppDirs
@@ -324,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.stamp is not None and args.stamp.is_file() and args.stamp.read_text() == key:
         return 0
     t0 = time.perf_counter()
-    clear_cache()   # a kernel's callees may have changed in other files
+    clear_cache()   # nothing of the old sources' kernels stays behind
     jobs = max(1, args.jobs)
     print(f"compiling the numba kernels ({jobs} processes, once: up to a minute) ...",
           file=sys.stderr)

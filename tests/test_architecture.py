@@ -20,7 +20,7 @@ ALLOWED = {
     "_runtime": set(),
     "errors": set(),
     "jsonsafe": set(),
-    "imaging": set(),
+    "imaging": {"_runtime"},
     "camera": {"errors", "_runtime", "imaging"},
     "geometry": {"camera", "errors"},
     "config": PURE,

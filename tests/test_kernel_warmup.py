@@ -103,36 +103,29 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
     assert added == {}, f"compiled at run time, not by scripts/compile_kernels.py: {added}"
 
 
-def test_the_set_up_key_covers_every_module_with_a_kernel(tmp_path: Path,
-                                                           monkeypatch: pytest.MonkeyPatch
-                                                           ) -> None:
-    # The set-up compiles again (from an empty cache) when the key changes: an edit of
-    # any module that defines a kernel must change it, whatever the module's name.
-    import os
+def test_the_set_up_key_follows_the_kernel_sources(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The set-up compiles again (from an empty cache) when the key changes: whenever the
+    # stamp numba's cache of the kernels carries changes (tests/_runtime/
+    # test_kernel_cache.py: every file kernel code comes from), and the cache folder.
+    from pipestitch._runtime import kernel_sources
 
     ck = _load_script()
-    src = tmp_path / "pipestitch"
-    (src / "imaging").mkdir(parents=True)
-    files = {"kernels": src / "_ring_kernels.py", "other": src / "imaging" / "medians.py",
-             "plain": src / "imaging" / "plain.py"}
-    files["kernels"].write_text("@numba.njit(cache=True)\ndef f(): pass\n")
-    files["other"].write_text("@numba.njit(cache=True, nogil=True)\ndef g(): pass\n")
-    files["plain"].write_text("def h(): pass\n")
-    monkeypatch.setattr(ck, "SRC", src)
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     key = ck.source_key()
-    for name, changes in (("kernels", True), ("other", True), ("plain", False)):
-        stat = files[name].stat()
-        os.utime(files[name], ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
-        assert (ck.source_key() != key) == changes, name
-        key = ck.source_key()
+    assert ck.source_key() == key
+    monkeypatch.setattr(kernel_sources, "sources_stamp", lambda: "another stamp")
+    assert ck.source_key() != key
+    moved = ck.source_key()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", "/elsewhere")
+    assert ck.source_key() != moved
 
 
 def test_a_compile_starts_from_an_empty_cache(tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    # A cached caller keeps the callees it was compiled with when only their file
-    # changes, so the set-up removes every cached kernel of the package first, where
-    # numba keeps them: beside the sources, or under NUMBA_CACHE_DIR when that is set
-    # (then the folders beside the sources are not numba's and are left alone).
+    # The set-up removes every cached kernel of the package first (the files of a
+    # kernel renamed or removed, and of old stamps), where numba keeps them: beside the
+    # sources, or under NUMBA_CACHE_DIR when that is set (then the folders beside the
+    # sources are not numba's and are left alone).
     from numba.core.caching import _CacheLocator
 
     ck = _load_script()

@@ -11,12 +11,9 @@ kernels as arguments without losing its on-disk cache or paying a Python-level c
 :func:`rays_of` turns into rays inside compiled code. A model without one simply has
 no ``ray_kernel``; callers then use ``unproject``.
 
-Development note: numba's on-disk cache of a kernel is invalidated by edits to its own
-file only, not to the files of the compiled functions it calls. After editing a
-model's ``ray_loop``, run ``scripts/compile_kernels.py`` (``scripts/setup-env.sh`` does
-when a kernel source changed): it starts from an empty cache, so the cached callers
-(``pose._fit_kernels.fit_fields`` calls the loop through :func:`rays_of`) do not keep
-the old loop.
+The cached callers (``pose._fit_kernels.fit_fields`` calls a model's ``ray_loop``
+through :func:`rays_of`) hold the loop's code: an edit of it must reach them, which
+the package's cache stamp sees to (:mod:`pipestitch._runtime.kernel_cache`).
 """
 
 from __future__ import annotations
@@ -24,6 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
 from pipestitch.camera import ocam, opencv_fisheye
 from pipestitch.camera.base import OCAM, OPENCV_FISHEYE, RayKernel
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
 from pipestitch.camera.base import OCAM, RayKernel, as_points
 
 __all__ = ["OcamModel", "fit_invpol"]

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
 from pipestitch.camera.base import OPENCV_FISHEYE, RayKernel, as_points
 
 __all__ = ["OpenCVFisheyeModel"]

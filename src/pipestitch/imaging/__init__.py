@@ -5,7 +5,7 @@
 * :mod:`~pipestitch.imaging.medians`: numpy's medians by a radix selection;
 * :mod:`~pipestitch.imaging.scaling`: integer frames to float32, scaled, as numpy does it.
 
-Imports no pipestitch package (OpenCV, numpy and numba only): any layer may import it.
+Imports OpenCV, numpy, numba and :mod:`pipestitch._runtime` only: any layer may import it.
 """
 
 from pipestitch.imaging.blur import gaussian_blur, kernel_taps

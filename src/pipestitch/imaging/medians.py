@@ -22,6 +22,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 __all__ = ["mad_sigma", "median", "nanmedian"]
 
 MAD_TO_SIGMA = 1.4826   # a normal distribution's sigma per median absolute deviation

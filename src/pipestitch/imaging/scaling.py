@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 __all__ = ["scaled_float32"]
 
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 
 @numba.njit(cache=True, nogil=True)
 def _bspline(u: float) -> float:

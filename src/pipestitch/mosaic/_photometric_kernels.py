@@ -20,6 +20,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 F32 = np.float32
 FLOOR = F32(1e-6)        # the local mean's and the weight's floor (numpy: float32)
 DARK_SHARE = F32(0.3)    # a node darker than this share of its local mean is dark

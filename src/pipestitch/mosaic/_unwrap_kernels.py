@@ -23,6 +23,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 F32 = np.float32
 
 

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
 from pipestitch.camera.base import RayKernel
 from pipestitch.camera.kernels import rays_of
 

@@ -19,6 +19,8 @@ import math
 import numba
 import numpy as np
 
+from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+
 N_UNKNOWNS = 5         # dx, dy, r, c, s
 MAX_ITERATIONS = 100
 STEP_TOLERANCE = 1e-10   # a step this small relative to the unknowns' scale: converged

@@ -245,6 +245,20 @@ def test_missing_led_frame_is_per_pair(tmp_path: Path) -> None:
     assert ds.read_led(2).shape == (48, 64)
 
 
+def test_a_missing_led_frame_is_named_as_its_laser_frame_is_stored(tmp_path: Path) -> None:
+    # a TIFF dataset's missing LED frame is led_00001.tif, not a .png it never had
+    _tiny_dataset(tmp_path, n=3)
+    frames = tmp_path / "frames"
+    for png in sorted(frames.glob("*.png")):
+        write_image(png.with_suffix(".tif"), read_image(png))
+        png.unlink()
+    (frames / "led_00001.tif").unlink()
+    ds = open_dataset(tmp_path)
+    assert ds.led_missing() == [1]
+    with pytest.raises(DatasetError, match=r"led_00001\.tif: LED frame missing"):
+        ds.read_led(1)
+
+
 def test_mosaic_to_uint8_keeps_zero_for_no_data() -> None:
     from pipestitch.io.outputs import mosaic_to_uint8
 

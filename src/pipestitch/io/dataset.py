@@ -93,10 +93,13 @@ class Dataset:
         return self._checked(self.laser_paths[index])
 
     def read_led(self, index: int) -> np.ndarray:
-        """LED frame ``index`` as stored."""
+        """LED frame ``index`` as stored (a missing one is named as its laser frame is
+        stored: ``led_00011.tif`` beside ``laser_00011.tif``)."""
         path = self.led_paths[index] if index < len(self.led_paths) else None
         if path is None:
-            raise DatasetError(self.root / "frames" / f"led_{index:05d}.png", "LED frame missing")
+            suffix = self.laser_paths[index].suffix if index < len(self.laser_paths) else ".png"
+            raise DatasetError(self.root / "frames" / f"led_{index:05d}{suffix}",
+                               "LED frame missing")
         return self._checked(path)
 
     def _checked(self, path: Path) -> np.ndarray:

@@ -206,10 +206,10 @@ def test_a_line_thinner_than_the_sampling_resolves_is_searched_again_finer(
     monkeypatch.undo()
     assert steps == [1.0, 0.5]
     assert det.line_sigma_px < ring.RESAMPLE_BELOW
-    fine = ring._search_rays(laser, None, r.camera, None, det.n_azimuths, None, 2.0,
+    fine = ring._search_rays(laser, None, r.camera, None, det.n_azimuths, None, 2.0, None,
                              step=0.5, min_snr=8.0, max_candidates=3, min_relative=0.2)
     np.testing.assert_array_equal(det.pixels, fine.pixels)
-    coarse = ring._search_rays(laser, None, r.camera, None, det.n_azimuths, None, 2.0,
+    coarse = ring._search_rays(laser, None, r.camera, None, det.n_azimuths, None, 2.0, None,
                                step=1.0, min_snr=8.0, max_candidates=3, min_relative=0.2)
     rms = [float(np.sqrt(np.mean(distance_to_true_ring(r.camera, POSE, d.best())**2)))
            for d in (det, coarse)]
@@ -259,3 +259,66 @@ def test_the_wider_window_stops_half_way_to_another_ring_on_the_ray(
     rms = [float(np.sqrt(np.mean(np.minimum(
         distance_to_true_ring(r.camera, POSE, d.best()), 5.0) ** 2))) for d in (stopped, across)]
     assert rms[0] < 0.6 and rms[1] > 2 * rms[0], rms
+
+
+def test_no_candidate_where_the_mask_says_the_wall_is_never_seen() -> None:
+    """A copy of the ring at 0.6 of its image radius, 8 times as bright (a lit mirror
+    mount): the strongest candidate of most rays, the ring's maxima then under the
+    frame's relative floor (``fainter``). With the mount masked (every pixel nearer the
+    centre than 0.75 of the ring), no candidate lies there and the ring is every ray's
+    strongest again."""
+    import cv2
+
+    import pipestitch.pose.ring as ring
+
+    r = renderer("half", Optics())
+    laser = r.render_laser(POSE, np.random.default_rng(5)).astype(np.float32)
+    cx, cy = ring.ring_centre(r.camera)
+    f = 0.6
+    glow = cv2.warpAffine(laser, np.array([[f, 0, cx * (1 - f)], [0, f, cy * (1 - f)]],
+                                          np.float32), (laser.shape[1], laser.shape[0]))
+    frame = laser + 8.0 * glow
+    true = r.camera.project(laser_ring(POSE, SECTION, 16.0, n_points=3600))
+    true = true[np.isfinite(true[:, 0])] - (cx, cy)
+    order = np.argsort(np.arctan2(true[:, 1], true[:, 0]))
+
+    def inside(pixels: np.ndarray) -> np.ndarray:
+        """Nearer the centre than 0.75 of the true ring along the same azimuth."""
+        offset = pixels - (cx, cy)
+        ring_radius = np.interp(np.arctan2(offset[:, 1], offset[:, 0]),
+                                np.arctan2(true[order, 1], true[order, 0]),
+                                np.hypot(*true[order].T), period=2 * np.pi)
+        return np.hypot(*offset.T) < 0.75 * ring_radius
+
+    cols, rows = np.meshgrid(np.arange(laser.shape[1]), np.arange(laser.shape[0]))
+    hidden = inside(np.stack([cols.ravel(), rows.ravel()], 1)).reshape(laser.shape)
+
+    plain = detect_ring(frame, r.camera)
+    assert np.mean(inside(plain.best())) > 0.8
+    assert plain.fainter is not None   # the ring's maxima: on nearly every ray it reaches
+    on_ring = distance_to_true_ring(r.camera, POSE, plain.fainter.pixels) < 1.0
+    assert len(np.unique(plain.fainter.azimuth[on_ring])) > 0.9 * plain.n_azimuths
+
+    masked = detect_ring(frame, r.camera, occluded=hidden)
+    for found in (masked, masked.fainter):
+        assert not np.any(inside(found.pixels))
+    d = distance_to_true_ring(r.camera, POSE, masked.best())
+    assert np.mean(d < 1.0) > 0.95
+    assert 0.95 < masked.coverage < 0.99   # as without the glow: the arm hides ~2 %
+
+
+def test_a_mask_of_another_size_is_rejected() -> None:
+    r = renderer("half")
+    laser = r.render_laser(POSE, np.random.default_rng(6))
+    with pytest.raises(ValueError, match="occluder mask"):
+        detect_ring(laser, r.camera, occluded=np.zeros((10, 10), bool))
+
+
+def test_a_centroid_window_stops_before_the_first_hidden_sample() -> None:
+    import pipestitch.pose.ring as ring
+
+    hidden = np.zeros((2, 12), bool)
+    hidden[0, 3] = True
+    reach = ring._clear_of(hidden, np.array([0, 0, 1]), np.array([5, 9, 5]), 3)
+    # ray 0: hidden 2 samples below the first candidate, out of the second's window
+    np.testing.assert_array_equal(reach, [1.0, np.inf, np.inf])

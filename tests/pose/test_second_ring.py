@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from pipestitch.pose.ring import RingDetection
@@ -67,3 +69,23 @@ def test_candidates_within_the_line_width_of_the_ring_are_the_ring() -> None:
     all_rays = np.arange(N_AZ)
     det = _detection((300.0, all_rays), (303.0, all_rays))   # 3 sigma off: the same line
     assert leftover_ring(det, _circle(300.0, all_rays), CENTRE, min_rays=10) is None
+
+
+def test_a_ring_under_the_frames_relative_floor_is_a_second_ring() -> None:
+    """A reflection 8x as strong as the ring sets the ring search's relative floor above
+    the ring: the ring's maxima come as ``fainter``. They are the leftovers, kept by the
+    same floor taken relative to their own strength; maxima under that go."""
+    all_rays = np.arange(N_AZ)
+    glow = replace(_detection((100.0, all_rays)), snr=np.full(N_AZ, 160.0))
+    ring = _detection((300.0, all_rays), (340.0, all_rays[::2]))
+    ring = replace(ring, rank=ring.rank + 1,                 # ranked after the glow's
+                   snr=np.where(np.hypot(*(ring.pixels - CENTRE).T) < 320.0, 20.0, 3.0))
+    det = replace(glow, fainter=ring, relative_floor=0.2)
+    rest = leftover_ring(det, _circle(100.0, all_rays), CENTRE, min_rays=N_AZ // 2)
+    assert rest is not None
+    # the ring's candidates (20 > 0.2 x 20), not the weak ones at 340 px (3 < 4)
+    np.testing.assert_allclose(np.hypot(*(rest.pixels - CENTRE).T), 300.0)
+    assert np.array_equal(rest.azimuth, all_rays) and np.all(rest.rank == 0)
+    # without them the glow's detection leaves nothing
+    assert leftover_ring(replace(det, fainter=None), _circle(100.0, all_rays), CENTRE,
+                         min_rays=N_AZ // 2) is None

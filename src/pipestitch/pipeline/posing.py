@@ -179,15 +179,21 @@ class PoseSettings:
     ring_band_px: tuple[float, float] | None = None   # where detect_ring searches
     oval_start: bool = False
     oval_run: bool = False   # the run is an oval pipe (pipeline/tilt_or_oval.py): every frame
+    # probe.toml's mask (io/mask.py: True where the camera never sees the wall): no ring
+    # candidate there
+    occluded: np.ndarray | None = None
 
     @classmethod
-    def from_config(cls, cfg: ProbeConfig, *, oval_start: bool = False) -> PoseSettings:
-        """Settings of a dataset's probe.toml (the ring searched in :func:`ring_search_band`)."""
+    def from_config(cls, cfg: ProbeConfig, *, oval_start: bool = False,
+                    occluded: np.ndarray | None = None) -> PoseSettings:
+        """Settings of a dataset's probe.toml (the ring searched in :func:`ring_search_band`;
+        ``occluded``: its mask as read, :func:`pipestitch.io.mask.read_mask`)."""
         camera, normal = cfg.camera_model(), np.asarray(cfg.laser.plane_normal(), float)
         radius = cfg.pipe.inner_diameter_mm / 2
         body = cfg.probe.envelope()
         band = ring_search_band(camera, cfg.laser.plane_distance_mm, radius, body, normal)
-        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band, oval_start)
+        return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band, oval_start,
+                   occluded=occluded)
 
 
 def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
@@ -214,7 +220,7 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
               settings: PoseSettings) -> FramePose:
     """Ring, both hypotheses and (when possible) photometric strips of one frame pair."""
     detection = detect_ring(laser, settings.camera, reflectance=led,
-                            band_px=settings.ring_band_px)
+                            band_px=settings.ring_band_px, occluded=settings.occluded)
     fit = fit_pose(detection, settings.camera, settings.plane_distance_mm,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
@@ -515,11 +521,12 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     notes = []
     try:
         imu = read_imu(dataset.root)   # a bad imu.csv is bad input: said before the work
-        read_mask(dataset.root, dataset.config)   # as is a declared mask missing or unfit
+        occluded = read_mask(dataset.root, dataset.config)   # as is a declared mask unfit
         # the ring points, read again only by the tilt-or-oval test, wait in a file
         with opencv_threads(1 if workers > 1 else 0), RingStore() as rings:  # _runtime/threads
-            frames, choices = estimate_poses(dataset, show_progress=show_progress,
-                                             workers=workers, rings=rings)
+            frames, choices = estimate_poses(
+                dataset, show_progress=show_progress, workers=workers, rings=rings,
+                settings=PoseSettings.from_config(dataset.config, occluded=occluded))
             found = tilt_or_oval(dataset, frames, dataset.config.camera_model())
     finally:
         dataset.close()   # a video's decoder

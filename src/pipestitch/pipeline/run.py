@@ -573,7 +573,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
         frames, choices = _poses(dataset, refits, show_progress, settings.workers, timer,
-                                 rings)
+                                 rings, declared)
         if rings.problem:
             report_frame_messages([(-1, rings.problem)])
         views = _views(frames, choices)
@@ -691,12 +691,14 @@ def _coded(out: Path, dataset: Dataset, crown_deg: float | None,
 
 
 def _poses(dataset: Dataset, refits: bool, show_progress: bool, workers: int,
-           timer: StageTimer, rings: RingStore) -> tuple[list[FramePose], list[Choice]]:
-    """The pose pass. Frames the declared body cannot hold start as ovals when the LED
-    refinement follows (``refits``); when the LED frames say the pipe is oval rather
-    than the probe tilted (:func:`tilt_or_oval`, said once), every frame is fitted
-    again that way."""
-    settings = PoseSettings.from_config(dataset.config, oval_start=refits)
+           timer: StageTimer, rings: RingStore, declared: np.ndarray | None,
+           ) -> tuple[list[FramePose], list[Choice]]:
+    """The pose pass (no ring candidate where probe.toml's mask, ``declared``, says the
+    camera never sees the wall). Frames the declared body cannot hold start as ovals
+    when the LED refinement follows (``refits``); when the LED frames say the pipe is
+    oval rather than the probe tilted (:func:`tilt_or_oval`, said once), every frame is
+    fitted again that way."""
+    settings = PoseSettings.from_config(dataset.config, oval_start=refits, occluded=declared)
     frames, choices = estimate_poses(dataset, show_progress=show_progress, workers=workers,
                                      timer=timer, rings=rings, drop_rings=not refits,
                                      settings=settings)

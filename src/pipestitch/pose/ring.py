@@ -59,6 +59,13 @@ class RingDetection:
         Gaussian sigma of the laser line across the ring, measured on this frame (its
         full width at half maximum / 2.355, median over the strongest candidates); the
         width the ridge filter assumed when too few candidates were found to measure it.
+    fainter : RingDetection or None
+        The ridge maxima above the noise but under ``relative_floor`` times the frame's
+        typical ring response, located as these (their ranks follow these on each
+        ray): not ring candidates, but what a ring fainter than a reflection in the
+        same frame leaves (:mod:`pipestitch.pose.second_ring`).
+    relative_floor : float
+        That fraction (:func:`detect_ring`'s ``min_relative``).
     """
 
     pixels: np.ndarray
@@ -68,6 +75,8 @@ class RingDetection:
     n_azimuths: int
     noise: float
     line_sigma_px: float = float("nan")
+    fainter: RingDetection | None = None
+    relative_floor: float = 0.0
 
     @property
     def coverage(self) -> float:
@@ -257,7 +266,8 @@ def ring_band_px(camera: CameraModel, plane_distance_mm: float,
 def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray | None = None,
                 n_azimuths: int = 1440, band_px: tuple[float, float] | None = None,
                 line_sigma_px: float | None = None, min_snr: float = 8.0,
-                max_candidates: int = 3, min_relative: float = 0.2) -> RingDetection:
+                max_candidates: int = 3, min_relative: float = 0.2,
+                occluded: np.ndarray | None = None) -> RingDetection:
     """Find laser-ring candidates in a laser frame.
 
     Parameters
@@ -284,7 +294,13 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
     max_candidates : int
         Candidates kept per ray (the fit decides between them).
     min_relative : float
-        Minimum ridge strength relative to the frame's typical ring response.
+        Minimum ridge strength relative to the frame's typical ring response (the
+        median over the rays of their strongest response); the maxima under it are
+        returned apart, as ``fainter``.
+    occluded : numpy.ndarray, optional
+        True where the camera never sees the wall (probe.toml's mask:
+        :func:`pipestitch.io.mask.read_mask`), camera-sized: no candidate there or on
+        the sample next to it, and no centroid reaches into it.
 
     Returns
     -------
@@ -299,7 +315,7 @@ def detect_ring(img: np.ndarray, camera: CameraModel, *, reflectance: np.ndarray
         reach = 16 * sigma + 2
         band_px = (float(np.floor(band_px[0] - reach)), float(np.ceil(band_px[1] + reach)))
     search = functools.partial(_search_rays, img, reflectance, camera, laser_channel(img),
-                               n_azimuths, band_px, sigma, min_snr=min_snr,
+                               n_azimuths, band_px, sigma, occluded, min_snr=min_snr,
                                max_candidates=max_candidates, min_relative=min_relative)
     # Samples along a ray: two per expected line sigma (a 1224-px frame's 1-px line at
     # half-pixel steps, a 2448-px frame's 2-px line at whole pixels), never finer than
@@ -321,8 +337,8 @@ BROAD_BOX_PX = 40.5         # the reflectance's broad mean: box length along a r
 
 def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: CameraModel,
                  channel: int | None, n_azimuths: int, band_px: tuple[float, float] | None,
-                 sigma: float, *, step: float, min_snr: float, max_candidates: int,
-                 min_relative: float) -> RingDetection:
+                 sigma: float, occluded: np.ndarray | None, *, step: float, min_snr: float,
+                 max_candidates: int, min_relative: float) -> RingDetection:
     """:func:`detect_ring` at one sampling step along the rays."""
     _, _, radii, centre = polar_grid(camera, n_azimuths, step, band_px)
     crop, map_x, map_y = polar_crop(camera, n_azimuths, step, band_px)
@@ -338,27 +354,31 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     narrow = _blur_along_rays(polar, sigma / step)
     wide = _blur_along_rays(polar, 4 * sigma / step)
     ridge = narrow - wide
-    # Noise of the ridge response (robust, from a subsample), floored at a quarter of
-    # the frame's quantisation step (1/255 of full scale for 8-bit and float frames,
-    # 1/65535 for 16-bit ones) so that a noise-free frame does not turn every ripple
-    # into a candidate, while a 12-bit sensor's noise in a 16-bit file is still its own.
-    sample = ridge[::3, ::3]
-    quantum = 1.0 / np.iinfo(part.dtype).max if part.dtype.kind in "ui" else 1.0 / 255
-    noise = max(mad_sigma(sample), 0.25 * quantum)
+    hidden = None if occluded is None else _polar_occluded(occluded, camera, n_azimuths, step,
+                                                           band_px)
+    noise = _ridge_noise(ridge, hidden, part.dtype)
+    if hidden is not None:
+        # No candidate where the camera never sees the wall, nor on a sample next to
+        # it (NaN is neither above the floor nor above a neighbour): the peaks of what
+        # lies there (a lit mirror mount, a glint on the arm) are not the ring's.
+        ridge[hidden] = np.nan
     # Weak ridges are neither ring nor worth a candidate: keep the ridge maxima above
     # the noise and above a fraction of the typical ring response of this frame.
-    strongest = np.max(ridge, axis=1)
-    typical = float(median(strongest[strongest > min_snr * noise])) if np.any(
-        strongest > min_snr * noise) else np.inf
+    strongest = np.max(ridge, axis=1) if hidden is None else np.fmax.reduce(ridge, axis=1)
+    floor = min_snr * noise
+    typical = float(median(strongest[strongest > floor])) if np.any(
+        strongest > floor) else np.inf
     # A broad glint also has a ridge maximum; a thin line has a much larger ridge
-    # response relative to its height, so rank by the response itself.
-    order, top = ridge_peaks(ridge, max(min_snr * noise, min_relative * typical),
-                             max_candidates)
-    az_idx, rank = np.nonzero(np.isfinite(top))
+    # response relative to its height, so rank by the response itself. The maxima
+    # under the relative floor are kept apart (``fainter``): a ring can be much fainter
+    # than a reflection in the same frame, whose response then sets the floor.
+    order, top = ridge_peaks(ridge, floor, max_candidates)
+    found = np.isfinite(top)
+    strong = top > np.float64(max(floor, min_relative * typical))
+    az_idx, rank = np.nonzero(strong)
     idx = order[az_idx, rank]
-    snr = top[az_idx, rank] / noise
-    width = _line_sigma_px(polar, az_idx[rank == 0], idx[rank == 0], snr[rank == 0],
-                           sigma / step) * step
+    width = _line_sigma_px(polar, az_idx[rank == 0], idx[rank == 0],
+                           top[az_idx, rank][rank == 0] / noise, sigma / step) * step
     width = width if math.isfinite(width) else sigma   # too few candidates: as searched
     # The centroid spans the line as measured: a window of the expected width cut a
     # wider line (a thick or speckled one) near its brightest sample, pulling the
@@ -367,12 +387,65 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # At most the ridge filter's wide sigma (what the band's margin holds), and never
     # past half way to another candidate of the same ray (a ghost ring, a glint).
     line = min(max(width, sigma), 4 * sigma) / step
-    reach = _half_way_to_neighbours(order[az_idx], np.isfinite(top[az_idx]), idx, 3 * line)
-    radius = _centroid(polar, narrow, az_idx, idx, line, reach) * step + radii[0]
+    located = functools.partial(_located, polar, narrow, order, top, line, hidden,
+                                radii[0], step, centre, n_azimuths)
+    fainter = located(found & ~strong, strong, noise, width, None, min_relative)
+    return located(strong, strong, noise, width, fainter, min_relative)
+
+
+def _located(polar: np.ndarray, narrow: np.ndarray, order: np.ndarray, top: np.ndarray,
+             line: float, hidden: np.ndarray | None, first_radius_px: float, step: float,
+             centre: np.ndarray, n_azimuths: int, chosen: np.ndarray, neighbours: np.ndarray,
+             noise: float, width: float, fainter: RingDetection | None,
+             relative: float) -> RingDetection:
+    """The ``chosen`` ridge maxima (rays, rank) located to sub-sample precision, each
+    centroid window kept half way to the ``neighbours`` of its ray (and off the
+    samples that never see the wall)."""
+    az_idx, rank = np.nonzero(chosen)
+    idx = order[az_idx, rank]
+    reach = _half_way_to_neighbours(order[az_idx], neighbours[az_idx] | chosen[az_idx], idx,
+                                    3 * line)
+    if hidden is not None:
+        reach = np.minimum(reach, _clear_of(hidden, az_idx, idx, max(2, math.ceil(3 * line))))
+    radius = _centroid(polar, narrow, az_idx, idx, line, reach) * step + first_radius_px
     phi = az_idx * (2 * np.pi / n_azimuths)
     pixels = np.stack([centre[0] + radius * np.cos(phi), centre[1] + radius * np.sin(phi)], 1)
-    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank, snr=snr,
-                         n_azimuths=n_azimuths, noise=noise, line_sigma_px=width)
+    return RingDetection(pixels=pixels, azimuth=az_idx, rank=rank,
+                         snr=top[az_idx, rank] / noise, n_azimuths=n_azimuths, noise=noise,
+                         line_sigma_px=width, fainter=fainter, relative_floor=relative)
+
+
+def _ridge_noise(ridge: np.ndarray, hidden: np.ndarray | None, dtype: np.dtype) -> float:
+    """Noise of the ridge response (robust, from a subsample of the samples that see the
+    wall), floored at a quarter of the frame's quantisation step (1/255 of full scale
+    for 8-bit and float frames, 1/65535 for 16-bit ones) so that a noise-free frame
+    does not turn every ripple into a candidate, while a 12-bit sensor's noise in a
+    16-bit file is still its own."""
+    sample = ridge[::3, ::3] if hidden is None else ridge[::3, ::3][~hidden[::3, ::3]]
+    quantum = 1.0 / np.iinfo(dtype).max if dtype.kind in "ui" else 1.0 / 255
+    noise = mad_sigma(sample)
+    return max(noise, 0.25 * quantum) if math.isfinite(noise) else 0.25 * quantum
+
+
+def _polar_occluded(occluded: np.ndarray, camera: CameraModel, n_azimuths: int, step: float,
+                    band_px: tuple[float, float] | None) -> np.ndarray:
+    """Which polar samples (:func:`polar_grid`) fall on a pixel that never sees the wall
+    (``occluded``: True there); samples off the frame are not."""
+    _check_frame("occluder mask", occluded, camera)
+    map_x, map_y, _, _ = polar_grid(camera, n_azimuths, step, band_px)
+    # nearest pixel: a sample is hidden when the pixel it falls on is
+    polar = cv2.remap(np.asarray(occluded, np.uint8), map_x, map_y, cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return polar.view(bool)
+
+
+def _clear_of(hidden: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int) -> np.ndarray:
+    """Per candidate, how many samples its centroid window may reach on either side
+    before the first hidden sample of its ray within ``half`` (inf when none)."""
+    offsets = np.arange(-half, half + 1)
+    at = np.clip(idx[:, None] + offsets, 0, hidden.shape[1] - 1)
+    near = np.where(hidden[rows[:, None], at], np.abs(offsets), np.inf)
+    return near.min(axis=1) - 1.0
 
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))

@@ -37,7 +37,30 @@ def test_mask_round_trip_and_convention(dataset: Path) -> None:
     _with_mask(dataset, None)
     np.testing.assert_array_equal(read_mask(dataset, read_probe_toml(dataset / "probe.toml")),
                                   occluded)
-    assert not [p for p in check_dataset(dataset) if p.severity == "error"]
+    problems = check_dataset(dataset)
+    assert not [p for p in problems if p.severity == "error" or p.path.name == "mask.png"]
+
+
+def test_a_mask_that_hides_the_ring_is_said_to_be_inverted(dataset: Path, tmp_path: Path
+                                                           ) -> None:
+    """0 where the wall is seen (the convention the other way round): the ring search
+    would find nothing, so check, pose and run say so, naming the mask."""
+    from typer.testing import CliRunner
+
+    from pipestitch.cli.app import app
+
+    cfg = read_probe_toml(dataset / "probe.toml")
+    seen = np.zeros((cfg.camera.height, cfg.camera.width), np.uint8)
+    seen[:10, :10] = 255     # the wall "seen" in one corner only
+    _with_mask(dataset, seen)
+    said = [p for p in check_dataset(dataset) if p.path == dataset / "mask.png"]
+    assert [p.severity for p in said] == ["warning"], said
+    assert "hides 100% of where the laser ring" in said[0].message
+    assert "is it inverted?" in said[0].message
+    result = CliRunner().invoke(app, ["pose", str(dataset), "--out", str(tmp_path / "o")])
+    # no ring where the mask lets the search look: said, and why
+    assert "ring not found" in result.output and "no frame gave a pose" in result.output
+    assert "mask.png: the mask hides 100%" in result.output
 
 
 @pytest.mark.parametrize(("image", "message"), [
@@ -69,8 +92,8 @@ def test_a_mask_outside_the_dataset_is_refused(dataset: Path) -> None:
 @pytest.mark.parametrize("image", [None, np.zeros((10, 10), np.uint8)])
 def test_run_and_pose_with_a_bad_mask_exit_2_before_the_work(dataset: Path, tmp_path: Path,
                                                              command: str, image) -> None:
-    # `pose` does not use the mask, but a dataset that declares one it cannot read is
-    # bad input to every command alike (`pose` used to go on silently)
+    # a dataset that declares a mask it cannot read is bad input to every command alike
+    # (`pose` reads it for the ring search)
     from typer.testing import CliRunner
 
     from pipestitch.cli.app import app

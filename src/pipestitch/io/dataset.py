@@ -25,7 +25,7 @@ from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.io.frame_files import frame_files, frame_twins
 from pipestitch.io.images import read_image
-from pipestitch.io.mask import read_mask
+from pipestitch.io.mask import mask_notes, mask_path, read_mask
 from pipestitch.io.probe_toml import read_probe_toml
 from pipestitch.io.video import VideoReader, classify_laser_frames, pair_frames
 
@@ -589,7 +589,8 @@ def check_dataset(root: str | Path, *,
         root, n_pairs, pairs_held("frames/", n_pairs) if n_pairs else ""))
     if config is not None:
         try:
-            read_mask(root, config)
+            problems.extend(Problem(mask_path(root, config), note, "warning")
+                            for note in mask_notes(read_mask(root, config), config))
         except DatasetError as exc:
             problems.append(Problem(exc.path or root, exc.problem))
     problems.extend(_check_truth(root))

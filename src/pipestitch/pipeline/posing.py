@@ -33,7 +33,7 @@ from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
-from pipestitch.io.mask import read_mask
+from pipestitch.io.mask import mask_notes, read_mask
 from pipestitch.mosaic.photometric import (
     MAX_SHIFT_SHARE,
     StripPair,
@@ -536,6 +536,8 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
         frames = [f.with_warning(OVAL_POSE_WARNING) if f.fit.ok else f for f in frames]
     report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
+                          + [(-1, f"{dataset.config.probe.mask}: {note}")
+                             for note in mask_notes(occluded, dataset.config)]
                           + notes
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m],
                           command="pose")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipestitch.camera import blank_frame
+from pipestitch.camera import blank_frame, mean_level
 
 
 @pytest.mark.parametrize("frame,word", [
@@ -31,3 +31,14 @@ def test_a_dim_textured_frame_is_a_picture(dtype: type, full: float) -> None:
     rng = np.random.default_rng(1)
     wall = 0.05 * full * (1 + 0.5 * rng.random((480, 640)))
     assert blank_frame(wall.astype(dtype)) == ""
+
+
+def test_mean_level_is_a_fraction_of_full_scale_whatever_the_type() -> None:
+    half = np.full((64, 80), 0.5)
+    for frame in ((half * 255).round().astype(np.uint8), (half * 65535).round().astype(np.uint16),
+                  np.dstack([half] * 3).astype(np.float32)):
+        assert abs(mean_level(frame) - 0.5) < 0.003, frame.dtype
+    with_nan = half.copy()
+    with_nan[::8, ::16] = np.nan    # every other sampled pixel
+    assert mean_level(with_nan) == 0.5
+    assert np.isnan(mean_level(np.full((8, 8), np.nan)))

@@ -10,7 +10,7 @@ May import nothing else of pipestitch: it is the bottom layer with ``geometry``.
 from __future__ import annotations
 
 from pipestitch.camera.base import CameraModel, pixel_grid
-from pipestitch.camera.frames import blank_frame, repair_pixels, to_grey
+from pipestitch.camera.frames import blank_frame, mean_level, repair_pixels, to_grey
 from pipestitch.camera.ocam import OcamModel, fit_invpol
 from pipestitch.camera.opencv_fisheye import OpenCVFisheyeModel
 
@@ -21,6 +21,7 @@ __all__ = [
     "blank_frame",
     "default_camera",
     "fit_invpol",
+    "mean_level",
     "pixel_grid",
     "repair_pixels",
     "to_grey",

@@ -14,7 +14,7 @@ import numpy as np
 
 from pipestitch.imaging import median, scaled_float32
 
-__all__ = ["blank_frame", "repair_pixels", "to_grey"]
+__all__ = ["blank_frame", "mean_level", "repair_pixels", "to_grey"]
 
 
 def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
@@ -112,6 +112,18 @@ def _clearly_a_picture(arr: np.ndarray) -> bool:
     with np.errstate(invalid="ignore"):
         far = np.abs(values - median(values)) > 0.1 * full
     return int(np.count_nonzero(far)) > 0.01 * sparse.size
+
+
+def mean_level(img: np.ndarray) -> float:
+    """A frame's mean brightness as a fraction of its full scale (integer frames) or in
+    its own values (float frames; NaN ignored), over every 8th row and column and all
+    its channels: enough to tell a laser frame, dark but for its ring, from an LED
+    frame (~20 us a 1224-px grey frame)."""
+    sample = np.asarray(img)[::8, ::8]
+    full = float(np.iinfo(sample.dtype).max) if sample.dtype.kind in "ui" else 1.0
+    if sample.dtype.kind == "f":
+        sample = sample[np.isfinite(sample)]
+    return float(np.mean(sample, dtype=np.float64)) / full if sample.size else float("nan")
 
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])

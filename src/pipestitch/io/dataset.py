@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipestitch.camera import blank_frame
+from pipestitch.camera import blank_frame, mean_level
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.io.frame_files import frame_files, frame_twins
@@ -43,6 +43,7 @@ __all__ = [
     "read_csv_lines",
     "read_frame",
     "read_odometry",
+    "swapped_note",
 ]
 
 ODOMETRY_FILE = "odometry.csv"
@@ -398,17 +399,36 @@ def _open_video(root: Path, config: ProbeConfig, video: Path,
 
 
 def _check_images(paths: list[Path], size: tuple[int, int],
-                  progress: Callable[[], None] | None) -> Iterator[Problem]:
+                  progress: Callable[[], None] | None,
+                  levels: dict[Path, float]) -> Iterator[Problem]:
+    """Each frame decoded: unreadable, of the wrong size or showing nothing; its mean
+    level into ``levels``."""
     for path in paths:
         try:
             kind = path.name.split("_")[0]
-            blank = _shows_nothing(read_frame(path, size), kind)
+            frame = read_frame(path, size)
+            levels[path] = mean_level(frame)
+            blank = _shows_nothing(frame, kind)
             if blank:   # read as a frame; pose and run take it as one that shows nothing
                 yield Problem(path, f"{blank}: {BLANK_CONSEQUENCE[kind]}", "warning")
         except DatasetError as exc:
             yield Problem(path, exc.problem)
         if progress is not None:
             progress()
+
+
+SWAPPED_NOTE = ("the laser frames are brighter than their LED frames in {brighter} of {pairs} "
+                "pairs (a laser frame is dark but for its ring): laser and LED frames swapped, "
+                "or the pairs shifted by one frame?")
+
+
+def swapped_note(laser_brighter: list[bool]) -> str:
+    """:data:`SWAPPED_NOTE` when the laser frame is the brighter of its pair in most of
+    the pairs compared (``laser_brighter``, one per pair with both frames), else ""."""
+    brighter = sum(laser_brighter)
+    if brighter <= len(laser_brighter) / 2:
+        return ""
+    return SWAPPED_NOTE.format(brighter=brighter, pairs=len(laser_brighter))
 
 
 def _shows_nothing(frame: np.ndarray, kind: str) -> str:
@@ -455,7 +475,14 @@ def _check_frames(root: Path, config: ProbeConfig | None,
     yield from _repeated_frames(found)
     if config is not None:
         paths = [found[k][i] for k in ("laser", "led") for i in sorted(found[k])]
-        yield from _check_images(paths, (config.camera.width, config.camera.height), progress)
+        levels: dict[Path, float] = {}
+        yield from _check_images(paths, (config.camera.width, config.camera.height), progress,
+                                 levels)
+        pairs = [(levels.get(found["laser"][i]), levels.get(found["led"][i]))
+                 for i in sorted(set(found["laser"]) & set(found["led"]))]
+        if note := swapped_note([laser > led for laser, led in pairs
+                                 if laser is not None and led is not None]):
+            yield Problem(frames_dir, note, "warning")
 
 
 def _repeated_frames(found: dict[str, dict[int, Path]]) -> Iterator[Problem]:

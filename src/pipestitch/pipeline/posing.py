@@ -16,7 +16,7 @@ import csv
 import io
 import logging
 import math
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
@@ -26,12 +26,12 @@ from rich.markup import escape
 
 from pipestitch._runtime import scratch
 from pipestitch._runtime.threads import opencv_threads, ordered_map
-from pipestitch.camera import CameraModel
+from pipestitch.camera import CameraModel, mean_level
 from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
-from pipestitch.io.dataset import Dataset, open_dataset
+from pipestitch.io.dataset import Dataset, open_dataset, swapped_note
 from pipestitch.io.imu import read_imu
 from pipestitch.io.mask import mask_notes, read_mask
 from pipestitch.mosaic.photometric import (
@@ -59,7 +59,7 @@ from pipestitch.pose.section import oval_at_zero_tilt
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "CircleFallback",
            "FramePose", "PoseSettings", "choose", "estimate_poses", "fit_frame",
            "report_frame_messages", "resolve_frames", "ring_search_band", "run_pose",
-           "strips_overlap", "write_poses_csv"]
+           "strips_overlap", "swapped_notes", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -109,6 +109,9 @@ class FramePose:
     # the photometric comparison with the previous frame that has a fit: (its index,
     # the 2 x 2 costs), the evidence resolve_run took (None: not compared)
     compared: tuple[int, np.ndarray] | None = field(default=None, compare=False)
+    # whether the laser frame is the brighter of the pair (None: not both read): most
+    # of a run's so is a dataset whose frames are swapped (io/dataset.py, swapped_note)
+    laser_brighter: bool | None = field(default=None, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -337,10 +340,11 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
                 # The laser frame alone still gives a pose, a little less exact.
                 led = None
                 warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
+    brighter = None if led is None else mean_level(laser) > mean_level(led)
     try:
         with timer("ring + pose"):
             frame = fit_frame(index, laser, led, settings)
-            return frame.with_warning(warning)
+            return replace(frame.with_warning(warning), laser_brighter=brighter)
     except Exception as exc:  # one bad frame never stops the run
         return FramePose(index, PoseFit(False, repr(exc)),
                          f"{dataset.laser_paths[index].name}: processing failed: {exc!r}")
@@ -350,6 +354,13 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
              timer: StageTimer) -> Iterator[FramePose]:
     yield from ordered_map(lambda i: _load_and_fit(dataset, i, settings, timer),
                            range(dataset.n_pairs), workers)
+
+
+def swapped_notes(frames: Sequence[FramePose]) -> list[tuple[int, str]]:
+    """The run's note (frame -1) when most of its laser frames are brighter than their
+    LED frames (:func:`pipestitch.io.dataset.swapped_note`), else none."""
+    note = swapped_note([f.laser_brighter for f in frames if f.laser_brighter is not None])
+    return [(-1, f"frames/: {note}")] if note else []
 
 
 def strips_overlap(first: FramePose, second: FramePose,
@@ -538,7 +549,7 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
                           + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                           + [(-1, f"{dataset.config.probe.mask}: {note}")
                              for note in mask_notes(occluded, dataset.config)]
-                          + notes
+                          + swapped_notes(frames) + notes
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m],
                           command="pose")
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm, imu)

@@ -44,6 +44,7 @@ from pipestitch.pipeline.posing import (
     choose,
     estimate_poses,
     report_frame_messages,
+    swapped_notes,
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
@@ -643,7 +644,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
                     + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
                     + [(-1, f"{dataset.config.probe.mask}: {note}")
-                       for note in mask_notes(declared, dataset.config)] + problems)
+                       for note in mask_notes(declared, dataset.config)]
+                    + swapped_notes(frames) + problems)
         with timer("standards"):
             coded = _coded(out, dataset, crown_deg, problems,
                            written.overview if written is not None else None)

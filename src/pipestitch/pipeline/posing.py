@@ -199,6 +199,11 @@ class PoseSettings:
                    occluded=occluded)
 
 
+# The pipe a run can be in: between this many times smaller and larger than the nominal
+# (wide margins for a wrong nominal, ovality and tilt).
+PIPE_SIZE_FACTOR = 2.0
+
+
 def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radius_mm: float,
                      body: BodyEnvelope | None, plane_normal: np.ndarray | None = None
                      ) -> tuple[float, float] | None:
@@ -214,7 +219,7 @@ def ring_search_band(camera: CameraModel, plane_distance_mm: float, nominal_radi
     try:
         return ring_band_px(camera, plane_distance_mm, plane_normal,
                             min_wall_mm=0.0 if body is None else body.diameter_mm / 4,
-                            max_wall_mm=4 * nominal_radius_mm)
+                            max_wall_mm=2 * PIPE_SIZE_FACTOR * nominal_radius_mm)
     except ValueError:
         return None
 
@@ -302,9 +307,19 @@ def _nearer_nominal(detection: RingDetection, fit: PoseFit, settings: PoseSettin
     """Of the fitted ring and a second one the candidates it left make (a reflection of
     the laser line: :mod:`pipestitch.pose.second_ring`), the one whose radius is nearer
     the nominal pipe's, and a warning naming both; ``fit`` and "" when there is no
-    second ring."""
+    second ring.
+
+    The ridge maxima under the frame's relative floor (``detection.fainter``) are looked
+    at only when the fitted ring is not that of a pipe between half and twice the
+    nominal size (:data:`PIPE_SIZE_FACTOR`): then something far brighter than the ring
+    took the fit (a laser-lit mirror mount) and set the floor above the ring. A ring
+    fitted at a possible size is not displaced by a reflection fainter than the floor
+    (with a nominal that is off, the one nearer it could be the reflection)."""
     if not fit.ok or fit.ring is None:
         return fit, ""
+    ratio = fit.hypotheses[0].radius_mm / settings.nominal_radius_mm
+    if 1 / PIPE_SIZE_FACTOR <= ratio <= PIPE_SIZE_FACTOR:
+        detection = replace(detection, fainter=None)
     ring_rays = fit.coverage * detection.n_azimuths
     rest = leftover_ring(detection, fit.ring.pixels, ring_centre(settings.camera),
                          max(1, math.ceil(SECOND_RING_SHARE * ring_rays)))
@@ -340,8 +355,8 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
                 # The laser frame alone still gives a pose, a little less exact.
                 led = None
                 warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
-    brighter = None if led is None else mean_level(laser) > mean_level(led)
     try:
+        brighter = None if led is None else mean_level(laser) > mean_level(led)
         with timer("ring + pose"):
             frame = fit_frame(index, laser, led, settings)
             return replace(frame.with_warning(warning), laser_brighter=brighter)

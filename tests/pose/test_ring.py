@@ -302,6 +302,11 @@ def test_no_candidate_where_the_mask_says_the_wall_is_never_seen() -> None:
     masked = detect_ring(frame, r.camera, occluded=hidden)
     for found in (masked, masked.fainter):
         assert not np.any(inside(found.pixels))
+    frozen = hidden.view()
+    frozen.flags.writeable = False   # a run's mask: resampled once, cached
+    for _ in range(2):
+        np.testing.assert_array_equal(detect_ring(frame, r.camera, occluded=frozen).pixels,
+                                      masked.pixels)
     d = distance_to_true_ring(r.camera, POSE, masked.best())
     assert np.mean(d < 1.0) > 0.95
     assert 0.95 < masked.coverage < 0.99   # as without the glow: the arm hides ~2 %

@@ -195,6 +195,9 @@ class PoseSettings:
         radius = cfg.pipe.inner_diameter_mm / 2
         body = cfg.probe.envelope()
         band = ring_search_band(camera, cfg.laser.plane_distance_mm, radius, body, normal)
+        if occluded is not None:   # read-only: the ring search resamples it once (pose/ring.py)
+            occluded = occluded.view()
+            occluded.flags.writeable = False
         return cls(camera, cfg.laser.plane_distance_mm, radius, body, normal, band, oval_start,
                    occluded=occluded)
 

@@ -430,13 +430,40 @@ def _ridge_noise(ridge: np.ndarray, hidden: np.ndarray | None, dtype: np.dtype) 
 def _polar_occluded(occluded: np.ndarray, camera: CameraModel, n_azimuths: int, step: float,
                     band_px: tuple[float, float] | None) -> np.ndarray:
     """Which polar samples (:func:`polar_grid`) fall on a pixel that never sees the wall
-    (``occluded``: True there); samples off the frame are not."""
+    (``occluded``: True there); samples off the frame are not. A read-only mask (a run's:
+    :class:`pipestitch.pipeline.posing.PoseSettings`) is resampled once (~2 ms a frame
+    otherwise) and cached by identity."""
     _check_frame("occluder mask", occluded, camera)
+    if occluded.flags.writeable:
+        return _resampled(_Same(occluded), camera, n_azimuths, step, band_px)
+    return _resampled_cached(_Same(occluded), camera, n_azimuths, step, band_px)
+
+
+class _Same:
+    """An array as a cache key: equal to itself only (the cache holds it, so its id is
+    not reused while cached)."""
+
+    def __init__(self, array: np.ndarray) -> None:
+        self.array = array
+
+    def __hash__(self) -> int:
+        return id(self.array)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Same) and other.array is self.array
+
+
+def _resampled(occluded: _Same, camera: CameraModel, n_azimuths: int, step: float,
+               band_px: tuple[float, float] | None) -> np.ndarray:
     map_x, map_y, _, _ = polar_grid(camera, n_azimuths, step, band_px)
     # nearest pixel: a sample is hidden when the pixel it falls on is
-    polar = cv2.remap(np.asarray(occluded, np.uint8), map_x, map_y, cv2.INTER_NEAREST,
-                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return polar.view(bool)
+    polar = cv2.remap(np.asarray(occluded.array, np.uint8), map_x, map_y, cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+    polar.flags.writeable = False
+    return polar
+
+
+_resampled_cached = functools.lru_cache(maxsize=4)(_resampled)
 
 
 def _clear_of(hidden: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int) -> np.ndarray:

@@ -107,10 +107,11 @@ def _incidence_deg(root: Path) -> np.ndarray:
                                                                      camera.width)
 
 
-def _point_probe_with_glowing_mount(root: Path) -> None:
+def _point_probe_with_glowing_mount(root: Path, ring: bool = True) -> None:
     """Drop the probe body from probe.toml (the search then starts at the image centre)
-    and add the mount's glow to every laser frame: a thin circle 1 deg inside the edge
-    the simulator gives the mirror assembly (Optics.mirror_radius_mm at the plane)."""
+    and add the mount's glow to every laser frame (to a black one without the ``ring``):
+    a thin circle 1 deg inside the edge the simulator gives the mirror assembly
+    (Optics.mirror_radius_mm at the plane)."""
     toml = root / "probe.toml"
     text = toml.read_text()
     text = text.replace("length_mm = 145.0\n", "").replace("diameter_mm = 45.0\n", "")
@@ -119,7 +120,7 @@ def _point_probe_with_glowing_mount(root: Path) -> None:
     glow = GLOW_LEVEL * 255 * np.exp(-0.5 * ((_incidence_deg(root) - (mount_deg - 1.0)) / 0.3)**2)
     glow = np.nan_to_num(glow)
     for path in sorted((root / "frames").glob("laser_*.png")):
-        frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float32)
+        frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float32) * ring
         cv2.imwrite(str(path), np.clip(frame + glow, 0, 255).astype(np.uint8))
 
 
@@ -165,3 +166,18 @@ def test_with_the_mask_declared_the_glow_is_never_a_candidate(glowing, tmp_path)
     ours = _pose(root)
     _assert_the_ring_gives_the_pose(ours, _rows(root / "truth" / "poses.csv"))
     assert not any("two rings" in row["warning"] for row in ours)
+
+
+def test_the_glow_alone_gives_no_pose_and_says_why(simulate_small, tmp_path: Path) -> None:
+    """The laser ring hidden (black laser frames but for the glow): the only ring is that
+    of a ~5.7 mm pipe in a 65 mm one, not the wall's; no frame gets a pose from it."""
+    root = simulate_small(tmp_path / "ds", "--scenario", "corrosion", "--pairs", "3",
+                          "--seed", "3")
+    _point_probe_with_glowing_mount(root, ring=False)
+    result = CliRunner().invoke(app, ["pose", str(root), "--out", str(tmp_path / "o")])
+    assert "no frame gave a pose" in result.output, result.output
+    for row in _rows(tmp_path / "o" / "poses.csv"):
+        assert row["error"].startswith("the ring found is that of a pipe of radius "), row
+        assert float(row["error"].split("radius ")[1].split(" mm")[0]) < 10.0
+        assert "not between half and twice the nominal 32.50 mm" in row["error"]
+

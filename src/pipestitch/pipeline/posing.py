@@ -236,6 +236,9 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
                    nominal_radius_mm=settings.nominal_radius_mm,
                    plane_normal=settings.plane_normal)
     fit, second = _optional(_nearer_nominal, (fit, ""), detection, fit, settings)
+    if fit.ok and not _possible_size(fit, settings):   # not the wall's ring: no pose
+        fit = PoseFit(False, IMPOSSIBLE_SIZE.format(radius=fit.hypotheses[0].radius_mm,
+                                                    nominal=settings.nominal_radius_mm))
     warning, infeasible, fallback = _body_check(fit, settings)
     # where the ring leaves its section: on the ring's own fit (a circle fallback keeps it)
     departures = _optional(_departures, (), detection, fit, settings)
@@ -305,6 +308,18 @@ SECOND_RING_WARNING = ("two rings in the laser frame (radius {kept:.2f} and {oth
                        "reflection?): kept the one nearer the nominal {nominal:.2f} mm")
 
 
+def _possible_size(fit: PoseFit, settings: PoseSettings) -> bool:
+    """Whether ``fit``'s ring is that of a pipe between half and twice the nominal size
+    (:data:`PIPE_SIZE_FACTOR`)."""
+    ratio = fit.hypotheses[0].radius_mm / settings.nominal_radius_mm
+    return 1 / PIPE_SIZE_FACTOR <= ratio <= PIPE_SIZE_FACTOR
+
+
+IMPOSSIBLE_SIZE = ("the ring found is that of a pipe of radius {radius:.2f} mm, not between "
+                   "half and twice the nominal {nominal:.2f} mm: not the wall's ring (a glow, a "
+                   "reflection?) or probe.toml's inner_diameter_mm far off; no pose")
+
+
 def _nearer_nominal(detection: RingDetection, fit: PoseFit, settings: PoseSettings
                     ) -> tuple[PoseFit, str]:
     """Of the fitted ring and a second one the candidates it left make (a reflection of
@@ -320,8 +335,7 @@ def _nearer_nominal(detection: RingDetection, fit: PoseFit, settings: PoseSettin
     (with a nominal that is off, the one nearer it could be the reflection)."""
     if not fit.ok or fit.ring is None:
         return fit, ""
-    ratio = fit.hypotheses[0].radius_mm / settings.nominal_radius_mm
-    if 1 / PIPE_SIZE_FACTOR <= ratio <= PIPE_SIZE_FACTOR:
+    if _possible_size(fit, settings):
         detection = replace(detection, fainter=None)
     ring_rays = fit.coverage * detection.n_azimuths
     rest = leftover_ring(detection, fit.ring.pixels, ring_centre(settings.camera),

@@ -434,6 +434,7 @@ def _polar_occluded(occluded: np.ndarray, camera: CameraModel, n_azimuths: int, 
     :class:`pipestitch.pipeline.posing.PoseSettings`) is resampled once (~2 ms a frame
     otherwise) and cached by identity."""
     _check_frame("occluder mask", occluded, camera)
+    occluded = np.asarray(occluded, bool)   # the same array when it is one of booleans
     if occluded.flags.writeable:
         return _resampled(_Same(occluded), camera, n_azimuths, step, band_px)
     return _resampled_cached(_Same(occluded), camera, n_azimuths, step, band_px)

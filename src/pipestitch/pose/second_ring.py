@@ -4,9 +4,10 @@ A shiny wall can mirror the laser line into a second closed curve (a ghost of th
 ring at another image radius), and one as strong as the ring can win the fit: the
 pose and the pipe's radius are then those of the ghost. The ring fit keeps one
 candidate per ray; what it left is looked at again here, with the ridge maxima too
-faint for the ring search's relative floor (a ghost much brighter than the ring, a
-laser-lit mirror mount, sets that floor above much of the ring itself): the same
-floor is then taken relative to the leftovers' own strength. Where the leftovers still
+faint for the ring search's relative floor when the detection carries them (a glow
+much brighter than the ring, a laser-lit mirror mount, sets that floor above much of
+the ring itself): the same floor is then taken relative to the leftovers' own
+strength. Where the leftovers still
 make a ring over much of the frame, the caller fits them too and chooses between the
 two curves with what it knows of the pipe (:func:`pipestitch.pipeline.posing.fit_frame`:
 the one nearer the nominal radius).

@@ -8,6 +8,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -37,12 +39,12 @@ def test_swapped_frames_are_said_by_check_pose_and_run(dataset: Path, tmp_path: 
     assert _said(dataset) == []
     _swap(dataset, range(4))
     said = _said(dataset)
-    assert len(said) == 1 and "brighter than their LED frames in 4 of 4 pairs" in said[0]
+    assert len(said) == 1 and "twice as bright as their LED frames in 4 of 4 pairs" in said[0]
     for command in ("pose", "run"):
         out = tmp_path / command
         result = CliRunner().invoke(app, [command, str(dataset), "--out", str(out)])
-        assert "frames/: the laser frames are brighter than their LED frames in 4 of 4" in (
-            result.output), result.output
+        said = "frames/: the laser frames are over twice as bright as their LED frames in 4 of 4"
+        assert said in result.output, result.output
     assert "swapped" in (tmp_path / "run" / "problems.csv").read_text()
 
 
@@ -51,3 +53,15 @@ def test_one_swapped_pair_of_four_is_not_a_swapped_dataset(dataset: Path) -> Non
     # messages, not said of the run
     _swap(dataset, range(1))
     assert _said(dataset) == []
+
+
+def test_laser_frames_lit_as_brightly_as_the_led_frames_are_not_swapped(dataset: Path) -> None:
+    """The LEDs (or daylight) on in the laser frames too: each laser frame is its LED
+    frame plus the ring, the brighter of the pair, and still the laser frame."""
+    frames = dataset / "frames"
+    for laser in sorted(frames.glob("laser_*.png")):
+        led = cv2.imread(str(frames / laser.name.replace("laser", "led")), cv2.IMREAD_UNCHANGED)
+        ring = cv2.imread(str(laser), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(laser), np.clip(ring.astype(np.float32) + led, 0, 255).astype(np.uint8))
+    assert _said(dataset) == []
+

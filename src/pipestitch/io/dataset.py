@@ -38,6 +38,7 @@ __all__ = [
     "check_frame_column",
     "check_odometry_and_imu",
     "count_frame_files",
+    "laser_brighter",
     "open_dataset",
     "read_csv_columns",
     "read_csv_lines",
@@ -417,14 +418,26 @@ def _check_images(paths: list[Path], size: tuple[int, int],
             progress()
 
 
-SWAPPED_NOTE = ("the laser frames are brighter than their LED frames in {brighter} of {pairs} "
-                "pairs (a laser frame is dark but for its ring): laser and LED frames swapped, "
-                "or the pairs shifted by one frame?")
+# A laser frame is dark but for its ring, or as bright as its LED frame where the LEDs
+# (or daylight) light it too; an LED frame mistaken for one is an order of magnitude
+# brighter than the laser frame taken for the LED frame. Twice: the middle, on a ratio
+# scale, of the two.
+SWAPPED_RATIO = 2.0
+SWAPPED_NOTE = ("the laser frames are over twice as bright as their LED frames in {brighter} "
+                "of {pairs} pairs (a laser frame is dark but for its ring): laser and LED "
+                "frames swapped, or the pairs shifted by one frame?")
+
+
+def laser_brighter(laser_level: float, led_level: float) -> bool:
+    """Whether a pair's laser frame is over :data:`SWAPPED_RATIO` times as bright as its
+    LED frame (their :func:`pipestitch.camera.mean_level`)."""
+    return laser_level > SWAPPED_RATIO * led_level
 
 
 def swapped_note(laser_brighter: list[bool]) -> str:
-    """:data:`SWAPPED_NOTE` when the laser frame is the brighter of its pair in most of
-    the pairs compared (``laser_brighter``, one per pair with both frames), else ""."""
+    """:data:`SWAPPED_NOTE` when the laser frame is the brighter of its pair
+    (:func:`laser_brighter`) in most of the pairs compared (one per pair with both
+    frames), else ""."""
     brighter = sum(laser_brighter)
     if brighter <= len(laser_brighter) / 2:
         return ""
@@ -480,7 +493,7 @@ def _check_frames(root: Path, config: ProbeConfig | None,
                                  levels)
         pairs = [(levels.get(found["laser"][i]), levels.get(found["led"][i]))
                  for i in sorted(set(found["laser"]) & set(found["led"]))]
-        if note := swapped_note([laser > led for laser, led in pairs
+        if note := swapped_note([laser_brighter(laser, led) for laser, led in pairs
                                  if laser is not None and led is not None]):
             yield Problem(frames_dir, note, "warning")
 

@@ -31,7 +31,7 @@ from pipestitch.config import ProbeConfig
 from pipestitch.errors import DatasetError
 from pipestitch.geometry import BodyEnvelope
 from pipestitch.io.atomic import atomic_write_text
-from pipestitch.io.dataset import Dataset, open_dataset, swapped_note
+from pipestitch.io.dataset import Dataset, laser_brighter, open_dataset, swapped_note
 from pipestitch.io.imu import read_imu
 from pipestitch.io.mask import mask_notes, read_mask
 from pipestitch.mosaic.photometric import (
@@ -109,8 +109,8 @@ class FramePose:
     # the photometric comparison with the previous frame that has a fit: (its index,
     # the 2 x 2 costs), the evidence resolve_run took (None: not compared)
     compared: tuple[int, np.ndarray] | None = field(default=None, compare=False)
-    # whether the laser frame is the brighter of the pair (None: not both read): most
-    # of a run's so is a dataset whose frames are swapped (io/dataset.py, swapped_note)
+    # whether the laser frame is over twice as bright as its LED frame (None: not both
+    # read): most of a run's so is a dataset whose frames are swapped (io/dataset.py)
     laser_brighter: bool | None = field(default=None, compare=False)
 
     @property
@@ -373,7 +373,7 @@ def _load_and_fit(dataset: Dataset, index: int, settings: PoseSettings,
                 led = None
                 warning = f"{exc.path.name}: {exc.problem}; pose from the laser frame alone"
     try:
-        brighter = None if led is None else mean_level(laser) > mean_level(led)
+        brighter = None if led is None else laser_brighter(mean_level(laser), mean_level(led))
         with timer("ring + pose"):
             frame = fit_frame(index, laser, led, settings)
             return replace(frame.with_warning(warning), laser_brighter=brighter)

@@ -44,7 +44,7 @@ def test_mask_round_trip_and_convention(dataset: Path) -> None:
 def test_a_mask_that_hides_the_ring_is_said_to_be_inverted(dataset: Path, tmp_path: Path
                                                            ) -> None:
     """0 where the wall is seen (the convention the other way round): the ring search
-    would find nothing, so check, pose and run say so, naming the mask."""
+    would find nothing, so check and pose (and run, as pose) say so, naming the mask."""
     from typer.testing import CliRunner
 
     from pipestitch.cli.app import app

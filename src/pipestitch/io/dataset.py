@@ -434,14 +434,14 @@ def laser_brighter(laser_level: float, led_level: float) -> bool:
     return laser_level > SWAPPED_RATIO * led_level
 
 
-def swapped_note(laser_brighter: list[bool]) -> str:
+def swapped_note(pairs_brighter: list[bool]) -> str:
     """:data:`SWAPPED_NOTE` when the laser frame is the brighter of its pair
-    (:func:`laser_brighter`) in most of the pairs compared (one per pair with both
-    frames), else ""."""
-    brighter = sum(laser_brighter)
-    if brighter <= len(laser_brighter) / 2:
+    (:func:`laser_brighter`, one value per pair with both frames) in most of the pairs,
+    else ""."""
+    brighter = sum(pairs_brighter)
+    if brighter <= len(pairs_brighter) / 2:
         return ""
-    return SWAPPED_NOTE.format(brighter=brighter, pairs=len(laser_brighter))
+    return SWAPPED_NOTE.format(brighter=brighter, pairs=len(pairs_brighter))
 
 
 def _shows_nothing(frame: np.ndarray, kind: str) -> str:

@@ -58,8 +58,8 @@ from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "CircleFallback",
            "FramePose", "PoseSettings", "choose", "estimate_poses", "fit_frame",
-           "report_frame_messages", "resolve_frames", "ring_search_band", "run_pose",
-           "strips_overlap", "swapped_notes", "write_poses_csv"]
+           "report_frame_messages", "resolve_frames", "ring_search_band", "run_notes",
+           "run_pose", "strips_overlap", "write_poses_csv"]
 
 T = TypeVar("T")
 
@@ -388,11 +388,19 @@ def _ordered(dataset: Dataset, settings: PoseSettings, workers: int,
                            range(dataset.n_pairs), workers)
 
 
-def swapped_notes(frames: Sequence[FramePose]) -> list[tuple[int, str]]:
-    """The run's note (frame -1) when most of its laser frames are brighter than their
-    LED frames (:func:`pipestitch.io.dataset.swapped_note`), else none."""
-    note = swapped_note([f.laser_brighter for f in frames if f.laser_brighter is not None])
-    return [(-1, f"frames/: {note}")] if note else []
+def run_notes(dataset: Dataset, occluded: np.ndarray | None,
+              frames: Sequence[FramePose]) -> list[tuple[int, str]]:
+    """The messages about the whole run (frame -1) that `pose` and `run` both give: a
+    video's dropped frames and timestamp gaps (io.video), odometry.csv's warnings, a
+    mask that hides the ring (:func:`pipestitch.io.mask.mask_notes`; ``occluded``: the
+    mask as read) and laser frames brighter than their LED frames
+    (:func:`pipestitch.io.dataset.swapped_note`)."""
+    swapped = swapped_note([f.laser_brighter for f in frames if f.laser_brighter is not None])
+    return ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
+            + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
+            + [(-1, f"{dataset.config.probe.mask}: {note}")
+               for note in mask_notes(occluded, dataset.config)]
+            + ([(-1, f"frames/: {swapped}")] if swapped else []))
 
 
 def strips_overlap(first: FramePose, second: FramePose,
@@ -577,11 +585,7 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
         # No LED refinement here to measure the tilt: the circle fits stay, flagged.
         notes.append((-1, OVAL_POSE_NOTE.format(share=found.share)))
         frames = [f.with_warning(OVAL_POSE_WARNING) if f.fit.ok else f for f in frames]
-    report_frame_messages([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
-                          + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
-                          + [(-1, f"{dataset.config.probe.mask}: {note}")
-                             for note in mask_notes(occluded, dataset.config)]
-                          + swapped_notes(frames) + notes
+    report_frame_messages(run_notes(dataset, occluded, frames) + notes
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m],
                           command="pose")
     path = write_poses_csv(Path(out) / "poses.csv", frames, choices, dataset.odometry_mm, imu)

@@ -29,7 +29,7 @@ from pipestitch.geometry import BodyEnvelope, WallGrid
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
-from pipestitch.io.mask import mask_notes, read_mask
+from pipestitch.io.mask import read_mask
 from pipestitch.io.outputs import PROFILE_COLUMNS, write_csv, write_json, write_mosaic_png
 from pipestitch.measure.defects import Defect
 from pipestitch.mosaic.register import Link
@@ -44,7 +44,7 @@ from pipestitch.pipeline.posing import (
     choose,
     estimate_poses,
     report_frame_messages,
-    swapped_notes,
+    run_notes,
     write_poses_csv,
 )
 from pipestitch.pipeline.progress import StageTimer
@@ -640,12 +640,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                     dataset.config.laser.plane_distance_mm,
                                     dataset.config.pipe.inner_diameter_mm, tolerance_pct))
         problems = _problems(frames, result, choices, no_mosaic)
-        # A video's dropped frames and timestamp gaps (io.video) concern the whole run.
-        problems = ([(-1, f"video: {note}") for note in getattr(dataset, "notes", [])]
-                    + [(-1, f"odometry.csv: {note}") for note in dataset.odometry_notes]
-                    + [(-1, f"{dataset.config.probe.mask}: {note}")
-                       for note in mask_notes(declared, dataset.config)]
-                    + swapped_notes(frames) + problems)
+        problems = run_notes(dataset, declared, frames) + problems
         with timer("standards"):
             coded = _coded(out, dataset, crown_deg, problems,
                            written.overview if written is not None else None)

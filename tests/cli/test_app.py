@@ -389,7 +389,7 @@ def test_non_finite_and_bad_options_exit_2(small_dataset: Path, tmp_path: Path,
 
 @pytest.mark.parametrize("text,needle", [
     ("frame,roll_deg\n0,abc\n1,2\n", "line 2: roll_deg = 'abc' is not a finite number"),
-    ("frame,roll_deg\n0,nan\n1,2\n", "line 2: roll_deg = 'nan' is not a finite number"),
+    ("frame,roll_deg\n0,-inf\n1,2\n", "line 2: roll_deg = '-inf' is not a finite number"),
     ("frame,roll_deg\n0,1\n0,2\n", "line 3: frame 0 is listed more than once"),
 ])
 def test_check_and_run_refuse_the_same_bad_imu_csv(small_dataset: Path, tmp_path: Path,
@@ -430,8 +430,27 @@ def test_check_warns_about_a_missing_odometry_row(small_dataset: Path, tmp_path:
     (data / "odometry.csv").write_text("frame,z_mm\n0,0.0\n")
     result = runner.invoke(app, ["check", str(data), "--quiet"])
     assert result.exit_code == 0, result.output
-    assert "warning: " in result.output and "odometry.csv: no row for 1 frame(s) (1)" in \
+    assert "warning: " in result.output
+    assert "odometry.csv: no reading (no row, or z_mm nan or empty) for 1 frame(s) (1)" in \
         result.output
+
+
+def test_run_takes_a_nan_odometry_reading_as_none(small_dataset: Path, tmp_path: Path) -> None:
+    """``nan`` in z_mm (what SPEC's outputs write for a value not measured, and what an
+    encoder export may hold for a missed reading) is a frame without a reading: said,
+    and its z comes from registration, as for a frame without a row."""
+    data = tmp_path / "nan"
+    shutil.copytree(small_dataset, data)
+    rows = (data / "odometry.csv").read_text().splitlines()
+    rows[2] = rows[2].split(",")[0] + ",nan"
+    (data / "odometry.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "o"
+    result = runner.invoke(app, ["run", str(data), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "odometry.csv: no reading (no row, or z_mm nan or empty) for 1 frame(s) (1)" in \
+        result.output
+    z = np.genfromtxt(out / "poses.csv", delimiter=",", names=True)["z_mm"]
+    assert np.all(np.isfinite(z)) and np.all(np.diff(z) > 0)
 
 
 def test_check_with_a_video_reads_imu_and_odometry_as_run_does(small_dataset: Path,
@@ -447,11 +466,11 @@ def test_check_with_a_video_reads_imu_and_odometry_as_run_does(small_dataset: Pa
     check = ["check", str(root), "--video", str(video), "--quiet"]
     (root / "odometry.csv").write_text("frame,z_mm\n0,0.0\n")
     result = runner.invoke(app, check)
-    assert result.exit_code == 0 and "odometry.csv: no row for 1 frame(s)" in result.output
+    assert result.exit_code == 0 and "odometry.csv: no reading (no row" in result.output
     (root / "imu.csv").write_bytes(b"\xef\xbb\xbfframe,roll_deg\n0,nan\n")
     result = runner.invoke(app, check)
     assert result.exit_code == 2, result.output
-    assert "imu.csv: line 2: roll_deg = 'nan' is not a finite number" in result.output
+    assert "imu.csv: no reading: roll_deg is nan or empty on every row" in result.output
     (root / "imu.csv").unlink()
     (root / "odometry.csv").write_text("frame,z_mm\n0,0.0\n0,1.0\n1,2.0\n")
     result = runner.invoke(app, check)

@@ -305,8 +305,14 @@ def test_odometry_frame_listed_twice_is_an_error_naming_the_line(tmp_path: Path)
     assert errors == [f"error: {tmp_path / 'odometry.csv'}: {message}"]
 
 
+NO_READING = ("no reading (no row, or z_mm nan or empty) for 1 frame(s) (1): their z comes "
+              "from registration alone")
+
+
 @pytest.mark.parametrize("rows,warning", [
-    ("0,0.0\n2,9.0\n", "no row for 1 frame(s) (1): their z comes from registration alone"),
+    ("0,0.0\n2,9.0\n", NO_READING),
+    ("0,0.0\n1,nan\n2,9.0\n", NO_READING),   # nan: not measured, as SPEC's outputs write it
+    ("0,0.0\n1,\n2,9.0\n", NO_READING),      # an empty cell alike
     ("0,0.0\n1,5.0\n2,3.0\n", "z_mm is not monotonic: it goes back from frame 1 (5 mm) to "
                               "frame 2 (3 mm)"),
 ])
@@ -321,6 +327,21 @@ def test_odometry_gaps_and_reversals_are_warnings(tmp_path: Path, rows: str,
     assert open_dataset(tmp_path).odometry_notes == [warning]
 
 
+def test_odometry_without_any_reading_is_an_error(tmp_path: Path) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,nan\n1,\n")
+    with pytest.raises(DatasetError, match="no reading: z_mm is nan or empty on every row"):
+        open_dataset(tmp_path)
+
+
+def test_imu_rows_without_a_reading_are_left_out(tmp_path: Path) -> None:
+    from pipestitch.io.imu import read_imu
+
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "imu.csv").write_text("frame,roll_deg\n0,nan\n1,\n2,4.5\n")
+    assert read_imu(tmp_path) == {2: 4.5}
+
+
 def test_odometry_pulled_back_is_monotonic(tmp_path: Path) -> None:
     _tiny_dataset(tmp_path, n=3)
     (tmp_path / "odometry.csv").write_text("frame,z_mm\n0,9.0\n1,5.0\n2,5.0\n")
@@ -330,7 +351,8 @@ def test_odometry_pulled_back_is_monotonic(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("text,message", [
     ("frame,roll_deg\n0,abc\n", "line 2: roll_deg = 'abc' is not a finite number"),
-    ("frame,roll_deg\n0,nan\n", "line 2: roll_deg = 'nan' is not a finite number"),
+    ("frame,roll_deg\n0,inf\n", "line 2: roll_deg = 'inf' is not a finite number"),
+    ("frame,roll_deg\n0,nan\n1,\n", "no reading: roll_deg is nan or empty on every row"),
     ("frame,roll_deg\n0,1\n1,2\n0,3\n", "line 4: frame 0 is listed more than once"),
     ("frame,roll_deg\n1.5,1\n", "frame numbers must be whole numbers >= 0 (line 2: frame 1.5)"),
     ("frame,roll_deg\n", "no rows"),

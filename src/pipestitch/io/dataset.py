@@ -150,9 +150,14 @@ def read_csv_columns(path: Path, required: tuple[str, ...]) -> dict[str, np.ndar
     return read_csv_lines(path, required)[0]
 
 
-def read_csv_lines(path: Path, required: tuple[str, ...]
+def read_csv_lines(path: Path, required: tuple[str, ...], *, unread: tuple[str, ...] = ()
                    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """:func:`read_csv_columns` and the line number (1-based) of every row read."""
+    """:func:`read_csv_columns` and the line number (1-based) of every row read.
+
+    ``unread``: required columns whose cell may say that nothing was read there (``nan``
+    or empty, as SPEC's outputs write a value not measured): read as NaN; an infinite
+    value or text is still an error.
+    """
     try:
         with path.open(newline="", encoding="utf-8-sig") as handle:
             rows = list(csv.reader(handle))
@@ -175,8 +180,10 @@ def read_csv_lines(path: Path, required: tuple[str, ...]
             try:
                 value = float(cell)
             except ValueError:
-                value = math.nan if name not in required else None
-            if value is None or (name in required and not math.isfinite(value)):
+                value = math.nan if name not in required or (
+                    name in unread and not cell.strip()) else None
+            if value is None or (name in required and not math.isfinite(value)
+                                 and not (name in unread and math.isnan(value))):
                 raise DatasetError(path, f"line {lineno}: {name} = {cell!r} is not a finite number")
             cols[name].append(value)
         lines.append(lineno)
@@ -215,23 +222,27 @@ def read_odometry(path: Path, n_pairs: int | None, pairs_from: str = ""
     """``odometry.csv``: z per frame, and the warnings about it.
 
     The one reader of the file (``open_dataset`` for every stage, ``check_dataset``).
-    Warnings: frames without a row (their z comes from registration alone) and z that
-    does not move one way along the run. ``n_pairs`` None (the frames are unknown):
-    frame numbers are not compared with the frames; ``pairs_from``: where the pairs
-    were counted, for the message (:func:`check_frame_column`).
+    Warnings: frames without a reading (no row, or ``nan`` or an empty cell in z_mm: their
+    z comes from registration alone) and z that does not move one way along the run.
+    ``n_pairs`` None (the frames are unknown): frame numbers are not compared with the
+    frames; ``pairs_from``: where the pairs were counted, for the message
+    (:func:`check_frame_column`).
 
     Raises
     ------
     DatasetError
-        Naming the file (and the line): missing columns, values that are not finite
-        numbers, frame numbers outside 0..n_pairs-1, a frame listed twice, no rows.
+        Naming the file (and the line): missing columns, values that are neither
+        numbers nor ``nan``/empty, frame numbers outside 0..n_pairs-1, a frame listed
+        twice, no rows, no reading at all.
     """
-    cols, lines = read_csv_lines(path, ("frame", "z_mm"))
+    cols, lines = read_csv_lines(path, ("frame", "z_mm"), unread=("z_mm",))
     frames, z = cols["frame"], cols["z_mm"]
     if not len(frames):
         raise DatasetError(path, "no rows (expected frame,z_mm per frame)")
     check_frame_column(path, frames, lines, n_pairs, pairs_from)
-    odometry = {int(f): float(v) for f, v in zip(frames, z, strict=True)}
+    odometry = {int(f): float(v) for f, v in zip(frames, z, strict=True) if math.isfinite(v)}
+    if not odometry:
+        raise DatasetError(path, "no reading: z_mm is nan or empty on every row")
     return odometry, _odometry_notes(odometry, n_pairs)
 
 
@@ -241,8 +252,8 @@ def _odometry_notes(odometry: dict[int, float], n_pairs: int | None) -> list[str
     if missing:
         shown = ", ".join(str(i) for i in missing[:10])
         more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
-        notes.append(f"no row for {len(missing)} frame(s) ({shown}{more}): their z comes from "
-                     "registration alone")
+        notes.append(f"no reading (no row, or z_mm nan or empty) for {len(missing)} frame(s) "
+                     f"({shown}{more}): their z comes from registration alone")
     frames = sorted(odometry)
     steps = np.diff([odometry[f] for f in frames])
     if np.any(steps > 0) and np.any(steps < 0):

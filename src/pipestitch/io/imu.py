@@ -9,6 +9,7 @@ docs/conventions.md, "Clock positions"). Extra columns are ignored.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from pipestitch.errors import DatasetError
@@ -22,19 +23,26 @@ IMU_FILE = "imu.csv"
 def read_imu(dataset: str | Path) -> dict[int, float] | None:
     """Roll per frame from ``dataset/imu.csv``, or None when the file is absent.
 
+    A frame whose roll_deg is ``nan`` or empty had no reading: it is left out, as a frame
+    without a row is (the roll reference takes the frames that have one).
+
     Raises
     ------
     DatasetError
-        Naming the file (and the line): missing columns, values that are not finite
-        numbers, frame numbers that are not whole numbers >= 0, repeated frames, no rows.
-        A UTF-8 byte-order mark is accepted.
+        Naming the file (and the line): missing columns, values that are neither
+        numbers nor ``nan``/empty, frame numbers that are not whole numbers >= 0,
+        repeated frames, no rows, no reading at all. A UTF-8 byte-order mark is accepted.
     """
     path = Path(dataset) / IMU_FILE
     if not path.is_file():
         return None
-    cols, lines = read_csv_lines(path, ("frame", "roll_deg"))
+    cols, lines = read_csv_lines(path, ("frame", "roll_deg"), unread=("roll_deg",))
     frames = cols["frame"]
     if not len(frames):
         raise DatasetError(path, "no rows (expected frame,roll_deg per frame)")
     check_frame_column(path, frames, lines)
-    return {int(f): float(r) for f, r in zip(frames, cols["roll_deg"], strict=True)}
+    roll = {int(f): float(r) for f, r in zip(frames, cols["roll_deg"], strict=True)
+            if math.isfinite(r)}
+    if not roll:
+        raise DatasetError(path, "no reading: roll_deg is nan or empty on every row")
+    return roll

@@ -21,6 +21,7 @@ SMOKE = [   # (script, a line its --quick output must hold)
     ("first_run.py", "first run / warm"),
     ("holes.py", "spacing err"),
     ("ovality.py", "ours (refined tilt)"),
+    ("pose_sigma.py", "run (refined)"),
     ("scale.py", "speed ratio cluster vs sequential"),
     ("calibration_real.py", "calibration vs published"),
     ("occluders.py", "SSIM - black"),

@@ -5,12 +5,15 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid
 from pipestitch.mosaic.refine import (
     PATCHES_AROUND,
+    SHIFT_SIGMA_PX,
     PatchShifts,
+    _inverse_in_band,
     node_jacobian,
     pair_jacobians,
     patch_shifts,
@@ -133,3 +136,89 @@ def test_held_frames_keep_their_poses_and_still_measure_the_others() -> None:
         if f in held:
             assert np.all(windowed[f] == 0.0)
         np.testing.assert_allclose(windowed[f], errors[f], atol=1e-5)
+
+
+def _banded(a: np.ndarray, width: int) -> np.ndarray:
+    """``a`` in the lower banded form of scipy.linalg.cholesky_banded."""
+    return np.array([np.concatenate([np.diag(a, -d), np.zeros(d)]) for d in range(width + 1)])
+
+
+@pytest.mark.parametrize("n,width", [(1, 0), (9, 0), (12, 3), (60, 11)])
+def test_inverse_in_band_is_the_inverse_within_the_band(n: int, width: int) -> None:
+    rng = np.random.default_rng(n + width)
+    a = np.zeros((n, n))
+    for d in range(width + 1):
+        v = rng.normal(size=n - d)
+        a += np.diag(v, -d) + (np.diag(v, d) if d else 0.0)
+    a += np.eye(n) * (np.abs(a).sum(axis=1).max() + 0.5)   # diagonally dominant: SPD
+    found = _inverse_in_band(_banded(a, width))
+    inv = np.linalg.inv(a)
+    for d in range(width + 1):
+        np.testing.assert_allclose(found[:n - d, d], np.diag(inv, d), rtol=1e-10, atol=1e-14)
+    a[n // 2, n // 2] = -1.0   # not positive definite
+    with pytest.raises(np.linalg.LinAlgError):
+        _inverse_in_band(_banded(a, width))
+
+
+def _noisy_chain(rng: np.random.Generator, truth: np.ndarray, noise: float,
+                 jac: dict) -> list[PatchShifts]:
+    """Patch shifts of a chain of frames (each linked to the next two), with Gaussian
+    noise ``noise`` times the refinement's shift model (``SHIFT_SIGMA_PX`` at the
+    patches' response)."""
+    out = []
+    response = np.full(30, 0.5)
+    for (i, j), (g_i, g_j) in jac.items():
+        sigma = SHIFT_SIGMA_PX / np.sqrt(response)[:, None]
+        shift = g_j @ truth[j] - g_i @ truth[i] + rng.normal(0, noise, (30, 2)) * sigma
+        out.append(PatchShifts(i, j, np.zeros((30, 2)), shift, response))
+    return out
+
+
+@pytest.mark.parametrize("noise", [3.0, 0.3])
+def test_pose_covariances_match_the_scatter_of_the_solution(noise: float) -> None:
+    """Solved again and again from shifts with fresh noise, the pose errors scatter as the
+    stated covariance says when the shifts are noisier than the model (the variance
+    factor scales it), and no more than it says when they are cleaner (the model's
+    noise is the floor). The windowed solve states the whole run's covariance."""
+    rng = np.random.default_rng(7)
+    n = 8
+    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
+           for i in range(n) for j in (i + 1, i + 2) if j < n}
+    information = {f: np.diag([1e3, 1e3, 1.0, 1.0]) for f in range(n)}
+    truth = np.zeros((n, 4))
+    found, stated = [], []
+    for _ in range(300):
+        covariances: dict[int, np.ndarray] = {}
+        errors, _ = solve_pose_errors(_noisy_chain(rng, truth, noise, jac), jac, information,
+                                      covariances=covariances)
+        found.append([errors[f] for f in range(n)])
+        stated.append([np.sqrt(np.diag(covariances[f])) for f in range(n)])
+    scatter = np.std(np.array(found), axis=0)          # (n, 4)
+    sigma = np.median(np.array(stated), axis=0)
+    ratio = scatter / sigma
+    if noise > 1:
+        assert np.all((ratio > 0.8) & (ratio < 1.2)), ratio
+    else:
+        assert np.all(ratio < 0.5), ratio   # 0.3 of the model's noise: ~0.3
+    shifts = _noisy_chain(rng, truth, noise, jac)
+    whole: dict[int, np.ndarray] = {}
+    solve_pose_errors(shifts, jac, information, covariances=whole)
+    windowed: dict[int, np.ndarray] = {}
+    solve_in_windows(shifts, _given(jac), information, window=5, margin=1,
+                     covariances=windowed)
+    assert sorted(windowed) == list(range(n))
+    for f in range(n):
+        np.testing.assert_allclose(np.sqrt(np.diag(windowed[f])), np.sqrt(np.diag(whole[f])),
+                                   rtol=0.3)
+
+
+def test_held_frames_get_no_covariance() -> None:
+    rng = np.random.default_rng(5)
+    n = 6
+    jac = {(i, i + 1): tuple(rng.normal(0, 40, (2, 30, 2, 4))) for i in range(n - 1)}
+    covariances: dict[int, np.ndarray] = {}
+    solve_pose_errors(_noisy_chain(rng, np.zeros((n, 4)), 1.0, jac), jac,
+                      {f: np.eye(4) for f in range(n)}, held={0, 3}, covariances=covariances)
+    assert sorted(covariances) == [1, 2, 4, 5]
+    for c in covariances.values():
+        assert np.all(np.linalg.eigvalsh(c) > 0) and np.allclose(c, c.T)

@@ -133,6 +133,26 @@ def test_poses_carry_registration_z_and_roll(dataset: Path, output: Path) -> Non
         assert 0 < np.max(np.abs(est[name] - truth[name])) < 0.1
 
 
+STD = ("alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm")
+
+
+def test_refined_poses_state_the_refinement_s_uncertainty(dataset: Path, output: Path,
+                                                          tmp_path: Path) -> None:
+    """The refined poses' standard deviations are the refinement's where the LED frames
+    tell more than the ring (never more than the ring's own, as ``pose`` states them),
+    and their errors against the truth are within 3 of them (0.3 at worst measured, the
+    stated sigmas 0.36-0.73 of the ring's on three of six frames)."""
+    result = runner.invoke(app, ["pose", str(dataset), "--out", str(tmp_path), "--quiet"])
+    assert result.exit_code == 0, result.output
+    ring = read_csv_columns(tmp_path / "poses.csv", STD)
+    refined = read_csv_columns(output / "poses.csv", (*POSE, *STD))
+    truth = read_csv_columns(dataset / "truth" / "poses.csv", POSE)
+    for pose, std in zip(POSE[1:5], STD, strict=True):
+        assert np.all(refined[std] > 0) and np.all(refined[std] <= ring[std])
+        assert np.all(np.abs(refined[pose] - truth[pose]) < 3 * refined[std])
+    assert np.sum(refined["alpha_std_deg"] < 0.8 * ring["alpha_std_deg"]) >= 2
+
+
 def test_run_reports_and_skips_corrupt_frames(dataset: Path, tmp_path: Path) -> None:
     copy = tmp_path / "ds"
     shutil.copytree(dataset, copy)

@@ -16,10 +16,14 @@ and two overlapping frames with different warps disagree locally. So:
    prior of each frame, is solved with Huber reweighting (:func:`solve_pose_errors`;
    its normal equations are summed pair by pair, so its memory is a few kB a frame);
    a long run is solved in overlapping windows of frames (:func:`solve_in_windows`),
-   so that this memory does not grow with the run.
+   so that this memory does not grow with the run;
+4. each frame's covariance is read from the solution (:func:`_pose_covariances`):
+   the patch shifts' noise model, scaled up where the residuals scatter more, through
+   the inverse normal matrix's diagonal blocks (its banded pose part inverted within
+   the band, :func:`_inverse_in_band`).
 
 Written by hand because no library fuses these two kinds of evidence; the pieces
-(phase correlation, sparse solve) are OpenCV's and SciPy's.
+(phase correlation, sparse solve, banded Cholesky) are OpenCV's and SciPy's.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import cholesky_banded
 from scipy.sparse.linalg import spsolve
 
 from pipestitch.camera import CameraModel
@@ -293,8 +298,9 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
                       jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
                       information: Mapping[int, np.ndarray | None], *,
                       iterations: int = 4,
-                      held: Collection[int] = ()) -> tuple[dict[int, np.ndarray],
-                                                           dict[tuple[int, int], np.ndarray]]:
+                      held: Collection[int] = (),
+                      covariances: dict[int, np.ndarray] | None = None
+                      ) -> tuple[dict[int, np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """Pose error of every frame and the rigid motion of every pair once it is removed.
 
     Parameters
@@ -307,10 +313,14 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     information : mapping
         Frame -> the ring's 4 x 4 information matrix (or None).
     iterations : int
-        Huber reweighting rounds (threshold 2 sigma).
+        Huber reweighting rounds (threshold 2 sigma, the shift model's sigma times the
+        residuals' scale where they scatter more: :func:`_residual_scale`).
     held : collection of int
         Frames whose poses are taken as right (error 0): their pairs with the other
         frames still measure those, and the pairs' rigid motions.
+    covariances : dict, optional
+        Filled with each solved frame's (not held) 4 x 4 covariance of its corrected pose
+        (:func:`_pose_covariances`).
 
     Returns
     -------
@@ -341,11 +351,112 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     for _ in range(iterations):
         normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
         x = spsolve(normal, rhs)
-        weights = [_huber(np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma) / p.sigma**2
-                   for p in pairs]
+        z = [np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma for p in pairs]
+        scale = _residual_scale(z, len(pairs))
+        weights = [_huber(zk / scale) / p.sigma**2 for zk, p in zip(z, pairs, strict=True)]
     errors = {f: x[col[f]:col[f] + 4] for f in frames}
     motions = {(p.i, p.j): x[p.unknowns[:2]] for p in pairs}
+    if covariances is not None and iterations > 0:
+        solving = [f for f in frames if f not in held]
+        covariances.update(_pose_covariances(normal, n_pose, scale, solving,
+                                             [col[f] for f in solving]))
     return errors, motions
+
+
+def _residual_scale(z: Sequence[np.ndarray], n_pairs: int) -> float:
+    """How many times the shift model's noise the patch rows' residuals (``z``, each
+    pair's normalised by its model sigma) scatter, at least 1: their median absolute
+    value over that of a unit normal, corrected for the unknowns each pair's rows
+    fit (its rigid shift; the poses, shared by many pairs, are left out).
+
+    The model (``SHIFT_SIGMA_PX`` at response 1) is what a clean texture gives or less
+    (0.02-0.4 of it on 18 simulated runs); a noisier one exceeds it, and the Huber
+    threshold and the covariance follow (:func:`_pose_covariances`)."""
+    rows = np.concatenate(z) if z else np.zeros(0)
+    redundancy = len(rows) - 2 * n_pairs
+    if redundancy <= 0:
+        return 1.0
+    mad = float(np.median(rows)) / 0.6744897501960817   # a unit normal's median |z|
+    return max(1.0, mad * np.sqrt(len(rows) / redundancy))
+
+
+def _pose_covariances(normal: sp.csc_matrix, n_pose: int, scale: float,
+                      frames: Sequence[int], starts: Sequence[int]) -> dict[int, np.ndarray]:
+    """Each of ``frames``' 4 x 4 block (at ``starts``) of the solution's covariance,
+    scale^2 N^-1 (N: the normal matrix of the last solve, its weights; ``scale``: the
+    residuals' scale against the shift model, :func:`_residual_scale`).
+
+    The pairs' unknowns are eliminated (their blocks are 2 x 2), which leaves the poses'
+    matrix banded (a pair links frames a few apart); the blocks come from its banded
+    Cholesky factor (:func:`_inverse_in_band`). Empty when that matrix is not positive
+    definite.
+    """
+    if not frames:
+        return {}
+    try:
+        band = _inverse_in_band(_pose_band(normal, n_pose))
+    except np.linalg.LinAlgError:
+        return {}
+    out: dict[int, np.ndarray] = {}
+    upper = np.triu_indices(4)
+    for f, c in zip(frames, starts, strict=True):
+        block = np.zeros((4, 4))
+        block[upper] = band[c + upper[0], upper[1] - upper[0]]
+        out[f] = scale**2 * (block + np.triu(block, 1).T)
+    return out
+
+
+def _pose_band(normal: sp.csc_matrix, n_pose: int) -> np.ndarray:
+    """The poses' normal matrix with the pairs' unknowns eliminated (Schur complement
+    N_pp - N_pc N_cc^-1 N_cp; N_cc is 2 x 2 blocks along its diagonal), in the lower
+    banded form of :func:`scipy.linalg.cholesky_banded`."""
+    n_pair = (normal.shape[0] - n_pose) // 2
+    csr = normal.tocsr()
+    cc = csr[n_pose:, n_pose:]
+    a, b, d = cc.diagonal()[0::2], cc.diagonal(1)[0::2], cc.diagonal()[1::2]
+    det = a * d - b * b
+    idx = np.arange(n_pair)
+    inv = sp.bsr_matrix((np.stack([np.stack([d, -b], 1), np.stack([-b, a], 1)], 1)
+                         / det[:, None, None], idx, np.arange(n_pair + 1)),
+                        shape=(2 * n_pair, 2 * n_pair))
+    pc = csr[:n_pose, n_pose:]
+    reduced = (csr[:n_pose, :n_pose] - pc @ inv.tocsr() @ pc.T).tocoo()
+    low = reduced.row >= reduced.col
+    rows, cols, vals = reduced.row[low], reduced.col[low], reduced.data[low]
+    band = np.zeros((int(np.max(rows - cols, initial=0)) + 1, n_pose))
+    np.add.at(band, (rows - cols, cols), vals)
+    return band
+
+
+def _inverse_in_band(band: np.ndarray) -> np.ndarray:
+    """The entries of A^-1 within A's band: ``out[i, d]`` = (A^-1)[i, i + d].
+
+    ``band`` is A (symmetric positive definite) in the lower banded form of
+    :func:`scipy.linalg.cholesky_banded`. From A = L L^T, L^T Z = L^-1 gives, for j >= i,
+    Z_ij = (delta_ij / L_ii - sum_k L_ki Z_kj) / L_ii over the k below i within the band
+    (Takahashi's recurrence), run from the last row up: O(n w^2) for band width w,
+    where unit right-hand sides cost O(n^2 w). Written by hand: SciPy has banded
+    factors and solves but no selected inversion.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When A is not positive definite.
+    """
+    factor = cholesky_banded(band, lower=True)
+    w, n = factor.shape[0] - 1, factor.shape[1]
+    for d in range(1, w + 1):
+        factor[d, n - d:] = 0.0   # past the last row: not part of L
+    out = np.zeros((n + w, w + 1))   # rows past n: zeros for the last rows' windows
+    k, j = np.meshgrid(np.arange(w), np.arange(w), indexing="ij")
+    row, lag = np.minimum(k, j), np.abs(k - j)   # Z[i+1+k, i+1+j] = out[i+1+min, |k-j|]
+    for i in range(n - 1, -1, -1):
+        below = factor[1:, i]                    # L[i+1 .. i+w, i]
+        window = out[i + 1 + row, lag]
+        diag = factor[0, i]
+        out[i, 1:] = -(below @ window) / diag
+        out[i, 0] = (1.0 / diag - below @ out[i, 1:]) / diag
+    return out[:n]
 
 
 WINDOW_FRAMES = 600   # frames per solve of a long run (a 250-pair run is one solve)
@@ -392,8 +503,9 @@ def solve_in_windows(observations: Sequence[PatchShifts],
                      information: Mapping[int, np.ndarray | None], *,
                      window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
                      iterations: int = 4,
-                     held: Collection[int] = ()) -> tuple[dict[int, np.ndarray],
-                                                          dict[tuple[int, int], np.ndarray]]:
+                     held: Collection[int] = (),
+                     covariances: dict[int, np.ndarray] | None = None
+                     ) -> tuple[dict[int, np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """:func:`solve_pose_errors` over overlapping windows of frames (bounded memory).
 
     The working memory is that of one window however long the run is.
@@ -413,7 +525,8 @@ def solve_in_windows(observations: Sequence[PatchShifts],
     Returns
     -------
     errors, motions
-        As :func:`solve_pose_errors`.
+        As :func:`solve_pose_errors`; ``covariances`` as there, each core frame's from
+        its window.
     """
     frames = sorted(information)
     position = {f: k for k, f in enumerate(frames)}
@@ -433,9 +546,12 @@ def solve_in_windows(observations: Sequence[PatchShifts],
             del jac[key]   # no later window reaches back this far
         new = [o for o in inside if (o.i, o.j) not in jac]
         jac.update(zip([(o.i, o.j) for o in new], jacobians_of(new), strict=True))
+        cov: dict[int, np.ndarray] | None = None if covariances is None else {}
         e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
-                                 iterations=iterations, held=held)
+                                 iterations=iterations, held=held, covariances=cov)
         errors.update((f, e[f]) for f in frames[core_lo:core_hi])
+        if covariances is not None and cov:
+            covariances.update((f, cov[f]) for f in frames[core_lo:core_hi] if f in cov)
         motions.update((k, v) for k, v in m.items() if core_lo <= span[k][1] < core_hi)
     return errors, motions
 

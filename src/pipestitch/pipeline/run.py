@@ -260,7 +260,8 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
         view = views.get(frame.index)
         if view is not None and view.refined and choice.chosen is not None:
             hyps = list(frame.fit.hypotheses)
-            h = replace(hyps[choice.chosen], pose=view.pose)
+            h = hyps[choice.chosen]
+            h = replace(h, pose=view.pose, refined_std=_refined_std(view, h.stated_std))
             model = frame.fit.model
             if view.measured is not None:  # the section fitted at the refined tilt
                 m = view.measured
@@ -276,6 +277,26 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                             ).without_warning(OVAL_TILT_WARNING)
         out.append(frame)
     return out
+
+
+POSE_STD_KEYS = ("alpha", "beta", "dx_mm", "dy_mm")
+
+
+def _refined_std(view: FrameView, ring_std: Mapping[str, float]) -> dict[str, float]:
+    """The refined pose's one-sigma uncertainties (keys of ``Hypothesis.std``): the
+    refinement's (its covariance) where they are smaller than the ring's stated ones.
+
+    The refinement's prior leaves the pipe's section free (an oval would bias a ring
+    taken as round), so where the LED frames add little (few patches between few
+    frames) its posterior is about that weak prior's, wider than what the ring says of
+    a round pipe; the ring's is then stated, as for a pose from the ring alone. Empty
+    without a covariance.
+    """
+    if view.covariance is None or not np.all(np.isfinite(view.covariance)):
+        return {}
+    sigma = np.sqrt(np.clip(np.diag(view.covariance), 0.0, None))
+    return {k: min(float(s), ring_std.get(k, math.inf))
+            for k, s in zip(POSE_STD_KEYS, sigma, strict=True)}
 
 
 def _still_infeasible(frames: list[FramePose], choices: list[Choice],

@@ -204,6 +204,9 @@ class FrameView:
     profile: RadiusProfile | None = field(default=None, compare=False)   # wall along z
     # the ring's information before a wall's slope loosened it (:func:`_on_wall`)
     ring_information: np.ndarray | None = field(default=None, compare=False)
+    # the refined pose's 4 x 4 covariance (alpha, beta, dx, dy; rad, mm) from the last
+    # refinement that solved it (mosaic/refine.py)
+    covariance: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -686,21 +689,23 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
         view = views[frame]
         return node_jacobian(camera, view.pose, view.section, own, nodes).astype(np.float32)
 
+    covariances: dict[int, np.ndarray] = {}
     errors, motions = solve_in_windows(patches, lambda new: pair_jacobians(new, jacobian),
                                        {i: v.information for i, v in solved.items()},
-                                       held=held)
+                                       held=held, covariances=covariances)
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px_axial),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
              if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
              for ln in links]
     out = dict(views)
     for i, v in views.items() if redo is None else ((f, views[f]) for f in redo):
-        e = errors.get(i, np.zeros(4))
+        e, covariance = errors.get(i, np.zeros(4)), covariances.get(i, v.covariance)
         if not np.all(np.isfinite(e)):
-            e = np.zeros(4)   # keep the ring's pose rather than lose the frame
+            # keep the ring's pose rather than lose the frame
+            e, covariance = np.zeros(4), v.covariance
         p = v.pose
         out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
-                                      p.dy_mm - e[3]), refined=True)
+                                      p.dy_mm - e[3]), refined=True, covariance=covariance)
     return out, links
 
 

@@ -565,7 +565,8 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
     """Estimate the pose of every frame of a dataset and write ``OUT/poses.csv``: z from
     the dataset's odometry.csv and roll from its imu.csv where they have the frame (no
     registration here), else nan."""
-    # tilt_or_oval reads this module's FramePose
+    # tilt_or_oval and sloping_wall read this module's FramePose
+    from pipestitch.pipeline.sloping_wall import on_sloping_wall
     from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 
     dataset = open_dataset(root, video=video)
@@ -585,6 +586,8 @@ def run_pose(root: str | Path, out: str | Path, *, show_progress: bool = True,
         # No LED refinement here to measure the tilt: the circle fits stay, flagged.
         notes.append((-1, OVAL_POSE_NOTE.format(share=found.share)))
         frames = [f.with_warning(OVAL_POSE_WARNING) if f.fit.ok else f for f in frames]
+    frames = on_sloping_wall(frames, choices, dataset.odometry_mm,
+                             dataset.config.laser.plane_distance_mm)
     report_frame_messages(run_notes(dataset, occluded, frames) + notes
                           + [(f.index, m) for f in frames for m in (f.error, f.warning) if m],
                           command="pose")

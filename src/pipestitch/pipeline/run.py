@@ -261,7 +261,7 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
         if view is not None and view.refined and choice.chosen is not None:
             hyps = list(frame.fit.hypotheses)
             h = hyps[choice.chosen]
-            h = replace(h, pose=view.pose, refined_std=_refined_std(view, h.stated_std))
+            h = replace(h, pose=view.pose, std_override=_refined_std(view, h.stated_std))
             model = frame.fit.model
             if view.measured is not None:  # the section fitted at the refined tilt
                 m = view.measured

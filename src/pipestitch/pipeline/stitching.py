@@ -99,7 +99,7 @@ from pipestitch.pipeline.frame_cache import blank_led
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
-from pipestitch.pose.section import SectionFit, fit_section
+from pipestitch.pose.section import SectionFit, fit_section, sloping_wall_spread
 from pipestitch.standards.roll_reference import imu_roll_offset
 
 __all__ = ["UNWRAP_MODES", "ChainLink", "FrameView", "LedSample", "MosaicResult", "MosaicSettings",
@@ -1155,12 +1155,9 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) ->
     """The view unwrapped onto ``profile``, its ring's prior loosened by what a ring on a
     sloping wall misleads its fit by.
 
-    The ring fit takes the wall at the ring for a cylinder. On a wall whose radius
-    changes by k mm per mm, a ring tilted by t from the axis spans R tan t along the
-    pipe, so its points are wider on one side than on the other by about
-    b = k R tan t: its centre, the probe's offset, is misplaced by up to b, or its tilt
-    by b / d (d: the plane's distance from the camera). That is added to the prior's
-    covariance (Woodbury: (I^-1 + S)^-1 = I - I (S^-1 + I)^-1 I); the photometric
+    The ring fit takes the wall at the ring for a cylinder; on a sloping wall it is off
+    by up to :func:`pipestitch.pose.section.sloping_wall_spread`. That is added to the
+    prior's covariance (Woodbury: (I^-1 + S)^-1 = I - I (S^-1 + I)^-1 I); the photometric
     links then place the frame (a reducer's ring frames: 0.28 -> 0.01 degrees). Each
     round loosens the ring's own information (``ring_information``), not the last one's.
     """
@@ -1170,11 +1167,9 @@ def _on_wall(view: FrameView, profile: RadiusProfile | None, ahead_mm: float) ->
         return viewed
     radius = view.section.mean_radius_mm
     slope = radius * abs(float(profile.at(ahead_mm + 0.5) - profile.at(ahead_mm - 0.5)))
-    tilt = np.hypot(np.tan(view.pose.alpha), np.tan(view.pose.beta))
-    bias = slope * radius * tilt
-    if bias <= 0:
+    spread = sloping_wall_spread(slope, radius, view.pose, ahead_mm) ** 2
+    if spread[2] <= 0:
         return viewed
-    spread = np.array([bias / ahead_mm] * 2 + [bias] * 2) ** 2
     loosened = info - info @ np.linalg.solve(np.diag(1.0 / spread) + info, info)
     return replace(viewed, information=0.5 * (loosened + loosened.T))
 

@@ -97,10 +97,12 @@ class Hypothesis:
         ring counted (the square root of
         :func:`pipestitch.pose._fit_kernels.correlation_factor`): the output files'
         standard deviations are ``std`` times this.
-    refined_std : dict
-        One-sigma uncertainty of the pose (same keys and units as ``std``) once the LED
-        frames refined it (:mod:`pipestitch.mosaic.refine`): stated instead of the
-        ring's; empty for a pose from the ring alone.
+    std_override : dict
+        One-sigma uncertainties (same keys and units as ``std``) stated instead of the
+        ring's: the refinement's once the LED frames refined the pose
+        (:mod:`pipestitch.mosaic.refine`), the ring's widened where the pipe's radius
+        changes along it (:func:`pipestitch.pose.section.sloping_wall_spread`); empty
+        otherwise.
     """
 
     pose: Pose
@@ -112,13 +114,13 @@ class Hypothesis:
     information: np.ndarray | None = field(default=None, compare=False)
     section: PipeSection | None = None
     std_scale: float = 1.0
-    refined_std: dict[str, float] = field(default_factory=dict)
+    std_override: dict[str, float] = field(default_factory=dict)
 
     @property
     def stated_std(self) -> dict[str, float]:
-        """``std`` times ``std_scale``, ``refined_std`` in place of its entries: the
+        """``std`` times ``std_scale``, ``std_override`` in place of its entries: the
         standard deviations the output files state."""
-        return {k: v * self.std_scale for k, v in self.std.items()} | self.refined_std
+        return {k: v * self.std_scale for k, v in self.std.items()} | self.std_override
 
     @property
     def pipe_section(self) -> PipeSection:

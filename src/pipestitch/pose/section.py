@@ -32,7 +32,24 @@ from pipestitch.pose._section_kernels import fit_oval_offset
 from pipestitch.pose.fit import RESELECT_SIGMAS, Hypothesis, PoseFit, plane_to_world, ring_rms_px
 
 __all__ = ["SectionFit", "fit_section", "oval_at_zero_tilt", "oval_jacobian", "oval_residuals",
-           "section_free_information"]
+           "section_free_information", "sloping_wall_spread"]
+
+
+def sloping_wall_spread(slope: float, radius_mm: float, pose: Pose,
+                        plane_distance_mm: float) -> np.ndarray:
+    """How far a ring on a wall whose radius changes along the pipe misleads a fit that
+    takes the wall for a cylinder: (alpha, beta, dx, dy) in rad, rad, mm, mm.
+
+    On a wall whose radius changes by ``slope`` mm per mm, a ring tilted by t from the
+    axis spans R tan t along the pipe, so its points are wider on one side than on the
+    other by about b = slope R tan t: its centre, the probe's offset, is misplaced by up
+    to b, or its tilt by b / d (d: the laser plane's distance from the camera). A
+    reducer's frames (65 to 61 mm over 20 mm, 3-4 degrees of tilt): b ~ 0.2 mm, the ring
+    fit's offsets 0.15-0.33 mm off.
+    """
+    tilt = np.hypot(np.tan(pose.alpha), np.tan(pose.beta))
+    bias = abs(slope) * radius_mm * tilt
+    return np.array([bias / plane_distance_mm] * 2 + [bias] * 2)
 
 
 @dataclass(frozen=True, slots=True)

@@ -70,7 +70,7 @@ from pipestitch.pipeline.stitching import (
 )
 from pipestitch.pipeline.tilt_or_oval import tilt_or_oval
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, consistently_positive
-from pipestitch.pose.fit import Hypothesis, RingPoints
+from pipestitch.pose.fit import PARAMS, Hypothesis, RingPoints
 from pipestitch.pose.section import section_free_information
 from pipestitch.report.html import (
     PROBLEMS_CSV,
@@ -279,9 +279,6 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     return out
 
 
-POSE_STD_KEYS = ("alpha", "beta", "dx_mm", "dy_mm")
-
-
 def _refined_std(view: FrameView, ring_std: Mapping[str, float]) -> dict[str, float]:
     """The refined pose's one-sigma uncertainties (keys of ``Hypothesis.std``): the
     refinement's (its covariance) where they are smaller than the ring's stated ones.
@@ -296,7 +293,7 @@ def _refined_std(view: FrameView, ring_std: Mapping[str, float]) -> dict[str, fl
         return {}
     sigma = np.sqrt(np.clip(np.diag(view.covariance), 0.0, None))
     return {k: min(float(s), ring_std.get(k, math.inf))
-            for k, s in zip(POSE_STD_KEYS, sigma, strict=True)}
+            for k, s in zip(PARAMS[:4], sigma, strict=True)}
 
 
 def _still_infeasible(frames: list[FramePose], choices: list[Choice],

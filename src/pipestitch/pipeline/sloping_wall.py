@@ -21,7 +21,7 @@ import numpy as np
 
 from pipestitch.pipeline.posing import FramePose
 from pipestitch.pose.ambiguity import Choice
-from pipestitch.pose.fit import Hypothesis
+from pipestitch.pose.fit import PARAMS, Hypothesis
 from pipestitch.pose.section import sloping_wall_spread
 
 __all__ = ["SLOPE_SIGMAS", "SLOPING_WALL_WARNING", "on_sloping_wall"]
@@ -33,7 +33,6 @@ SLOPING_WALL_WARNING = ("the pipe's radius changes by {slope:.3f} mm per mm here
                         "taper?): the ring takes the wall as straight, so its offset may be off "
                         "by up to {bias:.2f} mm and its tilt by {tilt:.2f} deg (sigmas widened; "
                         "`pipestitch run` measures the wall)")
-POSE_KEYS = ("alpha", "beta", "dx_mm", "dy_mm")
 
 
 def on_sloping_wall(frames: Sequence[FramePose], choices: Sequence[Choice],
@@ -61,7 +60,7 @@ def on_sloping_wall(frames: Sequence[FramePose], choices: Sequence[Choice],
         spread = sloping_wall_spread(slope, h.radius_mm, h.pose, plane_distance_mm)
         stated = h.stated_std
         widened = {key: math.hypot(stated.get(key, 0.0), float(s))
-                   for key, s in zip(POSE_KEYS, spread, strict=True)}
+                   for key, s in zip(PARAMS[:4], spread, strict=True)}
         hyps = list(frame.fit.hypotheses)
         hyps[chosen] = replace(h, std_override={**h.std_override, **widened})
         frame = replace(frame, fit=replace(frame.fit, hypotheses=tuple(hyps)))

@@ -24,6 +24,10 @@ its own robust noise (scikit-image labels and region properties do the rest):
   the wall just outside its rim (90th percentile over the interior; simulated holes
   6-9 %, the darkest corrosion pits 23 % and more); anything else is a **spot**
   (stain, pit, deposit);
+* a region that is the edge of a band along the pipe (standing water, a deposit along
+  the invert), which the running median cannot follow, is not a defect: it is no
+  darker or brighter than its own rows along the pipe, while the wall above and below
+  it differ (:func:`_edge_of_a_band`);
 * regions touching unseen wall are flagged ``partial`` (their size is a lower bound);
 * for a defect across theta = 0/360, ``theta_min_deg`` > ``theta_max_deg`` (the range
   wraps).
@@ -227,15 +231,54 @@ def find_defects(image: np.ndarray, grid: WallGrid, *,
     min_diameter_mm = max(MIN_DIAMETER_RADII * grid.radius_mm, MIN_DIAMETER_PX * pitch)
     min_area = np.pi / 4 * min_diameter_mm**2 / (grid.mm_per_px_axial * grid.mm_per_px_circ)
     shift = _roll_for_labelling(mask)
-    rolled = [np.roll(a, shift, axis=0) for a in (mask, contrast, valid)]
+    rolled = [np.roll(a, shift, axis=0) for a in (mask, contrast, valid, image)]
     labels = measure.label(_fill_holes(rolled[0]) & rolled[2])
     out = []
     for region in measure.regionprops(labels):
-        if region.area < min_area:
+        if region.area < min_area or _edge_of_a_band(region, rolled[3], window,
+                                                          (dark, bright)):
             continue
         out.append(_measure_region(region, rolled[1], rolled[2], labels, shift, grid,
                                    (dark, bright), up_theta_deg))
     return sorted(out, key=lambda d: d.z_mm)
+
+
+def _edge_of_a_band(region: measure._regionprops.RegionProperties, image: np.ndarray,
+                    window_px: int, thresholds: tuple[float, float]) -> bool:
+    """Whether a region is the edge of a band that runs along the pipe (a water line,
+    the edge of a deposit along the invert), not a defect.
+
+    The running-median background cannot follow a step across the pipe: beside a band
+    much darker (or brighter) than the wall it reads part of both, and stretches of the
+    band's edge come out as "spots" along it. Such a region is not distinct from its
+    own rows along the pipe (their median over ``window_px`` on each side, its own
+    columns left out, is within the detection threshold of it: ``thresholds``, dark
+    and bright), while the wall just above and just below it (strips as high as it,
+    two pixels off) differ from each other by more than the weakest defect
+    (``MIN_CONTRAST``): a step. A spot, a hole or a crack along the pipe is distinct
+    from its own rows, or has the same wall on both sides.
+    """
+    r0, c0, r1, c1 = region.bbox
+    cols = image.shape[1]
+    span = np.arange(max(0, c0 - window_px), min(cols, c1 + window_px))
+    beside = span[(span < c0) | (span >= c1)]
+    height = max(3, r1 - r0)
+
+    def level(first_row: int, columns: np.ndarray) -> float:
+        strip = np.take(image, np.arange(first_row, first_row + height), axis=0,
+                        mode="wrap")[:, columns]
+        seen = strip[np.isfinite(strip)]
+        return float(np.median(seen)) if seen.size else np.nan
+
+    own = image[region.coords[:, 0], region.coords[:, 1]]
+    own_level = float(np.median(own[np.isfinite(own)])) if np.isfinite(own).any() else np.nan
+    along = level(r0, beside) if beside.size else np.nan
+    above, below = level(r0 - 2 - height, span), level(r1 + 2, span)
+    if not np.all(np.isfinite([own_level, along, above, below])) or min(above, below) <= 0:
+        return False
+    step = abs(above - below) / max(above, below) > MIN_CONTRAST
+    threshold = thresholds[0] if own_level < along else thresholds[1]
+    return step and abs(own_level / along - 1) < threshold
 
 
 def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.ndarray,

@@ -410,3 +410,26 @@ def test_check_warns_of_a_frame_that_shows_nothing(tmp_path: Path) -> None:
     problems = check_dataset(tmp_path)
     assert [(p.path.name, p.severity) for p in problems] == [("led_00001.png", "warning")]
     assert "black" in problems[0].message and "not in the mosaic" in problems[0].message
+
+
+@pytest.mark.parametrize("rows,read", [
+    ("0,0.0\n1,-nan\n2,9.0\n", {0: 0.0, 2: 9.0}),
+    ("0,0.0\n1,  \n2,9.0\n", {0: 0.0, 2: 9.0}),        # a cell of blanks is empty
+    ("0,0.0\n1, nan \n2,9.0\n", {0: 0.0, 2: 9.0}),
+])
+def test_odometry_cells_that_say_no_reading(tmp_path: Path, rows: str, read: dict) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n" + rows)
+    assert open_dataset(tmp_path).odometry_mm == read
+
+
+@pytest.mark.parametrize("rows,message", [
+    ("nan,0.0\n", "line 2: frame = 'nan' is not a finite number"),   # the frame column: no
+    ("0,inf\n", "line 2: z_mm = 'inf' is not a finite number"),
+    ("0,abc\n", "line 2: z_mm = 'abc' is not a finite number"),
+])
+def test_odometry_cells_that_are_still_errors(tmp_path: Path, rows: str, message: str) -> None:
+    _tiny_dataset(tmp_path, n=3)
+    (tmp_path / "odometry.csv").write_text("frame,z_mm\n" + rows)
+    with pytest.raises(DatasetError, match=re.escape(message)):
+        open_dataset(tmp_path)

@@ -228,3 +228,30 @@ def test_the_edges_of_a_band_along_the_pipe_are_no_defects(level: float,
     edges = [d for d in find_defects(image, grid) if not any(near(d, *w) for w in wanted)
              and min(abs(d.theta_deg - 60), abs(d.theta_deg - 120)) < 5]
     assert len(edges) >= (3 if level < 1 else 0)   # what the dark band's edges gave
+
+
+def test_a_band_across_theta_zero_and_a_black_stripe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The band's rule reads the rows above and below around the pipe (a band across
+    theta = 0/360 has its edges' walls on either side of the seam); rows that return no
+    light at all are compared, not divided by."""
+    from skimage import measure
+
+    import pipestitch.measure.defects as defects
+
+    truth = [Defect("hole", 30.0, 128.0, 6.0), Defect("hole", 70.0, 90.0, 6.0)]
+    image, grid = _mosaic(truth, "corrosion", seed=3, length_mm=150.0)
+    theta = grid.theta0_deg + np.arange(grid.shape[0]) * grid.deg_per_px
+    image[(theta >= 330.0) | (theta < 30.0)] *= 0.3
+    found = find_defects(image, grid)
+    assert [(round(d.z_mm), round(d.theta_deg)) for d in found
+            if not 40 < d.theta_deg < 320] == [], found
+    assert sum(1 for d in found if d.kind == "hole") == 2
+    stripe = np.full((60, 200), 1.0)
+    stripe[21:24], stripe[24:] = 0.0, 0.5   # a black stripe on a step, 3 rows high
+    labels = np.zeros(stripe.shape, int)
+    labels[21:24, 90:110] = 1
+    region = measure.regionprops(labels)[0]
+    assert defects._edge_of_a_band(region, stripe, 30, (0.15, 0.15))
+    monkeypatch.setattr(defects, "_edge_of_a_band", lambda *args: False)
+    assert any(min(abs(d.theta_deg - 30), abs(d.theta_deg - 330)) < 5
+               for d in find_defects(image, grid))

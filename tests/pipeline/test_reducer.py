@@ -100,3 +100,36 @@ def test_pose_widens_the_sigmas_where_the_wall_slopes_and_says_so(reducer, tmp_p
         neighbours = [radius[k] for k in (i - 1, i + 1) if k in radius]
         on_taper = max(neighbours) - min(neighbours) > 0.1
         assert ("radius changes by" in row["warning"]) == on_taper, (i, row["warning"])
+
+
+def test_sloping_wall_leaves_frames_without_odometer_z_or_a_significant_change() -> None:
+    """``on_sloping_wall`` unit cases: no odometer, one posed frame, neighbours at the
+    same z, a change within the rings' noise: nothing widened; a ring between two whose
+    radii differ is widened, by at most that difference."""
+    from pipestitch.geometry import Pose
+    from pipestitch.pipeline.posing import FramePose
+    from pipestitch.pipeline.sloping_wall import on_sloping_wall
+    from pipestitch.pose.ambiguity import Choice
+    from pipestitch.pose.fit import Hypothesis, PoseFit
+
+    def frame(index: int, radius: float) -> FramePose:
+        h = Hypothesis(Pose.from_degrees(3.0, 0.0, 1.0, 0.0), radius, 0.0, 0.01, 0.1,
+                       std={"alpha": 1e-3, "beta": 1e-3, "dx_mm": 0.01, "dy_mm": 0.01,
+                            "radius_mm": 0.001})
+        return FramePose(index, PoseFit(True, "", (h, h)))
+
+    frames = [frame(0, 32.5), frame(1, 32.3), frame(2, 32.1)]
+    choices = [Choice(0, False, "envelope", 1.0)] * 3
+
+    def dx_sigma(odometry) -> list[float]:
+        out = on_sloping_wall(frames, choices, odometry, 16.0)
+        return [f.fit.hypotheses[0].stated_std["dx_mm"] for f in out]
+
+    assert dx_sigma(None) == [0.01] * 3
+    assert dx_sigma({1: 5.0}) == [0.01] * 3                      # one posed frame with z
+    assert dx_sigma({0: 5.0, 1: 5.0, 2: 5.0}) == [0.01] * 3      # no z between them
+    widened = dx_sigma({0: 0.0, 1: 5.0, 2: 10.0})                 # 0.04 mm per mm
+    assert all(w > 0.01 for w in widened)
+    assert dx_sigma({0: 0.0, 1: 1e-3, 2: 2e-3})[1] <= np.hypot(0.01, 0.4) + 1e-12
+    frames = [frame(0, 32.5), frame(1, 32.5 + 1e-3), frame(2, 32.5)]   # within the noise
+    assert dx_sigma({0: 0.0, 1: 5.0, 2: 10.0}) == [0.01] * 3

@@ -265,8 +265,8 @@ def _edge_of_a_band(region: measure._regionprops.RegionProperties, image: np.nda
     height = max(3, r1 - r0)
 
     def level(first_row: int, columns: np.ndarray) -> float:
-        strip = np.take(image, np.arange(first_row, first_row + height), axis=0,
-                        mode="wrap")[:, columns]
+        rows = np.arange(first_row, first_row + height) % image.shape[0]   # around the pipe
+        strip = image[np.ix_(rows, columns)]
         seen = strip[np.isfinite(strip)]
         return float(np.median(seen)) if seen.size else np.nan
 
@@ -274,11 +274,14 @@ def _edge_of_a_band(region: measure._regionprops.RegionProperties, image: np.nda
     own_level = float(np.median(own[np.isfinite(own)])) if np.isfinite(own).any() else np.nan
     along = level(r0, beside) if beside.size else np.nan
     above, below = level(r0 - 2 - height, span), level(r1 + 2, span)
-    if not np.all(np.isfinite([own_level, along, above, below])) or min(above, below) <= 0:
+    if not np.all(np.isfinite([own_level, along, above, below])) or max(above, below) <= 0:
         return False
-    step = abs(above - below) / max(above, below) > MIN_CONTRAST
+    if abs(above - below) / max(above, below) <= MIN_CONTRAST:   # no step
+        return False
+    if along <= 0:   # rows that return no light: the region is theirs if it returns none
+        return own_level <= 0
     threshold = thresholds[0] if own_level < along else thresholds[1]
-    return step and abs(own_level / along - 1) < threshold
+    return abs(own_level / along - 1) < threshold
 
 
 def _measure_region(region: measure._regionprops.RegionProperties, contrast: np.ndarray,

@@ -388,10 +388,14 @@ def _pose_covariances(normal: sp.csc_matrix, n_pose: int, scale: float,
 
     The pairs' unknowns are eliminated (their blocks are 2 x 2), which leaves the poses'
     matrix banded (a pair links frames a few apart); the blocks come from its banded
-    Cholesky factor (:func:`_inverse_in_band`). Empty when that matrix is not positive
-    definite.
+    Cholesky factor (:func:`_inverse_in_band`). Empty when that matrix is not finite or
+    not positive definite.
+
+    The scale multiplies the priors' share of N too, which the patch residuals say
+    nothing of: where a prior weighs in, scale^2 N^-1 bounds the solution's covariance
+    (N^-1 (scale^2 N_data + N_prior) N^-1) from above.
     """
-    if not frames:
+    if not frames or not np.all(np.isfinite(normal.data)):
         return {}
     try:
         band = _inverse_in_band(_pose_band(normal, n_pose))
@@ -423,7 +427,9 @@ def _pose_band(normal: sp.csc_matrix, n_pose: int) -> np.ndarray:
     reduced = (csr[:n_pose, :n_pose] - pc @ inv.tocsr() @ pc.T).tocoo()
     low = reduced.row >= reduced.col
     rows, cols, vals = reduced.row[low], reduced.col[low], reduced.data[low]
-    band = np.zeros((int(np.max(rows - cols, initial=0)) + 1, n_pose))
+    # at least a frame's 4 x 4 block wide (lags 0-3), whatever the priors hold
+    width = max(int(np.max(rows - cols, initial=0)), min(3, n_pose - 1)) + 1
+    band = np.zeros((width, n_pose))
     np.add.at(band, (rows - cols, cols), vals)
     return band
 
@@ -522,11 +528,21 @@ def solve_in_windows(observations: Sequence[PatchShifts],
     a window, with the pairs no earlier window asked for, so each pair's are computed
     once, and dropped when no later window needs them.
 
+    Parameters
+    ----------
+    observations, information, iterations, held, covariances
+        As :func:`solve_pose_errors` (``covariances``: each core frame's from its
+        window).
+    jacobians_of : callable
+        The pairs' Jacobians, as above.
+    window, margin : int
+        Frames a window spans at most, and of context on each side of its core
+        (:func:`refinement_windows`).
+
     Returns
     -------
     errors, motions
-        As :func:`solve_pose_errors`; ``covariances`` as there, each core frame's from
-        its window.
+        As :func:`solve_pose_errors`.
     """
     frames = sorted(information)
     position = {f: k for k, f in enumerate(frames)}

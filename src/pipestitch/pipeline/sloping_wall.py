@@ -43,8 +43,10 @@ def on_sloping_wall(frames: Sequence[FramePose], choices: Sequence[Choice],
     The slope at a frame is the change of the chosen rings' radius between the posed
     frames before and after it (the frame itself at either end of the run) over their
     odometer z; it counts where that change is over :data:`SLOPE_SIGMAS` of its sigma.
-    Frames without an odometer reading, and every frame of a run without an odometer,
-    are left as they are (their z is unknown).
+    The spread is at most that change (a ring cannot be misled by more than the radius
+    change it straddles: this bounds it where the neighbours' z are close). Frames
+    without an odometer reading, and every frame of a run without an odometer, are left
+    as they are (their z is unknown).
     """
     odometry_mm = odometry_mm or {}
     posed = [k for k, (f, c) in enumerate(zip(frames, choices, strict=True))
@@ -52,12 +54,14 @@ def on_sloping_wall(frames: Sequence[FramePose], choices: Sequence[Choice],
     out = list(frames)
     for n, k in enumerate(posed):
         lo, hi = posed[max(n - 1, 0)], posed[min(n + 1, len(posed) - 1)]
-        slope = _slope(*(_ring(frames[m], choices[m], odometry_mm) for m in (lo, hi)))
-        if slope is None:
+        found = _slope(*(_ring(frames[m], choices[m], odometry_mm) for m in (lo, hi)))
+        if found is None:
             continue
+        slope, change = found
         frame, chosen = frames[k], choices[k].chosen
         h = frame.fit.hypotheses[chosen]
         spread = sloping_wall_spread(slope, h.radius_mm, h.pose, plane_distance_mm)
+        spread *= min(1.0, change / spread[2]) if spread[2] > 0 else 1.0
         stated = h.stated_std
         widened = {key: math.hypot(stated.get(key, 0.0), float(s))
                    for key, s in zip(PARAMS[:4], spread, strict=True)}
@@ -79,11 +83,12 @@ def _ring(frame: FramePose, choice: Choice, odometry_mm: Mapping[int, float]
 
 
 def _slope(before: tuple[float, float, float], after: tuple[float, float, float]
-           ) -> float | None:
-    """The wall's slope (mm of radius per mm of z) between two rings, or None where
-    their radii do not differ significantly or their z do not."""
+           ) -> tuple[float, float] | None:
+    """The wall's slope (mm of radius per mm of z) between two rings and their radius
+    change (mm), or None where their radii do not differ significantly or their z do
+    not."""
     dz, dr = abs(after[0] - before[0]), abs(after[1] - before[1])
     sigma = math.hypot(before[2], after[2])
     if dz <= 0 or not np.isfinite(sigma) or dr <= SLOPE_SIGMAS * sigma:
         return None
-    return dr / dz
+    return dr / dz, dr

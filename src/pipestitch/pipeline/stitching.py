@@ -204,8 +204,8 @@ class FrameView:
     profile: RadiusProfile | None = field(default=None, compare=False)   # wall along z
     # the ring's information before a wall's slope loosened it (:func:`_on_wall`)
     ring_information: np.ndarray | None = field(default=None, compare=False)
-    # the refined pose's 4 x 4 covariance (alpha, beta, dx, dy; rad, mm) from the last
-    # refinement that solved it (mosaic/refine.py)
+    # the refined pose's 4 x 4 covariance (alpha, beta, dx, dy; rad, mm) from the
+    # refinement that gave the pose (mosaic/refine.py; None where it gave none)
     covariance: np.ndarray | None = field(default=None, compare=False)
 
 
@@ -699,7 +699,8 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
              for ln in links]
     out = dict(views)
     for i, v in views.items() if redo is None else ((f, views[f]) for f in redo):
-        e, covariance = errors.get(i, np.zeros(4)), covariances.get(i, v.covariance)
+        # a covariance from this solve only (none: the ring's sigma is stated)
+        e, covariance = errors.get(i, np.zeros(4)), covariances.get(i)
         if not np.all(np.isfinite(e)):
             # keep the ring's pose rather than lose the frame
             e, covariance = np.zeros(4), v.covariance

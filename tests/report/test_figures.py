@@ -104,3 +104,18 @@ def test_mosaic_figure_of_any_shape_fits_a_page(shape: tuple[int, int]) -> None:
         dark = np.flatnonzero((picture.mean(axis=2) < 250).any(axis=1))
         tall = picture.shape[0] > 2.5 * picture.shape[1]
         assert dark.size and tall
+
+
+def test_pose_track_draws_the_stated_two_sigma_bands() -> None:
+    """Frames with a stated sigma get a shaded ±2 sigma band about each track; without
+    one (nan) the track is drawn alone, as before."""
+    from dataclasses import replace
+
+    rows = _rows(12)
+    plain = ReportData("t", None, 10.0, 0.1, 1.0, 65.0, rows)
+    banded = replace(plain, frames=[replace(r, sigma=(0.3, 0.3, 0.2, 0.2)) for r in rows])
+    nan = replace(plain, frames=[replace(r, sigma=(np.nan,) * 4) for r in rows])
+    a, b, c = (_decoded(html._pose_figure(d)) for d in (plain, banded, nan))
+    assert np.array_equal(a, c)
+    changed = np.any(np.abs(a.astype(int) - b.astype(int)) > 30, axis=2)
+    assert changed.mean() > 0.05   # the bands' area (measured: 0.19 of the picture)

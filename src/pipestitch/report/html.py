@@ -10,6 +10,7 @@ import base64
 import functools
 import html
 import io
+import math
 from dataclasses import dataclass, field
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -57,6 +58,8 @@ class FrameRow:
     diameter_mm: float
     ambiguous: bool
     chosen_by: str
+    # one-sigma of alpha, beta (deg), dx, dy (mm) as poses.csv states them
+    sigma: tuple[float, float, float, float] = (math.nan,) * 4
 
 
 @dataclass(frozen=True)
@@ -235,16 +238,22 @@ def _pose_figure(data: ReportData) -> str:
     plt = agg_pyplot()
     z = _series(data, "z_mm")
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    for name, label in (("alpha_deg", "α"), ("beta_deg", "β")):
-        axes[0].plot(z, _series(data, name), ".-", label=label)
-    for name, label in (("dx_mm", "Δx"), ("dy_mm", "Δy")):
-        axes[1].plot(z, _series(data, name), ".-", label=label)
+    sigma = np.array([f.sigma for f in data.frames], dtype=float).reshape(-1, 4)
+    order = np.argsort(z)
+    for k, (name, label) in enumerate((("alpha_deg", "α"), ("beta_deg", "β"),
+                                       ("dx_mm", "Δx"), ("dy_mm", "Δy"))):
+        ax, value = axes[k // 2], _series(data, name)
+        line = ax.plot(z, value, ".-", label=label)[0]
+        if np.isfinite(sigma[:, k]).any():   # the stated 2-sigma band
+            ax.fill_between(z[order], (value - 2 * sigma[:, k])[order],
+                            (value + 2 * sigma[:, k])[order], color=line.get_color(),
+                            alpha=0.15, lw=0)
     amb = np.array([f.ambiguous for f in data.frames], bool)
     if amb.any():
         for ax in axes:
             ax.plot(z[amb], np.zeros(amb.sum()), "rx", label="ambiguous")
-    axes[0].set_ylabel("tilt (deg)")
-    axes[1].set_ylabel("offset (mm)")
+    axes[0].set_ylabel("tilt (deg; bands ±2σ)")
+    axes[1].set_ylabel("offset (mm; bands ±2σ)")
     axes[1].set_xlabel("z of the camera (mm)")
     for ax in axes:
         ax.grid(alpha=0.3)

@@ -45,7 +45,7 @@ from pipestitch.pipeline.progress import StageTimer, console, track
 from pipestitch.pipeline.ring_store import RingStore, StoredRing
 from pipestitch.pose.ambiguity import Choice, clearance_sigma_mm, envelope_costs, resolve_run
 from pipestitch.pose.departure import MIN_EXTENT_DEG, Departure, ring_departures
-from pipestitch.pose.fit import LaserPlane, PoseFit, RingPoints, fit_pose
+from pipestitch.pose.fit import Hypothesis, LaserPlane, PoseFit, RingPoints, fit_pose
 from pipestitch.pose.ring import (
     RingDetection,
     detect_ring,
@@ -57,7 +57,7 @@ from pipestitch.pose.second_ring import leftover_ring
 from pipestitch.pose.section import oval_at_zero_tilt
 
 __all__ = ["OVAL_POSE_WARNING", "OVAL_TILT_WARNING", "POSE_COLUMNS", "CircleFallback",
-           "FramePose", "PoseSettings", "choose", "estimate_poses", "fit_frame",
+           "FramePose", "PoseSettings", "choose", "estimate_poses", "fit_frame", "pose_sigmas",
            "report_frame_messages", "resolve_frames", "ring_search_band", "run_notes",
            "run_pose", "strips_overlap", "write_poses_csv"]
 
@@ -493,6 +493,14 @@ def _fmt(value: float, digits: int = 6) -> str:
     return "nan" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+def pose_sigmas(h: Hypothesis) -> tuple[float, float, float, float]:
+    """The stated one-sigma of ``h``'s alpha, beta (deg), dx, dy (mm), as poses.csv
+    writes them (nan where none)."""
+    std = h.stated_std
+    return (math.degrees(std.get("alpha", math.nan)), math.degrees(std.get("beta", math.nan)),
+            std.get("dx_mm", math.nan), std.get("dy_mm", math.nan))
+
+
 def _row(frame: FramePose, choice: Choice, z_mm: float | None,
          roll_deg: float | None) -> list[str]:
     fit = frame.fit
@@ -513,9 +521,7 @@ def _row(frame: FramePose, choice: Choice, z_mm: float | None,
             _fmt(h.rms_px, 4), "1" if choice.ambiguous else "0",
             _fmt(a["alpha_deg"]), _fmt(a["beta_deg"]), _fmt(a["dx_mm"]), _fmt(a["dy_mm"]),
             "", choice.reason, _fmt(choice.margin, 2), str(fit.n_points), _fmt(fit.coverage, 3),
-            fit.model, _fmt(math.degrees(std.get("alpha", math.nan))),
-            _fmt(math.degrees(std.get("beta", math.nan))), _fmt(std.get("dx_mm", math.nan)),
-            _fmt(std.get("dy_mm", math.nan)), _fmt(std.get("radius_mm", math.nan)),
+            fit.model, *(_fmt(s) for s in pose_sigmas(h)), _fmt(std.get("radius_mm", math.nan)),
             frame.warning, _fmt(std.get("ovality", math.nan))]
 
 

@@ -43,6 +43,7 @@ from pipestitch.pipeline.posing import (
     PoseSettings,
     choose,
     estimate_poses,
+    pose_sigmas,
     report_frame_messages,
     run_notes,
     write_poses_csv,
@@ -434,12 +435,10 @@ def _frame_rows(frames: list[FramePose], choices: list[Choice],
                 z: dict[int, float]) -> list[FrameRow]:
     rows = []
     for frame, choice, h in _chosen(frames, choices):
-        d, std = h.pose.as_degrees(), h.stated_std
-        sigma = (math.degrees(std.get("alpha", math.nan)), math.degrees(std.get("beta", math.nan)),
-                 std.get("dx_mm", math.nan), std.get("dy_mm", math.nan))
+        d = h.pose.as_degrees()
         rows.append(FrameRow(frame.index, z.get(frame.index, math.nan), d["alpha_deg"],
                              d["beta_deg"], d["dx_mm"], d["dy_mm"], 2 * h.radius_mm,
-                             choice.ambiguous, choice.reason, sigma))
+                             choice.ambiguous, choice.reason, pose_sigmas(h)))
     return rows
 
 

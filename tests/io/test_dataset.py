@@ -12,6 +12,7 @@ import pytest
 from pipestitch.camera import OpenCVFisheyeModel, default_camera
 from pipestitch.errors import ConfigError, DatasetError
 from pipestitch.io.dataset import check_dataset, open_dataset, read_csv_columns
+from pipestitch.io.frame_files import frame_files
 from pipestitch.io.images import read_image, write_image
 from pipestitch.io.ocamcalib import format_calib_results, parse_calib_results, read_calib_results
 from pipestitch.io.probe_toml import (
@@ -172,6 +173,23 @@ def test_two_files_of_one_frame_are_bad_input(tmp_path: Path) -> None:
         open_dataset(tmp_path)
     (frames / "laser_00001.png").unlink()
     assert open_dataset(tmp_path).n_pairs == 3
+
+
+def test_pairs_past_99999_are_numbered_with_six_digits(tmp_path: Path) -> None:
+    # SPEC pads the pair's number to five digits; a run of 100,000 pairs or more goes on
+    # with six (f"{i:05d}"): those are frames, a number padded further is not
+    names = ["laser_99999.png", "led_99999.png", "laser_100000.png", "led_100000.tif",
+             "laser_1234567.png", "laser_000001.png", "led_0001.png", "laser_x0001.png"]
+    for name in names:
+        (tmp_path / name).touch()
+    found, other = frame_files(tmp_path)
+    assert found == {"laser": {99999: tmp_path / "laser_99999.png",
+                               100000: tmp_path / "laser_100000.png",
+                               1234567: tmp_path / "laser_1234567.png"},
+                     "led": {99999: tmp_path / "led_99999.png",
+                             100000: tmp_path / "led_100000.tif"}}
+    assert sorted(p.name for p in other) == ["laser_000001.png", "laser_x0001.png",
+                                             "led_0001.png"]
 
 
 def test_a_repeated_frame_is_a_warning(tmp_path: Path) -> None:

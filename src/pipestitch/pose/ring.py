@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -32,6 +32,7 @@ from pipestitch.pose._ring_kernels import (
     line_widths,
     ridge_peaks,
 )
+from pipestitch.pose.pair_motion import MAX_SHIFT_RADII, LedShift, led_shift
 
 __all__ = ["RingDetection", "detect_ring", "laser_channel", "polar_crop", "polar_grid",
            "prepare_laser_frame", "ring_band_px", "ring_centre"]
@@ -66,6 +67,11 @@ class RingDetection:
         same frame leaves (:mod:`pipestitch.pose.second_ring`).
     relative_floor : float
         That fraction (:func:`detect_ring`'s ``min_relative``).
+    led_shift_px : float
+        How far out along the rays (px, mean over the ring) the LED frame's wall lay
+        from the laser frame's, where the ring was searched with the reflectance read
+        there (:mod:`pipestitch.pose.pair_motion`: the probe moved between the frames);
+        0 where no shift was measured.
     """
 
     pixels: np.ndarray
@@ -77,6 +83,7 @@ class RingDetection:
     line_sigma_px: float = float("nan")
     fainter: RingDetection | None = None
     relative_floor: float = 0.0
+    led_shift_px: float = 0.0
 
     @property
     def coverage(self) -> float:
@@ -339,7 +346,13 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
                  channel: int | None, n_azimuths: int, band_px: tuple[float, float] | None,
                  sigma: float, occluded: np.ndarray | None, *, step: float, min_snr: float,
                  max_candidates: int, min_relative: float) -> RingDetection:
-    """:func:`detect_ring` at one sampling step along the rays."""
+    """:func:`detect_ring` at one sampling step along the rays.
+
+    With the LED frame, the laser profile is divided by its reflectance; where the LED
+    frame saw the wall shifted along the rays (the probe moved between the two frames:
+    :func:`pipestitch.pose.pair_motion.led_shift`, measured on the ring found first),
+    the ring is searched again with the reflectance read where the laser frame's wall
+    is."""
     _, _, radii, centre = polar_grid(camera, n_azimuths, step, band_px)
     crop, map_x, map_y = polar_crop(camera, n_azimuths, step, band_px)
     part = np.asarray(img)[crop]
@@ -347,16 +360,33 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
                                                                  np.float32))
     polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    if reflectance is not None:
-        polar = _flatten_reflectance(polar, reflectance, channel, crop, map_x, map_y, camera,
-                                     step)
+    hidden = None if occluded is None else _polar_occluded(occluded, camera, n_azimuths, step,
+                                                           band_px)
+    search = functools.partial(_ring_search, sigma=sigma, step=step, hidden=hidden,
+                               dtype=part.dtype, first_radius_px=radii[0], centre=centre,
+                               n_azimuths=n_azimuths, min_snr=min_snr,
+                               max_candidates=max_candidates, min_relative=min_relative)
+    if reflectance is None:
+        return search(polar)
+    local = _led_polar(reflectance, channel, crop, map_x, map_y, camera)
+    box = 2 * round(BROAD_BOX_PX / step / 2) + 1
+    found = search(flatten_by_reflectance(polar, local, box, 0.15, 0.15))
+    shift = _led_shift(polar, local, found, radii[0], step, centre)
+    if shift is None:
+        return found
+    moved = flatten_by_reflectance(polar, shift.apply(local), box, 0.15, 0.15)
+    return replace(search(moved), led_shift_px=float(np.mean(shift.along)) * step)
+
+
+def _ring_search(polar: np.ndarray, *, sigma: float, step: float, hidden: np.ndarray | None,
+                 dtype: np.dtype, first_radius_px: float, centre: np.ndarray, n_azimuths: int,
+                 min_snr: float, max_candidates: int, min_relative: float) -> RingDetection:
+    """The ring candidates of a polar laser profile (divided by the reflectance or not)."""
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
     narrow = _blur_along_rays(polar, sigma / step)
     wide = _blur_along_rays(polar, 4 * sigma / step)
     ridge = narrow - wide
-    hidden = None if occluded is None else _polar_occluded(occluded, camera, n_azimuths, step,
-                                                           band_px)
-    noise = _ridge_noise(ridge, hidden, part.dtype)
+    noise = _ridge_noise(ridge, hidden, dtype)
     if hidden is not None:
         # No candidate where the camera never sees the wall, nor on a sample next to
         # it (NaN is neither above the floor nor above a neighbour): the peaks of what
@@ -388,9 +418,26 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # past half way to another candidate of the same ray (a ghost ring, a glint).
     line = min(max(width, sigma), 4 * sigma) / step
     located = functools.partial(_located, polar, narrow, order, top, line, hidden,
-                                radii[0], step, centre, n_azimuths)
+                                first_radius_px, step, centre, n_azimuths)
     fainter = located(found & ~strong, strong, noise, width, None, min_relative)
     return located(strong, strong, noise, width, fainter, min_relative)
+
+
+def _led_shift(polar: np.ndarray, local: np.ndarray, found: RingDetection,
+               first_radius_px: float, step: float, centre: np.ndarray) -> LedShift | None:
+    """:func:`pipestitch.pose.pair_motion.led_shift` along the rays of the ring ``found``
+    (its strongest candidate on each ray), searched over ``MAX_SHIFT_RADII`` of the
+    ring's image radius; None when there is no ring or no shift."""
+    best = found.rank == 0
+    if not np.any(best):
+        return None
+    radius = np.hypot(*(found.pixels[best] - centre).T)
+    at = np.clip(np.rint((radius - first_radius_px) / step).astype(np.int64), 0,
+                 polar.shape[1] - 1)
+    ring_px = float(np.median(radius))
+    return led_shift(polar, local, found.azimuth[best], at, found.n_azimuths,
+                     int(MAX_SHIFT_RADII * ring_px / step),
+                     2 * math.pi * ring_px / found.n_azimuths / step)
 
 
 def _located(polar: np.ndarray, narrow: np.ndarray, order: np.ndarray, top: np.ndarray,
@@ -522,15 +569,14 @@ def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
                          border=cv2.BORDER_REPLICATE)
 
 
-def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: int | None,
-                         crop: tuple[slice, slice], map_x: np.ndarray, map_y: np.ndarray,
-                         camera: CameraModel, step_px: float) -> np.ndarray:
-    """Divide the polar laser profile by the wall's reflectance seen in the LED frame.
-
-    The LED image is normalised by its own broad average (LED fall-off, vignetting)
-    so that only the local reflectance remains; where the wall is too dark to
-    measure (holes, black paint) the laser carries no usable signal and is zeroed.
-    """
+def _led_polar(reflectance: np.ndarray, channel: int | None, crop: tuple[slice, slice],
+               map_x: np.ndarray, map_y: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """The LED frame on the rays' polar grid, in the laser's channel: the wall's
+    reflectance that the laser profile is divided by
+    (:func:`pipestitch.pose._ring_kernels.flatten_by_reflectance`: normalised by its own
+    broad average along each ray, LED fall-off and vignetting, so that only the local
+    reflectance remains; where the wall is too dark to measure, holes or black paint,
+    the laser carries no usable signal and is zeroed)."""
     _check_frame("reflectance", reflectance, camera)
     # the wall as the laser's channel sees it (over the crop the maps read)
     part = np.asarray(reflectance)[crop]
@@ -538,10 +584,7 @@ def _flatten_reflectance(polar: np.ndarray, reflectance: np.ndarray, channel: in
                               out=scratch.buffer("ring.led", part.shape[:2], np.float32))
     led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", led.shape,
                                                                 np.float32))
-    local = cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    # A broad local mean: two passes of a 40-px box along the ray (~ a Gaussian of 16 px).
-    box = 2 * round(BROAD_BOX_PX / step_px / 2) + 1
-    return flatten_by_reflectance(polar, local, box, 0.15, 0.15)
+    return cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 def _half_way_to_neighbours(others: np.ndarray, found: np.ndarray, idx: np.ndarray,

@@ -1,0 +1,93 @@
+"""The LED frame's shift against the laser frame along the ring's rays, on polar frames
+built with a known shift: a wall texture, the LED frame that texture, the laser frame a
+line whose brightness is the texture where the laser frame sees it."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from pipestitch.pose.pair_motion import LedShift, led_shift
+
+N_RAYS, N_SAMPLES, RING = 1440, 400, 180.0
+
+
+def _wall(seed: int = 0, grain: float = 3.0) -> np.ndarray:
+    """A wall texture on the polar grid: smoothed noise, positive, float32."""
+    noise = np.random.default_rng(seed).normal(size=(N_RAYS, N_SAMPLES)).astype(np.float32)
+    smooth = cv2.GaussianBlur(noise, (0, 0), grain)
+    return np.exp(0.4 * smooth / smooth.std()).astype(np.float32)
+
+
+def _pair(along: np.ndarray, across: np.ndarray, seed: int = 0
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(laser, led, rays, at): the LED frame is the wall; the laser frame sees at ray r,
+    sample s the wall the LED frame shows at ray r + across[r], sample s + along[r]."""
+    led = _wall(seed)
+    seen = LedShift(along, across).apply(led)
+    rays = np.arange(N_RAYS)
+    at = np.rint(RING + 6 * np.sin(rays * 2 * math.pi / N_RAYS)).astype(np.int64)
+    samples = np.arange(N_SAMPLES)[None, :]
+    line = np.exp(-0.5 * ((samples - at[:, None]) / 2.0) ** 2).astype(np.float32)
+    return line * seen + np.float32(0.01), led, rays, at
+
+
+def _measure(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray):
+    return led_shift(laser, led, rays, at, N_RAYS, max_shift=60,
+                     samples_per_ray=2 * math.pi * RING / N_RAYS)
+
+
+def test_a_shift_along_and_across_the_rays_is_measured() -> None:
+    phi = np.arange(N_RAYS) * 2 * math.pi / N_RAYS
+    along = 23.0 + 4.0 * np.cos(phi) - 2.5 * np.sin(phi)
+    across = 1.5 - 1.0 * np.sin(phi)
+    found = _measure(*_pair(along, across))
+    assert found is not None
+    assert np.max(np.abs(found.along - along)) < 0.5
+    assert np.max(np.abs(found.across - across)) < 0.5
+
+
+def test_a_shift_inward_is_measured() -> None:
+    found = _measure(*_pair(np.full(N_RAYS, -11.0), np.zeros(N_RAYS), seed=3))
+    assert found is not None
+    assert np.max(np.abs(found.along + 11.0)) < 0.5
+    assert np.max(np.abs(found.across)) < 0.5
+
+
+def test_frames_taken_at_one_position_give_no_shift() -> None:
+    assert _measure(*_pair(np.zeros(N_RAYS), np.zeros(N_RAYS))) is None
+
+
+def test_a_line_that_is_not_on_the_wall_gives_no_shift() -> None:
+    # its brightness owes nothing to the wall the LED frame shows (a glowing mount)
+    laser, _, rays, at = _pair(np.full(N_RAYS, 15.0), np.zeros(N_RAYS), seed=1)
+    assert _measure(laser, _wall(seed=2), rays, at) is None
+
+
+def test_a_wall_without_texture_gives_no_shift() -> None:
+    laser, _, rays, at = _pair(np.full(N_RAYS, 15.0), np.zeros(N_RAYS))
+    flat = np.ones((N_RAYS, N_SAMPLES), np.float32)
+    rng = np.random.default_rng(4)
+    noisy = (flat + rng.normal(0, 1e-3, flat.shape)).astype(np.float32)
+    assert _measure(laser, noisy, rays, at) is None
+
+
+def test_too_few_ring_rays_give_no_shift() -> None:
+    laser, led, rays, at = _pair(np.full(N_RAYS, 15.0), np.zeros(N_RAYS))
+    assert _measure(laser, led, rays[:20], at[:20]) is None
+
+
+@pytest.mark.parametrize("across", [0.0, 2.25, -3.5])
+def test_apply_reads_the_frame_where_the_shift_says(across: float) -> None:
+    rows, cols = np.mgrid[0:N_RAYS, 0:N_SAMPLES].astype(np.float32)
+    ramp = (cols + 1000.0 * rows).astype(np.float32)   # its own coordinates
+    moved = LedShift.constant(N_RAYS, 7.25, across).apply(ramp)
+    inner = (slice(10, N_RAYS - 10), slice(0, N_SAMPLES - 10))
+    np.testing.assert_allclose(moved[inner], ramp[inner] + 7.25 + 1000.0 * across, atol=0.1)
+    # rays wrap around: the first ray reads the last ones when turned back
+    if across < 0:
+        np.testing.assert_allclose(moved[0, 5], 5 + 7.25 + 1000.0 * (N_RAYS + across),
+                                   atol=0.1)

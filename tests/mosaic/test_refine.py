@@ -280,3 +280,39 @@ def test_pose_covariances_are_the_inverse_normal_s_blocks() -> None:
     normal, n_pose = _normal_of(observations, jac, information)
     normal.data[0] = np.nan   # a NaN Jacobian entry (a ray off the wall): no covariance
     assert _pose_covariances(normal, n_pose, 1.0, [0], [0]) == {}
+
+
+def test_a_prior_centred_off_the_start_is_the_start_moved_there() -> None:
+    """``prior_errors`` m: a frame no patch reaches comes out at m (its strong prior
+    against the weak one); with patches, the solution is that of strips unwrapped at the
+    start moved by m (the patch shifts less the warp m makes) plus m, as the linear
+    model says (pipeline/pair_timing.py relies on it), the held frames at 0."""
+    rng = np.random.default_rng(5)
+    n = 8
+    information = {f: np.diag([1e6, 1e6, 1e3, 1e3]) for f in range(n)}
+    centre = {f: rng.normal(0, [1e-3, 1e-3, 0.02, 0.02]) for f in range(n)}
+    errors, _ = solve_pose_errors([], {}, information, prior_errors=centre)
+    for f in range(n):
+        np.testing.assert_allclose(errors[f], centre[f], rtol=1e-4, atol=1e-9)
+    held = {3}
+    moved_start = {f: (np.zeros(4) if f in held else centre[f]) for f in range(n)}
+    observations, as_moved, jacobians = [], [], {}
+    for i in range(n - 1):
+        g_i, g_j = rng.normal(0, 40, (2, 30, 2, 4))
+        nodes, shift = rng.uniform(0, 500, (30, 2)), rng.normal(0, 0.3, (30, 2))
+        observations.append(PatchShifts(i, i + 1, nodes, shift, np.full(30, 0.6)))
+        warp = g_j @ moved_start[i + 1] - g_i @ moved_start[i]
+        as_moved.append(PatchShifts(i, i + 1, nodes, shift - warp, np.full(30, 0.6)))
+        jacobians[(i, i + 1)] = (g_i, g_j)
+    ours, _ = solve_pose_errors(observations, jacobians, information, prior_errors=centre,
+                                held=held)
+    there, _ = solve_pose_errors(as_moved, jacobians, information, held=held)
+    windowed, _ = solve_in_windows(observations, _given(jacobians), information,
+                                   prior_errors=centre, held=held, window=5, margin=1)
+    windowed_there, _ = solve_in_windows(as_moved, _given(jacobians), information, held=held,
+                                         window=5, margin=1)
+    for f in range(n):
+        np.testing.assert_allclose(ours[f], there[f] + moved_start[f], rtol=1e-6, atol=1e-10)
+        np.testing.assert_allclose(windowed[f], windowed_there[f] + moved_start[f], rtol=1e-6,
+                                   atol=1e-10)
+    assert np.all(ours[3] == 0.0)

@@ -299,7 +299,8 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
                       information: Mapping[int, np.ndarray | None], *,
                       iterations: int = 4,
                       held: Collection[int] = (),
-                      covariances: dict[int, np.ndarray] | None = None
+                      covariances: dict[int, np.ndarray] | None = None,
+                      prior_errors: Mapping[int, np.ndarray] | None = None
                       ) -> tuple[dict[int, np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """Pose error of every frame and the rigid motion of every pair once it is removed.
 
@@ -321,6 +322,10 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     covariances : dict, optional
         Filled with each solved frame's (not held) 4 x 4 covariance of its corrected pose
         (:func:`_pose_covariances`).
+    prior_errors : mapping, optional
+        Frame -> the error its prior is centred on (default 0: the prior holds the
+        pose the strips were unwrapped with; :mod:`pipestitch.pipeline.pair_timing`
+        centres it on the ring's pose at the LED frame's instant).
 
     Returns
     -------
@@ -343,14 +348,19 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     pairs = _pair_rows(observations, jacobians, col, held)
     n_unknown = n_pose + 2 * len(pairs)
     # the priors and a ridge of 1e-9 on every unknown
-    fixed = (_prior_normal(information, frames, n_unknown)
-             + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
+    prior = _prior_normal(information, frames, n_unknown)
+    fixed = (prior + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
+    centre = np.zeros(n_unknown)
+    for f, e in (prior_errors or {}).items():
+        if f in col and f not in held:
+            centre[col[f]:col[f] + 4] = e
+    prior_rhs = prior.tocsr() @ centre
     pattern = _normal_pattern(pairs, fixed)
     weights = [1.0 / p.sigma**2 for p in pairs]
     x = np.zeros(n_unknown)
     for _ in range(iterations):
         normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
-        x = spsolve(normal, rhs)
+        x = spsolve(normal, rhs + prior_rhs)
         z = [np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma for p in pairs]
         scale = _residual_scale(z, len(pairs))
         weights = [_huber(zk / scale) / p.sigma**2 for zk, p in zip(z, pairs, strict=True)]
@@ -510,7 +520,8 @@ def solve_in_windows(observations: Sequence[PatchShifts],
                      window: int = WINDOW_FRAMES, margin: int = WINDOW_MARGIN,
                      iterations: int = 4,
                      held: Collection[int] = (),
-                     covariances: dict[int, np.ndarray] | None = None
+                     covariances: dict[int, np.ndarray] | None = None,
+                     prior_errors: Mapping[int, np.ndarray] | None = None
                      ) -> tuple[dict[int, np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """:func:`solve_pose_errors` over overlapping windows of frames (bounded memory).
 
@@ -530,7 +541,7 @@ def solve_in_windows(observations: Sequence[PatchShifts],
 
     Parameters
     ----------
-    observations, information, iterations, held, covariances
+    observations, information, iterations, held, covariances, prior_errors
         As :func:`solve_pose_errors` (``covariances``: each core frame's from its
         window).
     jacobians_of : callable
@@ -564,7 +575,8 @@ def solve_in_windows(observations: Sequence[PatchShifts],
         jac.update(zip([(o.i, o.j) for o in new], jacobians_of(new), strict=True))
         cov: dict[int, np.ndarray] | None = None if covariances is None else {}
         e, m = solve_pose_errors(inside, jac, {f: information[f] for f in frames[lo:hi]},
-                                 iterations=iterations, held=held, covariances=cov)
+                                 iterations=iterations, held=held, covariances=cov,
+                                 prior_errors=prior_errors)
         errors.update((f, e[f]) for f in frames[core_lo:core_hi])
         if covariances is not None and cov:
             covariances.update((f, cov[f]) for f in frames[core_lo:core_hi] if f in cov)

@@ -112,6 +112,9 @@ class FramePose:
     # whether the laser frame is over twice as bright as its LED frame (None: not both
     # read): most of a run's so is a dataset whose frames are swapped (io/dataset.py)
     laser_brighter: bool | None = field(default=None, compare=False)
+    # how far out along the rays (px) the LED frame's wall lay from the laser frame's
+    # (RingDetection.led_shift_px: the probe moved between the two frames; 0: not seen)
+    led_shift_px: float = field(default=0.0, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:
@@ -253,7 +256,8 @@ def fit_frame(index: int, laser: np.ndarray, led: np.ndarray | None,
               if fit.ok and led is not None else None)
     frame = FramePose(index, fit, "" if fit.ok else fit.reason, strips, warning,
                       body_infeasible=infeasible and fit.model == "circle",
-                      circle_fallback=fallback, departures=departures)
+                      circle_fallback=fallback, departures=departures,
+                      led_shift_px=detection.led_shift_px)
     return frame.with_warning(notes)
 
 

@@ -25,7 +25,7 @@ from pipestitch import __version__
 from pipestitch._runtime.memory import keep_buffers_in_heap, release_free_memory
 from pipestitch._runtime.threads import opencv_threads
 from pipestitch.errors import PipestitchError
-from pipestitch.geometry import BodyEnvelope, WallGrid
+from pipestitch.geometry import BodyEnvelope, Pose, WallGrid
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import Dataset, open_dataset
 from pipestitch.io.imu import read_imu
@@ -36,6 +36,7 @@ from pipestitch.mosaic.register import Link
 from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
+from pipestitch.pipeline.pair_timing import laser_instant, pose_vector
 from pipestitch.pipeline.posing import (
     INFEASIBLE_SIGMAS,
     OVAL_TILT_WARNING,
@@ -126,7 +127,8 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
             alt = FrameView(m.pose, m.pipe_section, information=_prior(m, ring),
                             ring=ring, oval=m.section is not None)
         views[frame.index] = FrameView(h.pose, h.pipe_section, alt, _prior(h, ring),
-                                       ring=ring, oval=h.section is not None)
+                                       ring=ring, oval=h.section is not None,
+                                       led_shift_px=frame.led_shift_px)
     return views
 
 
@@ -255,14 +257,19 @@ MIN_CHAIN_LINKS = 3
 
 def _with_refined(frames: list[FramePose], choices: list[Choice],
                   views: dict[int, FrameView]) -> list[FramePose]:
-    """Frames whose chosen hypothesis carries the photometrically refined pose."""
+    """Frames whose chosen hypothesis carries the photometrically refined pose (at the
+    laser frame's instant where the LED frames were taken later or earlier:
+    :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
+    refined = laser_instant({i: pose_vector(v.pose) for i, v in views.items() if v.refined},
+                            _led_share(views))
     out = []
     for frame, choice in zip(frames, choices, strict=True):
         view = views.get(frame.index)
         if view is not None and view.refined and choice.chosen is not None:
             hyps = list(frame.fit.hypotheses)
             h = hyps[choice.chosen]
-            h = replace(h, pose=view.pose, std_override=_refined_std(view, h.stated_std))
+            h = replace(h, pose=Pose(*refined[frame.index]),
+                        std_override=_refined_std(view, h.stated_std))
             model = frame.fit.model
             if view.measured is not None:  # the section fitted at the refined tilt
                 m = view.measured
@@ -278,6 +285,12 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                             ).without_warning(OVAL_TILT_WARNING)
         out.append(frame)
     return out
+
+
+def _led_share(views: Mapping[int, FrameView]) -> float:
+    """The share of a step by which the run's LED frames follow their laser frames, as
+    the refinement measured it (0: taken together, or not measured)."""
+    return next((v.led_share for v in views.values() if v.led_share), 0.0)
 
 
 def _refined_std(view: FrameView, ring_std: Mapping[str, float]) -> dict[str, float]:
@@ -621,9 +634,11 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         frames = _with_refined(frames, choices, result.views)
         frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope(),
                                             ring_frames)
-        z = _with_odometer(_finite(result.positions.z_mm), dataset.odometry_mm,
-                           result.positions.odometer_scale)
-        roll = _finite(result.positions.roll_deg)
+        # the LED frames' positions at their laser frames' instants (pair_timing.py)
+        share = _led_share(result.views)
+        z = _with_odometer(laser_instant(_finite(result.positions.z_mm), share),
+                           dataset.odometry_mm, result.positions.odometer_scale)
+        roll = laser_instant(_finite(result.positions.roll_deg), share)
         if result.positions.roll_reference == "imu":   # frames not placed: the IMU's own
             roll = {**imu, **roll}
     else:

@@ -96,6 +96,7 @@ from pipestitch.mosaic.unwrap import (
 )
 from pipestitch.mosaic.wall_profile import frame_profiles
 from pipestitch.pipeline.frame_cache import blank_led
+from pipestitch.pipeline.pair_timing import led_instant_priors, led_share, ring_px_per_mm
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
@@ -207,6 +208,12 @@ class FrameView:
     # the refined pose's 4 x 4 covariance (alpha, beta, dx, dy; rad, mm) from the
     # refinement that gave the pose (mosaic/refine.py; None where it gave none)
     covariance: np.ndarray | None = field(default=None, compare=False)
+    # how far out along the rays (px) the LED frame's wall lay from the laser frame's
+    # (RingDetection.led_shift_px), and the share of a step by which the run's LED
+    # frames follow their laser frames, once measured (pipeline/pair_timing.py): the
+    # pose is then the LED frame's
+    led_shift_px: float = 0.0
+    led_share: float = 0.0
 
 
 @dataclass
@@ -669,17 +676,24 @@ def _register(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapp
 
 def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
                   links: Sequence[Link], camera: CameraModel, own: WallGrid,
-                  redo: Collection[int] | None = None,
+                  redo: Collection[int] | None = None, share: float = 0.0,
                   ) -> tuple[dict[int, FrameView], list[Link]]:
     """Views with poses corrected by the photometric refinement, and corrected links.
 
     A link with patches is replaced by the pair's rigid motion from the refinement
     (free of the warp the old poses left in the strips); the others are kept. With
     ``redo``, only those frames' poses are corrected: the other frames the patches
-    reach are held where they are.
+    reach are held where they are. With ``share`` (the LED frames taken that share of
+    a step after their laser frames: :func:`pipestitch.pipeline.pair_timing.led_share`)
+    the frames not refined yet take their rings' prior at their LED frames' instant
+    (:func:`pipestitch.pipeline.pair_timing.led_instant_priors`), and keep that prior.
     """
     solved = views if redo is None else {f: views[f] for o in patches for f in (o.i, o.j)}
     held = set() if redo is None else set(solved) - set(redo)
+    fresh = {i: v for i, v in solved.items() if not v.refined}
+    information, centre = led_instant_priors({i: v.pose for i, v in fresh.items()},
+                                             {i: v.information for i, v in solved.items()},
+                                             share)
 
     def jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
         # float32: a window's links' Jacobians are held for its solve; a held frame's
@@ -691,8 +705,8 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
 
     covariances: dict[int, np.ndarray] = {}
     errors, motions = solve_in_windows(patches, lambda new: pair_jacobians(new, jacobian),
-                                       {i: v.information for i, v in solved.items()},
-                                       held=held, covariances=covariances)
+                                       information, held=held, covariances=covariances,
+                                       prior_errors=centre)
     links = [replace(ln, dz_mm=float(motions[(ln.i, ln.j)][1] * own.mm_per_px_axial),
                      droll_deg=float(motions[(ln.i, ln.j)][0] * own.deg_per_px))
              if (ln.i, ln.j) in motions and np.all(np.isfinite(motions[(ln.i, ln.j)])) else ln
@@ -706,7 +720,11 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
             e, covariance = np.zeros(4), v.covariance
         p = v.pose
         out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
-                                      p.dy_mm - e[3]), refined=True, covariance=covariance)
+                                      p.dy_mm - e[3]), refined=True, covariance=covariance,
+                         information=information.get(i, v.information),
+                         led_share=share or v.led_share)
+        if i in centre:   # the prior at the LED frame's instant is its prior from now on
+            out[i] = replace(out[i], ring_information=out[i].information)
     return out, links
 
 
@@ -754,6 +772,14 @@ class _Registration:
     spread: dict[int, tuple[float, float]] = field(default_factory=dict)   # _mirror_spread
 
 
+def _led_share(dataset: Dataset, views: Mapping[int, FrameView], links: Sequence[Link],
+               camera: CameraModel) -> float:
+    """:func:`pipestitch.pipeline.pair_timing.led_share` of the run's frames."""
+    radius = dataset.config.pipe.inner_diameter_mm / 2
+    px_per_mm = ring_px_per_mm(camera, dataset.config.laser.plane_distance_mm, radius)
+    return led_share({i: v.led_shift_px for i, v in views.items()}, links, px_per_mm)
+
+
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
                          grids: tuple[WallGrid, WallGrid], rounds: int, timer: StageTimer,
                          show_progress: bool, skipped: dict[int, str]) -> _Registration:
@@ -793,7 +819,9 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         before = views
         if pass1.patches:
             with timer("refine"):
-                views, links = _refine_views(views, pass1.patches, links, camera, own)
+                share = _led_share(dataset, views, links, camera) if k == 0 else 0.0
+                views, links = _refine_views(views, pass1.patches, links, camera, own,
+                                             share=share)
                 views = {i: _refit_section(v) for i, v in views.items()}
         del pass1   # its patches: before the next pass gathers its own
     redo = _frames_to_redo(before, views)

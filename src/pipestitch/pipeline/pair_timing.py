@@ -1,0 +1,141 @@
+"""The two frames of a pair are taken at two instants: the LED frame's pose is not the
+laser frame's.
+
+SPEC: the probe moves a little between the two frames of a pair. The ring measures the
+laser frame's pose; the mosaic is made of the LED frames, and the LED frames refine
+the poses (:mod:`pipestitch.mosaic.refine`) with the ring as their prior. With the
+prior on the laser frame's pose, a pose 0.03-0.15 mm and 0.03-0.08 deg away at the LED
+frame's instant was reconciled by trading offset for tilt: the refined tilts were
+0.11-0.28 deg off on runs whose LED frames were taken 1-2.5 mm further on, and their
+stated sigma 4-11 times too small.
+
+The probe moves smoothly, so the LED frame's pose lies between its pair's ring pose
+and the next pair's (the previous pair's when the LED frame comes first), a share of
+the way that a camera's fixed frame timing keeps constant along a run (a half for a
+video alternating laser and LED frames at a steady rate). That share is measured: the
+ring search finds how far out along the rays the LED frame's wall lies
+(:mod:`pipestitch.pose.pair_motion`), that is how far the probe moved on between the
+two frames, and registration finds the step between pairs. The refinement's prior is
+then the ring poses interpolated at that share, and the refined poses (the LED
+frames') are moved back by it for the poses the output states (the laser frames', as
+the ring measures them).
+
+Pure: views, links and poses in, priors and poses out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import TypeVar
+
+import numpy as np
+
+from pipestitch.camera import CameraModel
+from pipestitch.geometry import Pose
+from pipestitch.mosaic.refine import PRIOR_SIGMA
+from pipestitch.mosaic.register import Link
+from pipestitch.pose.ring import ring_centre
+
+__all__ = ["laser_instant", "led_instant_priors", "led_share", "pose_vector", "ring_px_per_mm"]
+
+T = TypeVar("T", float, np.ndarray)
+
+MIN_FRAMES = 3        # pairs that must measure the share before it is taken
+MIN_STEP_PX = 2.0     # a step to the next pair moving the ring's wall less (px) says nothing
+
+
+def ring_px_per_mm(camera: CameraModel, plane_distance_mm: float, radius_mm: float) -> float:
+    """How far out (px) the image of the wall under the laser ring moves when a centred
+    probe moves 1 mm on along the pipe."""
+    wall = np.array([[radius_mm, 0.0, plane_distance_mm], [radius_mm, 0.0, plane_distance_mm - 1]])
+    px = camera.project(wall) - ring_centre(camera)
+    return float(np.linalg.norm(px[1]) - np.linalg.norm(px[0]))
+
+
+def led_share(shift_px: Mapping[int, float], links: Sequence[Link], px_per_mm: float) -> float:
+    """The share of the step to the next pair by which the LED frames were taken after
+    their laser frames (negative: before), the median over the pairs whose LED frame's
+    shift the ring search measured (``shift_px``, :attr:`RingDetection.led_shift_px`) and
+    whose step registration measured; 0 where fewer than ``MIN_FRAMES`` pairs say."""
+    if not math.isfinite(px_per_mm) or px_per_mm <= 0:
+        return 0.0
+    step = {ln.i: ln.dz_mm for ln in links if ln.j == ln.i + 1 and math.isfinite(ln.dz_mm)}
+    shares = [shift_px[i] / px_per_mm / step[i] for i in shift_px
+              if shift_px[i] != 0 and i in step and abs(step[i]) * px_per_mm >= MIN_STEP_PX]
+    if len(shares) < MIN_FRAMES:
+        return 0.0
+    return float(np.clip(np.median(shares), -1.0, 1.0))
+
+
+def pose_vector(pose: Pose) -> np.ndarray:
+    """(alpha, beta, dx, dy) of ``pose`` (rad, mm): the refinement's unknowns."""
+    return np.array([pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm])
+
+
+def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.ndarray | None],
+                       share: float) -> tuple[dict[int, np.ndarray | None],
+                                              dict[int, np.ndarray]]:
+    """Each frame's ring prior moved to its LED frame's instant: (information, the pose
+    error it is centred on) as :func:`pipestitch.mosaic.refine.solve_in_windows` takes
+    them.
+
+    The ring poses of the frame and of its neighbour (the next pair when ``share`` > 0,
+    else the previous one) interpolated at ``|share|`` (at the run's end, extrapolated
+    from the neighbour on the other side), their covariances combined as those of two
+    rings measured apart; the error is the ring pose less that (the strips were
+    unwrapped with the ring pose). A frame without a neighbour, or whose own or
+    neighbour's information is missing, keeps its own prior.
+    """
+    info: dict[int, np.ndarray | None] = dict(information)
+    errors: dict[int, np.ndarray] = {}
+    # the refinement's weak prior, which it adds to every frame's: a section-free ring
+    # prior leaves the direction an oval would take singular, and this bounds it
+    weak = np.diag(1.0 / PRIOR_SIGMA**2)
+    for i in poses:
+        weights = _instant_weights(i, poses, share)
+        if weights is None or not (_finite(information.get(i))
+                                   and _finite(information.get(weights[2]))):
+            continue
+        own, other, n = weights
+        cov = (own ** 2 * np.linalg.inv(information[i] + weak)
+               + other ** 2 * np.linalg.inv(information[n] + weak))
+        moved = np.linalg.inv(cov) - weak
+        info[i] = 0.5 * (moved + moved.T)
+        errors[i] = pose_vector(poses[i]) - (own * pose_vector(poses[i])
+                                             + other * pose_vector(poses[n]))
+    return info, errors
+
+
+def _instant_weights(i: int, frames: Mapping[int, object], share: float
+                     ) -> tuple[float, float, int] | None:
+    """(a, b, n): the value at frame i's LED instant is a v_i + b v_n, n its neighbour
+    ahead by the sign of ``share`` (interpolated), or behind where there is none
+    (extrapolated at the same pace); None without either, or with no share."""
+    s, ahead = abs(share), (1 if share > 0 else -1)
+    if s == 0:
+        return None
+    if i + ahead in frames:
+        return 1.0 - s, s, i + ahead
+    if i - ahead in frames:
+        return 1.0 + s, -s, i - ahead
+    return None
+
+
+def _finite(matrix: np.ndarray | None) -> bool:
+    return matrix is not None and bool(np.all(np.isfinite(matrix)))
+
+
+def laser_instant(values: Mapping[int, T], share: float) -> dict[int, T]:
+    """Values at the laser frames' instants (poses as (alpha, beta, dx, dy) arrays, z,
+    roll) from those at the LED frames': the inverse, to first order, of the
+    interpolation :func:`led_instant_priors` makes (each moved back by ``|share|`` of
+    the way to its neighbour's, at the run's end extrapolated from the other side); a
+    frame with no neighbour is kept as it is."""
+    out = dict(values)
+    for i, v in values.items():
+        weights = _instant_weights(i, values, share)
+        if weights is not None:   # the neighbour's value stands for its ring's: first order
+            _, other, n = weights
+            out[i] = v - other * (values[n] - v)
+    return out

@@ -1,0 +1,91 @@
+"""The LED frames' instant within their pairs: the share measured from the ring's shifts
+and registration's steps, the rings' priors moved to it and the refined poses moved back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipestitch.camera import default_camera
+from pipestitch.geometry import Pose
+from pipestitch.mosaic.refine import PRIOR_SIGMA
+from pipestitch.mosaic.register import Link
+from pipestitch.pipeline.pair_timing import (
+    laser_instant,
+    led_instant_priors,
+    led_share,
+    pose_vector,
+    ring_px_per_mm,
+)
+
+
+def _links(steps_mm: list[float]) -> list[Link]:
+    return [Link(i, i + 1, dz, 0.0, 1.0, 0.01, 0.01) for i, dz in enumerate(steps_mm)]
+
+
+def test_the_rings_wall_moves_out_as_the_probe_moves_on() -> None:
+    # a probe 1 mm further on sees the wall under its ring 1 mm further back: further out
+    scale = ring_px_per_mm(default_camera("half"), 16.0, 32.5)
+    assert 5.0 < scale < 10.0
+
+
+def test_the_share_is_the_shifts_over_the_steps() -> None:
+    px_per_mm = 7.5
+    steps = [5.0, 5.5, 4.5, 5.0, 6.0]
+    shifts = {i: 0.3 * step * px_per_mm for i, step in enumerate(steps)}
+    assert led_share(shifts, _links(steps), px_per_mm) == pytest.approx(0.3)
+    # pulled back: steps and shifts both negative, the LED frames still after
+    backwards = {i: -v for i, v in shifts.items()}
+    assert led_share(backwards, _links([-s for s in steps]), px_per_mm) == pytest.approx(0.3)
+    # the LED frame first: it sees the wall the laser frame will, further in
+    assert led_share(backwards, _links(steps), px_per_mm) == pytest.approx(-0.3)
+
+
+def test_no_share_without_enough_measured_pairs() -> None:
+    px_per_mm, steps = 7.5, [5.0, 5.0, 5.0, 5.0]
+    assert led_share({0: 10.0, 1: 11.0}, _links(steps), px_per_mm) == 0.0   # two pairs
+    assert led_share({i: 0.0 for i in range(4)}, _links(steps), px_per_mm) == 0.0
+    # at a standstill a step says nothing of the share
+    assert led_share({i: 5.0 for i in range(4)}, _links([0.05] * 4), px_per_mm) == 0.0
+
+
+def _track(n: int) -> dict[int, Pose]:
+    """Poses moving steadily: each parameter a straight line in the frame number."""
+    return {i: Pose(alpha=np.deg2rad(1.0 + 0.2 * i), beta=np.deg2rad(-0.5 + 0.1 * i),
+                    dx_mm=0.5 - 0.05 * i, dy_mm=0.02 * i) for i in range(n)}
+
+
+@pytest.mark.parametrize("share", [0.3, -0.4])
+def test_priors_at_the_led_instant_and_poses_back_at_the_laser_instant(share: float) -> None:
+    rings = _track(6)
+    sigma = np.array([np.deg2rad(0.1), np.deg2rad(0.1), 0.02, 0.02])
+    info = {i: np.diag(1.0 / sigma**2) for i in rings}
+    moved, centre = led_instant_priors(rings, info, share)
+    assert sorted(centre) == sorted(rings)   # the end frames extrapolated
+    step = pose_vector(rings[1]) - pose_vector(rings[0])
+    for i, ring in rings.items():
+        # the prior's centre: where the pose is at the LED frame's instant
+        np.testing.assert_allclose(pose_vector(ring) - centre[i],
+                                   pose_vector(ring) + share * step, atol=1e-12)
+        # two rings combined: their prior is tighter than one's in the middle of the run,
+        # looser where extrapolated (and never the weak prior's alone)
+        inside = 0 <= i + (1 if share > 0 else -1) < len(rings)
+        ratio = np.diag(moved[i]) / np.diag(info[i])
+        assert np.all(ratio > 1.0) if inside else np.all(ratio < 1.0)
+        assert np.all(np.diag(moved[i]) > 1.0 / PRIOR_SIGMA**2)
+    led = {i: pose_vector(r) + share * step for i, r in rings.items()}
+    back = laser_instant(led, share)
+    for i, ring in rings.items():
+        np.testing.assert_allclose(back[i], pose_vector(ring), atol=1e-12)
+    assert laser_instant({i: float(i) for i in range(4)}, 0.0) == {i: float(i) for i in range(4)}
+
+
+def test_a_frame_alone_or_without_its_neighbours_information_keeps_its_prior() -> None:
+    rings = {0: Pose(), 5: Pose(alpha=0.01)}
+    info = {0: np.eye(4), 5: np.eye(4)}
+    moved, centre = led_instant_priors(rings, info, 0.5)
+    assert centre == {} and moved[0] is info[0]
+    rings = _track(2)
+    moved, centre = led_instant_priors(rings, {0: np.eye(4), 1: None}, 0.5)
+    assert 0 not in centre and moved[0] is not None
+    assert led_instant_priors(rings, {0: np.eye(4), 1: np.eye(4)}, 0.0)[1] == {}

@@ -9,6 +9,7 @@ taken at the laser frames' instants, that prior is 0.03-0.08 deg and 0.04-0.14 m
 from __future__ import annotations
 
 import csv
+import re
 import shutil
 from dataclasses import fields, replace
 from pathlib import Path
@@ -132,3 +133,8 @@ def test_run_refines_the_led_frames_poses_and_states_the_laser_frames(
     assert np.median(unaware) > 10 * np.median(together), (together, unaware)
     assert np.max(ours) < 0.1 and np.median(ours) < 0.2 * np.median(unaware), (ours, unaware)
     assert np.max(z) < 0.1 and np.max(z) < np.max(z_unaware), (z, z_unaware)
+    # and it says so, with the share it measured (0.3 of a step, 1.5 mm)
+    said = (tmp_path / "ours" / "problems.csv").read_text()
+    assert re.search(r"LED frames were taken 0\.(2[7-9]|3[0-3]) of a step \(1\.[3-7]\d mm\) "
+                     r"after their laser frames", said), said
+    assert "LED frames were taken" not in (tmp_path / "still" / "problems.csv").read_text()

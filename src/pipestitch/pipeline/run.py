@@ -287,6 +287,24 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     return out
 
 
+LED_INSTANT_NOTE = ("frames/: the LED frames were taken {share:.2f} of a step ({mm:.2f} mm) "
+                    "{when} their laser frames (the probe moves between the two frames of a "
+                    "pair): each pose refined at its LED frame's instant, stated at its laser "
+                    "frame's")
+
+
+def _led_instant_note(result: MosaicResult | None) -> list[tuple[int, str]]:
+    """The run's message (frame -1) saying when the LED frames were taken, where the
+    refinement measured that they were not taken with their laser frames."""
+    share = _led_share(result.views) if result is not None else 0.0
+    if share == 0.0:
+        return []
+    z = [v for v in _finite(result.positions.z_mm).values()]
+    step = float(np.median(np.abs(np.diff(z)))) if len(z) > 1 else math.nan
+    return [(-1, LED_INSTANT_NOTE.format(share=abs(share), mm=abs(share) * step,
+                                         when="after" if share > 0 else "before"))]
+
+
 def _led_share(views: Mapping[int, FrameView]) -> float:
     """The share of a step by which the run's LED frames follow their laser frames, as
     the refinement measured it (0: taken together, or not measured)."""
@@ -674,7 +692,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                     dataset.config.laser.plane_distance_mm,
                                     dataset.config.pipe.inner_diameter_mm, tolerance_pct))
         problems = _problems(frames, result, choices, no_mosaic)
-        problems = run_notes(dataset, declared, frames) + problems
+        problems = run_notes(dataset, declared, frames) + _led_instant_note(result) + problems
         with timer("standards"):
             coded = _coded(out, dataset, crown_deg, problems,
                            written.overview if written is not None else None)

@@ -22,6 +22,7 @@ SMOKE = [   # (script, a line its --quick output must hold)
     ("holes.py", "spacing err"),
     ("ovality.py", "ours (refined tilt)"),
     ("pose_sigma.py", "run (refined)"),
+    ("pair_motion.py", "pose unaware"),
     ("scale.py", "speed ratio cluster vs sequential"),
     ("calibration_real.py", "calibration vs published"),
     ("occluders.py", "SSIM - black"),

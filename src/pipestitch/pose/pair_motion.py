@@ -103,10 +103,10 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     # probe), and a sideways motion or a roll turns it, by less than half the mean shift.
     half = max(COARSE, int(np.ceil(WITHIN_MEAN * abs(coarse[best])))) + COARSE
     along = np.arange(coarse[best] - half, coarse[best] + half + 1)
-    reach = int(np.ceil(half / samples_per_ray))
+    reach = int(np.ceil(WITHIN_MEAN * half / samples_per_ray))   # a turn moves less
     across = np.arange(-reach, reach + 1)
-    corr = np.stack([_correlations(laser, led, rays, at, sectors, along, turn)
-                     for turn in across], axis=1)                # (sector, across, along)
+    corr = np.stack([_correlations(laser, led, rays[every], at[every], sectors[every], along,
+                                   turn) for turn in across], axis=1)   # (sector, across, along)
     kept, found = _sector_peaks(corr, seen)
     if np.count_nonzero(kept) < 4:   # too few sectors: the ring's mean shift only
         middle = np.unravel_index(np.argmax(weight @ np.nan_to_num(

@@ -1,0 +1,135 @@
+"""The probe moving between the two frames of a pair: ``pipestitch pose`` and ``run``
+against the simulator's truth, as the command runs now and unaware of the motion.
+
+SPEC: "The probe moves a little between the two frames". Each dataset is a simulated
+run whose LED frames are rendered a share of the way to the next pair's pose (on along
+the pipe, turned and moved sideways as the probe goes), the laser frames where the
+truth puts them (truth/poses.csv: the laser frames' poses); share 0 is the simulator's
+own habit, both frames taken together. For each: the tilt error (the hypothesis nearer
+the truth, deg) of ``pose`` and of ``run``, median / max over the frames, the spread of
+``run``'s z errors about their mean (mm), and the share ``run`` measured (its message);
+"ours" is the command as it is, "unaware" the same command with the LED frames' shift
+and share taken as 0 (the ring divided by the LED frame as it lies, the rings' prior on
+the laser frames' poses, the LED frames' poses stated): what pipestitch did before.
+
+Each command runs as a subprocess, as a user runs it (accuracy, not speed).
+
+Run: python bench/pair_motion.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+import subprocess
+import sys
+import tempfile
+from dataclasses import fields, replace
+from pathlib import Path
+
+import numpy as np
+
+# (scenario, seed, pairs, share of a step between the laser and the LED frame)
+RUNS = [(scenario, seed, pairs, share)
+        for scenario, seed, pairs in (("corrosion", 0, 30), ("corrosion", 3, 12), ("hard", 3, 12),
+                                      ("chart83", 3, 12), ("aluminium", 3, 12))
+        for share in (0.0, 0.2, 0.5)]
+QUICK = [("corrosion", 1, 6, 0.3)]
+UNAWARE = """
+import sys
+import pipestitch.pipeline.run as run
+import pipestitch.pipeline.stitching as stitching
+import pipestitch.pose.ring as ring
+ring._led_shift = lambda *args: None
+stitching.led_share = lambda *args: 0.0
+run.laser_instant = lambda values, share: dict(values)
+from pipestitch.cli.app import app
+app(sys.argv[1:])
+"""
+
+
+def simulate(out: Path, scenario: str, seed: int, pairs: int, share: float) -> None:
+    """The scenario's run with each LED frame rendered ``share`` of the way to the next
+    pair's pose (the last one's extrapolated from the step before it)."""
+    from pipestitch.geometry import Pose
+    from pipestitch.io.images import write_image
+    from pipestitch.pipeline.simulating import simulate_dataset
+    from pipestitch.simulate.scenarios import SCENARIOS
+
+    def between(a: Pose, b: Pose, t: float) -> Pose:
+        return Pose(**{f.name: (1 - t) * getattr(a, f.name) + t * getattr(b, f.name)
+                       for f in fields(Pose)})
+
+    run = simulate_dataset(replace(SCENARIOS[scenario], defects="none"), out, seed=seed,
+                           size="half", n_pairs=pairs, show_progress=False, workers=2)
+    if share == 0:
+        return
+    poses = run.poses
+    for i, pose in enumerate(poses):
+        following = poses[i + 1] if i + 1 < len(poses) else between(poses[i - 1], pose, 2.0)
+        _, led = run.renderer.render_pair(between(pose, following, share),
+                                          np.random.default_rng([seed, 7, i]))
+        write_image(out / "frames" / f"led_{i:05d}.png", led)
+
+
+def command(kind: str, verb: str, data: Path, out: Path) -> None:
+    head = ([sys.executable, "-m", "pipestitch.cli"] if kind == "ours"
+            else [sys.executable, "-c", UNAWARE])
+    done = subprocess.run([*head, verb, str(data), "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"{verb} {data} ({kind}) failed:\n{done.stdout}{done.stderr}")
+
+
+def errors(data: Path, poses_csv: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: the tilt error of the hypothesis nearer the truth (deg), and the z
+    error (mm; nan where the file has none)."""
+    with (data / "truth" / "poses.csv").open(newline="") as fh:
+        truth = {r["frame"]: r for r in csv.DictReader(fh)}
+    tilt, z = [], []
+    with poses_csv.open(newline="") as fh:
+        for row in csv.DictReader(fh):
+            true = truth[row["frame"]]
+            tilt.append(min(max(abs(float(row[p + k]) - float(true[k]))
+                                for k in ("alpha_deg", "beta_deg")) for p in ("", "alt_")))
+            z.append(float(row["z_mm"]) - float(true["z_mm"]))
+    return np.array(tilt), np.array(z)
+
+
+def cell(values: np.ndarray) -> str:
+    return f"{np.nanmedian(values):.3f} / {np.nanmax(values):.3f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="one small run (smoke test)")
+    args = parser.parse_args()
+    print("tilt error (deg, the hypothesis nearer the truth): median / max over the frames; "
+          "run's z errors' spread about their mean (mm); the share run measured")
+    print(f"{'run':<22} {'share':>5}  {'pose ours':>15} {'pose unaware':>15}  "
+          f"{'run ours':>15} {'run unaware':>15}  {'z ours':>7} {'z unaw.':>7}  measured")
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (scenario, seed, pairs, share) in enumerate(QUICK if args.quick else RUNS):
+            data = Path(tmp) / f"data{k}"
+            simulate(data, scenario, seed, pairs, share)
+            found = {}
+            for kind in ("ours", "unaware"):
+                for verb in ("pose", "run"):
+                    out = Path(tmp) / f"{verb}_{kind}_{k}"
+                    command(kind, verb, data, out)
+                    found[(kind, verb)] = errors(data, out / "poses.csv")
+            said = (Path(tmp) / f"run_ours_{k}" / "problems.csv").read_text()
+            measured = re.search(r"taken ([\d.]+) of a step \(([\d.]+) mm\) (\w+)", said)
+            z = {kind: np.std(found[(kind, "run")][1]) for kind in ("ours", "unaware")}
+            print(f"{f'{scenario} (seed {seed})':<22} {share:>5.1f}  "
+                  f"{cell(found[('ours', 'pose')][0]):>15} "
+                  f"{cell(found[('unaware', 'pose')][0]):>15}  "
+                  f"{cell(found[('ours', 'run')][0]):>15} "
+                  f"{cell(found[('unaware', 'run')][0]):>15}  "
+                  f"{z['ours']:7.3f} {z['unaware']:7.3f}  "
+                  + (" ".join(measured.groups()) if measured else "-"), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -16,6 +16,7 @@ from pipestitch.pipeline.pair_timing import (
     led_share,
     pose_vector,
     ring_px_per_mm,
+    same_reference,
 )
 
 
@@ -89,3 +90,44 @@ def test_a_frame_alone_or_without_its_neighbours_information_keeps_its_prior() -
     moved, centre = led_instant_priors(rings, {0: np.eye(4), 1: None}, 0.5)
     assert 0 not in centre and moved[0] is not None
     assert led_instant_priors(rings, {0: np.eye(4), 1: np.eye(4)}, 0.0)[1] == {}
+
+
+def test_a_few_chance_shifts_in_a_long_run_make_no_share() -> None:
+    px_per_mm, steps = 7.5, [5.0] * 1000
+    chance = {i: 0.6 * 5.0 * px_per_mm for i in (10, 400, 800)}
+    assert led_share(chance, _links(steps), px_per_mm) == 0.0
+    every_tenth = {i: 0.3 * 5.0 * px_per_mm for i in range(0, 1000, 10)}
+    assert led_share(every_tenth, _links(steps), px_per_mm) == pytest.approx(0.3)
+
+
+def test_an_extrapolated_prior_on_a_ring_with_a_free_direction_is_semidefinite() -> None:
+    # the section-free ring prior leaves a direction free (an oval could take it)
+    free = np.array([1.0, 0.0, 0.0, 0.3]) / np.hypot(1.0, 0.3)
+    info = np.diag([4e5, 4e5, 2.5e3, 2.5e3])
+    info = info - np.outer(info @ free, info @ free) / (free @ info @ free)
+    rings = _track(3)
+    moved, centre = led_instant_priors(rings, {i: info for i in rings}, 0.5)
+    assert 2 in centre   # the last frame: extrapolated
+    for matrix in moved.values():
+        assert np.min(np.linalg.eigvalsh(matrix)) >= -1e-9 * np.max(np.abs(matrix))
+
+
+def test_a_neighbour_whose_mirror_is_undecided_is_not_taken() -> None:
+    rings = _track(3)
+    info = {i: np.eye(4) * 1e4 for i in rings}
+    _, centre = led_instant_priors(rings, info, 0.5, neighbours=[0, 2])
+    step = pose_vector(rings[1]) - pose_vector(rings[0])
+    # frame 0's next neighbour is undecided: extrapolated from the other side, none there
+    assert 0 not in centre
+    # frame 1 takes frame 2; frame 2, at the end, extrapolates from frame 1: undecided too
+    np.testing.assert_allclose(centre[1], -0.5 * step, atol=1e-12)
+    assert 2 not in centre
+
+
+def test_positions_back_at_the_laser_instant_keep_their_reference() -> None:
+    before = {0: 0.0, 1: 5.0, 2: 10.0, 3: 15.0}         # LED instants, first frame at 0
+    moved = laser_instant(before, 0.5)                   # 2.5 mm back each
+    assert same_reference(moved, before) == pytest.approx({0: 0.0, 1: 5.0, 2: 10.0, 3: 15.0})
+    odometer = {0: 100.0, 1: 105.2, 2: 109.8, 3: 115.0}  # read at the laser frames' instants
+    on_it = same_reference(moved, before, odometer, scale=1.0)
+    assert np.median([odometer[i] - on_it[i] for i in on_it]) == pytest.approx(0.0)

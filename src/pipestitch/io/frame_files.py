@@ -15,7 +15,7 @@ IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 # SPEC's names: the pair's number zero-padded to five digits, so a run of 100,000 pairs
 # or more goes on with six (laser_100000.png); a number padded further
 # (laser_000001.png) is not a frame's name.
-_FRAME_RE = re.compile(r"^(laser|led)_(\d{5}|[1-9]\d{5,})(\.[A-Za-z]+)$")
+_FRAME_RE = re.compile(r"^(laser|led)_([0-9]{5}|[1-9][0-9]{5,})(\.[A-Za-z]+)$")
 
 
 def frame_files(frames_dir: Path) -> tuple[dict[str, dict[int, Path]], list[Path]]:

@@ -26,7 +26,7 @@ Pure: views, links and poses in, priors and poses out.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import TypeVar
 
 import numpy as np
@@ -37,11 +37,13 @@ from pipestitch.mosaic.refine import PRIOR_SIGMA
 from pipestitch.mosaic.register import Link
 from pipestitch.pose.ring import ring_centre
 
-__all__ = ["laser_instant", "led_instant_priors", "led_share", "pose_vector", "ring_px_per_mm"]
+__all__ = ["laser_instant", "led_instant_priors", "led_share", "pose_vector", "ring_px_per_mm",
+           "same_reference"]
 
 T = TypeVar("T", float, np.ndarray)
 
 MIN_FRAMES = 3        # pairs that must measure the share before it is taken
+MIN_MEASURED = 0.1    # ... and at least this share of the pairs registration stepped from
 MIN_STEP_PX = 2.0     # a step to the next pair moving the ring's wall less (px) says nothing
 
 
@@ -57,13 +59,15 @@ def led_share(shift_px: Mapping[int, float], links: Sequence[Link], px_per_mm: f
     """The share of the step to the next pair by which the LED frames were taken after
     their laser frames (negative: before), the median over the pairs whose LED frame's
     shift the ring search measured (``shift_px``, :attr:`RingDetection.led_shift_px`) and
-    whose step registration measured; 0 where fewer than ``MIN_FRAMES`` pairs say."""
+    whose step registration measured; 0 where fewer than ``MIN_FRAMES`` pairs, or fewer
+    than ``MIN_MEASURED`` of the pairs with a step, say (a few chance detections on a
+    run taken together do not make its share)."""
     if not math.isfinite(px_per_mm) or px_per_mm <= 0:
         return 0.0
-    step = {ln.i: ln.dz_mm for ln in links if ln.j == ln.i + 1 and math.isfinite(ln.dz_mm)}
-    shares = [shift_px[i] / px_per_mm / step[i] for i in shift_px
-              if shift_px[i] != 0 and i in step and abs(step[i]) * px_per_mm >= MIN_STEP_PX]
-    if len(shares) < MIN_FRAMES:
+    step = {ln.i: ln.dz_mm for ln in links if ln.j == ln.i + 1 and math.isfinite(ln.dz_mm)
+            and abs(ln.dz_mm) * px_per_mm >= MIN_STEP_PX}
+    shares = [shift_px[i] / px_per_mm / step[i] for i in step if shift_px.get(i, 0.0) != 0]
+    if len(shares) < max(MIN_FRAMES, MIN_MEASURED * len(step)):
         return 0.0
     return float(np.clip(np.median(shares), -1.0, 1.0))
 
@@ -74,8 +78,8 @@ def pose_vector(pose: Pose) -> np.ndarray:
 
 
 def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.ndarray | None],
-                       share: float) -> tuple[dict[int, np.ndarray | None],
-                                              dict[int, np.ndarray]]:
+                       share: float, neighbours: Collection[int] | None = None
+                       ) -> tuple[dict[int, np.ndarray | None], dict[int, np.ndarray]]:
     """Each frame's ring prior moved to its LED frame's instant: (information, the pose
     error it is centred on) as :func:`pipestitch.mosaic.refine.solve_in_windows` takes
     them.
@@ -84,16 +88,20 @@ def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.n
     else the previous one) interpolated at ``|share|`` (at the run's end, extrapolated
     from the neighbour on the other side), their covariances combined as those of two
     rings measured apart; the error is the ring pose less that (the strips were
-    unwrapped with the ring pose). A frame without a neighbour, or whose own or
-    neighbour's information is missing, keeps its own prior.
+    unwrapped with the ring pose). ``neighbours``: the frames whose poses may stand for
+    a neighbour's (default all of ``poses``; not a frame whose mirror is undecided). A
+    frame without a neighbour, or whose own or neighbour's information is missing, keeps
+    its own prior. The information returned is positive semidefinite (extrapolated, a
+    ring's free direction would otherwise come out below the weak prior's).
     """
+    usable = poses if neighbours is None else {i: poses[i] for i in neighbours if i in poses}
     info: dict[int, np.ndarray | None] = dict(information)
     errors: dict[int, np.ndarray] = {}
     # the refinement's weak prior, which it adds to every frame's: a section-free ring
     # prior leaves the direction an oval would take singular, and this bounds it
     weak = np.diag(1.0 / PRIOR_SIGMA**2)
     for i in poses:
-        weights = _instant_weights(i, poses, share)
+        weights = _instant_weights(i, usable, share)
         if weights is None or not (_finite(information.get(i))
                                    and _finite(information.get(weights[2]))):
             continue
@@ -101,9 +109,10 @@ def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.n
         cov = (own ** 2 * np.linalg.inv(information[i] + weak)
                + other ** 2 * np.linalg.inv(information[n] + weak))
         moved = np.linalg.inv(cov) - weak
-        info[i] = 0.5 * (moved + moved.T)
+        values, vectors = np.linalg.eigh(0.5 * (moved + moved.T))
+        info[i] = (vectors * np.clip(values, 0.0, None)) @ vectors.T
         errors[i] = pose_vector(poses[i]) - (own * pose_vector(poses[i])
-                                             + other * pose_vector(poses[n]))
+                                             + other * pose_vector(usable[n]))
     return info, errors
 
 
@@ -139,3 +148,21 @@ def laser_instant(values: Mapping[int, T], share: float) -> dict[int, T]:
             _, other, n = weights
             out[i] = v - other * (values[n] - v)
     return out
+
+
+def same_reference(moved: Mapping[int, float], before: Mapping[int, float],
+                   reference: Mapping[int, float] | None = None,
+                   scale: float = 1.0) -> dict[int, float]:
+    """``moved`` (z or roll moved to the laser frames' instants) offset back to the
+    reference ``before`` had: the median offset 0 against ``reference`` (the odometer's
+    readings times its fitted ``scale``, the IMU's roll) where it has readings of the
+    frames, else the first frame where it was."""
+    common = [i for i in moved if reference is not None and i in reference
+              and math.isfinite(reference[i]) and math.isfinite(moved[i])]
+    if common:
+        offset = float(np.median([reference[i] * scale - moved[i] for i in common]))
+    elif moved and (first := min(moved)) in before:
+        offset = before[first] - moved[first]
+    else:
+        return dict(moved)
+    return {i: v + offset for i, v in moved.items()}

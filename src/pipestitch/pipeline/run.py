@@ -36,7 +36,7 @@ from pipestitch.mosaic.register import Link
 from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
-from pipestitch.pipeline.pair_timing import laser_instant, pose_vector
+from pipestitch.pipeline.pair_timing import laser_instant, pose_vector, same_reference
 from pipestitch.pipeline.posing import (
     INFEASIBLE_SIGMAS,
     OVAL_TILT_WARNING,
@@ -82,6 +82,7 @@ from pipestitch.report.html import (
     draw_track_figures,
     render_report,
 )
+from pipestitch.standards.roll_reference import imu_roll_offset
 
 __all__ = ["RunSummary", "run_dataset"]
 
@@ -125,7 +126,8 @@ def _views(frames: list[FramePose], choices: list[Choice]) -> dict[int, FrameVie
         if choice.ambiguous:
             m = frame.fit.hypotheses[1 - choice.chosen]
             alt = FrameView(m.pose, m.pipe_section, information=_prior(m, ring),
-                            ring=ring, oval=m.section is not None)
+                            ring=ring, oval=m.section is not None,
+                            led_shift_px=frame.led_shift_px)
         views[frame.index] = FrameView(h.pose, h.pipe_section, alt, _prior(h, ring),
                                        ring=ring, oval=h.section is not None,
                                        led_shift_px=frame.led_shift_px)
@@ -260,8 +262,11 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     """Frames whose chosen hypothesis carries the photometrically refined pose (at the
     laser frame's instant where the LED frames were taken later or earlier:
     :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
-    refined = laser_instant({i: pose_vector(v.pose) for i, v in views.items() if v.refined},
-                            _led_share(views))
+    led = {i: pose_vector(v.pose) for i, v in views.items() if v.refined}
+    back = laser_instant(led, _led_share(views))
+    # only the poses that are the LED frames' move (not a frame whose refinement kept
+    # its ring's pose, nor one whose ring had no neighbour to move its prior)
+    refined = {i: back[i] if views[i].led_delta is not None else v for i, v in led.items()}
     out = []
     for frame, choice in zip(frames, choices, strict=True):
         view = views.get(frame.index)
@@ -306,9 +311,29 @@ def _led_instant_note(result: MosaicResult | None) -> list[tuple[int, str]]:
 
 
 def _led_share(views: Mapping[int, FrameView]) -> float:
-    """The share of a step by which the run's LED frames follow their laser frames, as
-    the refinement measured it (0: taken together, or not measured)."""
+    """The share of a step by which the run's LED frames follow their laser frames (one
+    for the run, carried by every view the refinement moved; 0: taken together, or not
+    measured)."""
     return next((v.led_share for v in views.values() if v.led_share), 0.0)
+
+
+def _laser_instant_positions(result: MosaicResult, odometry_mm: Mapping[int, float] | None,
+                             imu: Mapping[int, float]
+                             ) -> tuple[dict[int, float], dict[int, float]]:
+    """The placed frames' z and roll at their laser frames' instants
+    (:func:`pipestitch.pipeline.pair_timing.laser_instant`), with the references the
+    solve gave them: z the odometer's (median offset 0) or the first frame at 0, roll the
+    IMU's or as registration had it."""
+    share, positions = _led_share(result.views), result.positions
+    z, roll = _finite(positions.z_mm), _finite(positions.roll_deg)
+    if share == 0.0:
+        return z, roll
+    z_back = same_reference(laser_instant(z, share), z, odometry_mm, positions.odometer_scale)
+    roll_back = laser_instant(roll, share)
+    found = imu_roll_offset(roll_back, imu) if positions.roll_reference == "imu" else None
+    roll_back = ({i: r + found[0] for i, r in roll_back.items()} if found is not None
+                 else same_reference(roll_back, roll))
+    return z_back, roll_back
 
 
 def _refined_std(view: FrameView, ring_std: Mapping[str, float]) -> dict[str, float]:
@@ -652,11 +677,8 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         frames = _with_refined(frames, choices, result.views)
         frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope(),
                                             ring_frames)
-        # the LED frames' positions at their laser frames' instants (pair_timing.py)
-        share = _led_share(result.views)
-        z = _with_odometer(laser_instant(_finite(result.positions.z_mm), share),
-                           dataset.odometry_mm, result.positions.odometer_scale)
-        roll = laser_instant(_finite(result.positions.roll_deg), share)
+        z, roll = _laser_instant_positions(result, dataset.odometry_mm, imu)
+        z = _with_odometer(z, dataset.odometry_mm, result.positions.odometer_scale)
         if result.positions.roll_reference == "imu":   # frames not placed: the IMU's own
             roll = {**imu, **roll}
     else:

@@ -214,6 +214,9 @@ class FrameView:
     # pose is then the LED frame's
     led_shift_px: float = 0.0
     led_share: float = 0.0
+    # where the pose is the LED frame's: the change (alpha, beta, dx, dy) the rings put
+    # between the laser frame's instant and the LED frame's (None: at the laser frame's)
+    led_delta: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -693,7 +696,8 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
     fresh = {i: v for i, v in solved.items() if not v.refined}
     information, centre = led_instant_priors({i: v.pose for i, v in fresh.items()},
                                              {i: v.information for i, v in solved.items()},
-                                             share)
+                                             share, [i for i, v in fresh.items()
+                                                     if v.alternative is None])
 
     def jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
         # float32: a window's links' Jacobians are held for its solve; a held frame's
@@ -715,14 +719,15 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
     for i, v in views.items() if redo is None else ((f, views[f]) for f in redo):
         # a covariance from this solve only (none: the ring's sigma is stated)
         e, covariance = errors.get(i, np.zeros(4)), covariances.get(i)
+        delta = -centre[i] if i in centre else v.led_delta
         if not np.all(np.isfinite(e)):
             # keep the ring's pose rather than lose the frame
-            e, covariance = np.zeros(4), v.covariance
+            e, covariance, delta = np.zeros(4), v.covariance, None
         p = v.pose
         out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
                                       p.dy_mm - e[3]), refined=True, covariance=covariance,
                          information=information.get(i, v.information),
-                         led_share=share or v.led_share)
+                         led_share=share or v.led_share, led_delta=delta)
         if i in centre:   # the prior at the LED frame's instant is its prior from now on
             out[i] = replace(out[i], ring_information=out[i].information)
     return out, links
@@ -753,7 +758,11 @@ def _refit_section(view: FrameView) -> FrameView:
     measured = replace(measured, residuals_mm=measured.residuals_mm[:0].copy())
     oval = measured.section.ovality
     if view.oval or oval > max(OVAL_SIGNIFICANCE * measured.ovality_std, OVAL_MIN):
-        return replace(view, pose=measured.pose, section=measured.section, measured=measured,
+        pose = measured.pose
+        if view.led_delta is not None:   # offsets fitted to the laser frame's ring points
+            pose = replace(pose, dx_mm=pose.dx_mm + view.led_delta[2],
+                           dy_mm=pose.dy_mm + view.led_delta[3])
+        return replace(view, pose=pose, section=measured.section, measured=measured,
                        information=measured.information, oval=True)
     return replace(view, measured=measured)
 

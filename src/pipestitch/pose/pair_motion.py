@@ -16,9 +16,9 @@ multiplies both). It is found for the whole ring first, then measured in sectors
 the ring along and across the rays and fitted with a constant and a first harmonic
 each (the axial motion moves the near wall's image more than the far wall's when the
 probe is off-centre; a sideways motion, a change of tilt and a roll move it across the
-rays). Where no sector's best shift correlates clearly better than no shift (the
-frames were taken together, the wall has too little texture to tell), there is no
-shift.
+rays). Where the whole ring's best shift does not correlate clearly better than no
+shift (the frames were taken together, the wall has too little texture to tell), there
+is no shift.
 
 Why hand-written: no library measures a shift along a set of rays from a line's
 brightness; the correlations themselves are array sums.
@@ -49,7 +49,8 @@ SIGNIFICANT = 3.0        # standard errors of a correlation by which a shift mus
 MIN_CORRELATION = 0.5
 MAX_SHIFT_RADII = 0.25   # the search reaches this share of the ring's image radius
 WITHIN_MEAN = 0.5        # a sector's shift is within this share of the mean shift of it
-COARSE = 2               # the first search takes every COARSE-th shift (samples) and ray
+COARSE = 2               # the first search takes every COARSE-th shift (samples); both
+                         # searches every COARSE-th ray
 # ... and smooths both sides along the ring over this many of its rays, so that a wall
 # also turned by a few rays (a sideways motion, a roll) still correlates
 COARSE_SMOOTH = 5
@@ -119,7 +120,9 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     turn = np.linalg.lstsq(design, across[0] + found[kept, 0], rcond=None)[0]
     phi = np.arange(n_azimuths) * (2 * math.pi / n_azimuths)
     harmonics = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi)], axis=1)
-    return LedShift(harmonics @ shift, harmonics @ turn)
+    # within the window searched: the sectors kept may all lie on one side of the ring
+    return LedShift(np.clip(harmonics @ shift, along[0], along[-1]),
+                    np.clip(harmonics @ turn, across[0], across[-1]))
 
 
 @dataclass(frozen=True)

@@ -112,18 +112,6 @@ def test_an_extrapolated_prior_on_a_ring_with_a_free_direction_is_semidefinite()
         assert np.min(np.linalg.eigvalsh(matrix)) >= -1e-9 * np.max(np.abs(matrix))
 
 
-def test_a_neighbour_whose_mirror_is_undecided_is_not_taken() -> None:
-    rings = _track(3)
-    info = {i: np.eye(4) * 1e4 for i in rings}
-    _, centre = led_instant_priors(rings, info, 0.5, neighbours=[0, 2])
-    step = pose_vector(rings[1]) - pose_vector(rings[0])
-    # frame 0's next neighbour is undecided: extrapolated from the other side, none there
-    assert 0 not in centre
-    # frame 1 takes frame 2; frame 2, at the end, extrapolates from frame 1: undecided too
-    np.testing.assert_allclose(centre[1], -0.5 * step, atol=1e-12)
-    assert 2 not in centre
-
-
 def test_positions_back_at_the_laser_instant_keep_their_reference() -> None:
     before = {0: 0.0, 1: 5.0, 2: 10.0, 3: 15.0}         # LED instants, first frame at 0
     moved = laser_instant(before, 0.5)                   # 2.5 mm back each

@@ -26,7 +26,7 @@ Pure: views, links and poses in, priors and poses out.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import TypeVar
 
 import numpy as np
@@ -78,8 +78,8 @@ def pose_vector(pose: Pose) -> np.ndarray:
 
 
 def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.ndarray | None],
-                       share: float, neighbours: Collection[int] | None = None
-                       ) -> tuple[dict[int, np.ndarray | None], dict[int, np.ndarray]]:
+                       share: float) -> tuple[dict[int, np.ndarray | None],
+                                              dict[int, np.ndarray]]:
     """Each frame's ring prior moved to its LED frame's instant: (information, the pose
     error it is centred on) as :func:`pipestitch.mosaic.refine.solve_in_windows` takes
     them.
@@ -88,20 +88,18 @@ def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.n
     else the previous one) interpolated at ``|share|`` (at the run's end, extrapolated
     from the neighbour on the other side), their covariances combined as those of two
     rings measured apart; the error is the ring pose less that (the strips were
-    unwrapped with the ring pose). ``neighbours``: the frames whose poses may stand for
-    a neighbour's (default all of ``poses``; not a frame whose mirror is undecided). A
-    frame without a neighbour, or whose own or neighbour's information is missing, keeps
-    its own prior. The information returned is positive semidefinite (extrapolated, a
-    ring's free direction would otherwise come out below the weak prior's).
+    unwrapped with the ring pose). A frame without a neighbour, or whose own or
+    neighbour's information is missing, keeps its own prior. The information returned
+    is positive semidefinite (extrapolated, a ring's free direction would otherwise come
+    out below the weak prior's).
     """
-    usable = poses if neighbours is None else {i: poses[i] for i in neighbours if i in poses}
     info: dict[int, np.ndarray | None] = dict(information)
     errors: dict[int, np.ndarray] = {}
     # the refinement's weak prior, which it adds to every frame's: a section-free ring
     # prior leaves the direction an oval would take singular, and this bounds it
     weak = np.diag(1.0 / PRIOR_SIGMA**2)
     for i in poses:
-        weights = _instant_weights(i, usable, share)
+        weights = _instant_weights(i, poses, share)
         if weights is None or not (_finite(information.get(i))
                                    and _finite(information.get(weights[2]))):
             continue
@@ -112,7 +110,7 @@ def led_instant_priors(poses: Mapping[int, Pose], information: Mapping[int, np.n
         values, vectors = np.linalg.eigh(0.5 * (moved + moved.T))
         info[i] = (vectors * np.clip(values, 0.0, None)) @ vectors.T
         errors[i] = pose_vector(poses[i]) - (own * pose_vector(poses[i])
-                                             + other * pose_vector(usable[n]))
+                                             + other * pose_vector(poses[n]))
     return info, errors
 
 

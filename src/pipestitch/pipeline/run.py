@@ -258,12 +258,12 @@ MIN_CHAIN_LINKS = 3
 
 
 def _with_refined(frames: list[FramePose], choices: list[Choice],
-                  views: dict[int, FrameView]) -> list[FramePose]:
+                  views: dict[int, FrameView], share: float) -> list[FramePose]:
     """Frames whose chosen hypothesis carries the photometrically refined pose (at the
-    laser frame's instant where the LED frames were taken later or earlier:
-    :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
+    laser frame's instant where the LED frames were taken ``share`` of a step later or
+    earlier: :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
     led = {i: pose_vector(v.pose) for i, v in views.items() if v.refined}
-    back = laser_instant(led, _led_share(views))
+    back = laser_instant(led, share)
     # only the poses that are the LED frames' move (not a frame whose refinement kept
     # its ring's pose, nor one whose ring had no neighbour to move its prior)
     refined = {i: back[i] if views[i].led_delta is not None else v for i, v in led.items()}
@@ -301,20 +301,13 @@ LED_INSTANT_NOTE = ("frames/: the LED frames were taken {share:.2f} of a step ({
 def _led_instant_note(result: MosaicResult | None) -> list[tuple[int, str]]:
     """The run's message (frame -1) saying when the LED frames were taken, where the
     refinement measured that they were not taken with their laser frames."""
-    share = _led_share(result.views) if result is not None else 0.0
+    share = result.led_share if result is not None else 0.0
     if share == 0.0:
         return []
     z = [v for v in _finite(result.positions.z_mm).values()]
     step = float(np.median(np.abs(np.diff(z)))) if len(z) > 1 else math.nan
     return [(-1, LED_INSTANT_NOTE.format(share=abs(share), mm=abs(share) * step,
                                          when="after" if share > 0 else "before"))]
-
-
-def _led_share(views: Mapping[int, FrameView]) -> float:
-    """The share of a step by which the run's LED frames follow their laser frames (one
-    for the run, carried by every view the refinement moved; 0: taken together, or not
-    measured)."""
-    return next((v.led_share for v in views.values() if v.led_share), 0.0)
 
 
 def _laser_instant_positions(result: MosaicResult, odometry_mm: Mapping[int, float] | None,
@@ -324,7 +317,7 @@ def _laser_instant_positions(result: MosaicResult, odometry_mm: Mapping[int, flo
     (:func:`pipestitch.pipeline.pair_timing.laser_instant`), with the references the
     solve gave them: z the odometer's (median offset 0) or the first frame at 0, roll the
     IMU's or as registration had it."""
-    share, positions = _led_share(result.views), result.positions
+    share, positions = result.led_share, result.positions
     z, roll = _finite(positions.z_mm), _finite(positions.roll_deg)
     if share == 0.0:
         return z, roll
@@ -674,7 +667,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                            dataset.config.probe.envelope())
         choices = _apply_switches(choices, result.switched, result.links, result.chains)
         ring_frames = frames
-        frames = _with_refined(frames, choices, result.views)
+        frames = _with_refined(frames, choices, result.views, result.led_share)
         frames, choices = _still_infeasible(frames, choices, dataset.config.probe.envelope(),
                                             ring_frames)
         z, roll = _laser_instant_positions(result, dataset.odometry_mm, imu)

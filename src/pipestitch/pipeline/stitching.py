@@ -209,11 +209,8 @@ class FrameView:
     # refinement that gave the pose (mosaic/refine.py; None where it gave none)
     covariance: np.ndarray | None = field(default=None, compare=False)
     # how far out along the rays (px) the LED frame's wall lay from the laser frame's
-    # (RingDetection.led_shift_px), and the share of a step by which the run's LED
-    # frames follow their laser frames, once measured (pipeline/pair_timing.py): the
-    # pose is then the LED frame's
+    # (RingDetection.led_shift_px; pipeline/pair_timing.py)
     led_shift_px: float = 0.0
-    led_share: float = 0.0
     # where the pose is the LED frame's: the change (alpha, beta, dx, dy) the rings put
     # between the laser frame's instant and the LED frame's (None: at the laser frame's)
     led_delta: np.ndarray | None = field(default=None, compare=False)
@@ -243,6 +240,10 @@ class MosaicResult:
     switched: dict[int, bool] = field(default_factory=dict)
     views: dict[int, FrameView] = field(default_factory=dict)
     chains: list[ChainLink] = field(default_factory=list)
+    # the share of a step by which the LED frames follow their laser frames (negative:
+    # precede; 0: taken together or not measured): the views' refined poses are the LED
+    # frames' where their led_delta says so (pipeline/pair_timing.py)
+    led_share: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -730,7 +731,7 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
         out[i] = replace(v, pose=Pose(p.alpha - e[0], p.beta - e[1], p.dx_mm - e[2],
                                       p.dy_mm - e[3]), refined=True, covariance=covariance,
                          information=information.get(i, v.information),
-                         led_share=share or v.led_share, led_delta=delta)
+                         led_delta=delta)
         if i in centre:   # the prior at the LED frame's instant is its prior from now on
             out[i] = replace(out[i], ring_information=out[i].information)
     return out, links
@@ -782,10 +783,11 @@ class _Registration:
     flat_field: RadialFlatField     # from the last pass's levels
     chains: list[ChainLink]         # the latest measured of each pair
     spread: dict[int, tuple[float, float]] = field(default_factory=dict)   # _mirror_spread
+    led_share: float = 0.0          # as MosaicResult.led_share
 
 
-def _led_share(dataset: Dataset, views: Mapping[int, FrameView], links: Sequence[Link],
-               camera: CameraModel) -> float:
+def _measured_led_share(dataset: Dataset, views: Mapping[int, FrameView],
+                        links: Sequence[Link], camera: CameraModel) -> float:
     """:func:`pipestitch.pipeline.pair_timing.led_share` of the run's frames."""
     radius = dataset.config.pipe.inner_diameter_mm / 2
     px_per_mm = ring_px_per_mm(camera, dataset.config.laser.plane_distance_mm, radius)
@@ -818,7 +820,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     camera, switched = unwrapper.camera, {}
     chains: dict[tuple[int, int], ChainLink] = {}
     spread: dict[int, tuple[float, float]] = {}
-    before = views
+    before, share = views, 0.0
     for k in range(max(1, rounds)):
         own = grids[0] if k < rounds - 1 else grids[1]
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
@@ -831,9 +833,10 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         before = views
         if pass1.patches:
             with timer("refine"):
-                share = _led_share(dataset, views, links, camera) if k == 0 else 0.0
+                if k == 0:   # on the rings' poses, before any refinement
+                    share = _measured_led_share(dataset, views, links, camera)
                 views, links = _refine_views(views, pass1.patches, links, camera, own,
-                                             share=share)
+                                             share=share if k == 0 else 0.0)
                 views = {i: _refit_section(v) for i, v in views.items()}
         del pass1   # its patches: before the next pass gathers its own
     redo = _frames_to_redo(before, views)
@@ -855,7 +858,8 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     views = {i: _without_ring(v) for i, v in views.items()}
     flat = (RadialFlatField.from_pairs(pairs, unwrapper.edges, unwrapper.centre)
             or RadialFlatField.from_levels(levels, unwrapper.edges, unwrapper.centre))
-    return _Registration(views, links, done, switched, flat, list(chains.values()), spread)
+    return _Registration(views, links, done, switched, flat, list(chains.values()), spread,
+                         share)
 
 
 LINEAR_TILT_DEG = 1.0   # after a round that corrects a tilt by more, frames are redone:
@@ -1386,4 +1390,4 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
                         [i for i in placed if i in gains], skipped, gains, reg.switched, views,
-                        reg.chains)
+                        reg.chains, reg.led_share)

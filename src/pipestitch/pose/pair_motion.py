@@ -87,8 +87,9 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     # sectors together peak at the pair's motion.
     coarse = np.arange(-(max_shift // COARSE), max_shift // COARSE + 1) * COARSE
     every = slice(None, None, COARSE)
-    corr = _correlations(laser, led, rays[every], at[every], sectors[every], coarse, 0,
-                         smooth=COARSE_SMOOTH)
+    rays, at, sectors = rays[every], at[every], sectors[every]
+    corr = _correlations(_brightness(laser, rays, at, COARSE_SMOOTH), led, rays, at, sectors,
+                         coarse, 0, COARSE_SMOOTH)
     seen = np.all(np.isfinite(corr), axis=1)
     if np.count_nonzero(seen) < 3:
         return None
@@ -106,8 +107,9 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     along = np.arange(coarse[best] - half, coarse[best] + half + 1)
     reach = int(np.ceil(WITHIN_MEAN * half / samples_per_ray))   # a turn moves less
     across = np.arange(-reach, reach + 1)
-    corr = np.stack([_correlations(laser, led, rays[every], at[every], sectors[every], along,
-                                   turn) for turn in across], axis=1)   # (sector, across, along)
+    line = _brightness(laser, rays, at)   # the same for every turn
+    corr = np.stack([_correlations(line, led, rays, at, sectors, along, turn)
+                     for turn in across], axis=1)                # (sector, across, along)
     kept, found = _sector_peaks(corr, seen)
     if np.count_nonzero(kept) < 4:   # too few sectors: the ring's mean shift only
         middle = np.unravel_index(np.argmax(weight @ np.nan_to_num(
@@ -166,15 +168,22 @@ def _sector_peaks(corr: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.nd
     return kept, found
 
 
-def _correlations(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray,
+def _brightness(laser: np.ndarray, rays: np.ndarray, at: np.ndarray,
+                smooth: int = 1) -> np.ndarray:
+    """The line's brightness along the ring, as :func:`_correlations` takes it (log,
+    high-passed along the ring, smoothed over ``smooth`` rays)."""
+    return _high_pass(np.log(np.maximum(laser[rays, at], F32(1e-6)))[None, :], smooth)[0]
+
+
+def _correlations(line: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray,
                   sectors: np.ndarray, shifts: np.ndarray, turn: int,
                   smooth: int = 1) -> np.ndarray:
-    """(SECTORS, shifts) correlation of the line's brightness along the ring with the
-    LED frame's reflectance along the ring moved by each shift along the rays and by
-    ``turn`` rays (logarithms, high-passed along the ring; the LED frame's ends of a ray
-    repeated beyond it); NaN where a sector has too few rays."""
+    """(SECTORS, shifts) correlation of the line's brightness along the ring (``line``:
+    :func:`_brightness` with the same ``smooth``) with the LED frame's reflectance along
+    the ring moved by each shift along the rays and by ``turn`` rays (logarithms,
+    high-passed along the ring; the LED frame's ends of a ray repeated beyond it); NaN
+    where a sector has too few rays."""
     n_rays, n = led.shape
-    line = _high_pass(np.log(np.maximum(laser[rays, at], F32(1e-6)))[None, :], smooth)[0]
     # flat indices: one gather (numpy's two-index gather takes twice as long)
     index = np.clip(at[None, :] + shifts[:, None], 0, n - 1) + (((rays + turn) % n_rays) * n)
     wall = _high_pass(np.log(np.maximum(np.take(led, index), F32(1e-6))), smooth)

@@ -369,11 +369,13 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     if reflectance is None:
         return search(polar)
     local = _led_polar(reflectance, channel, crop, map_x, map_y, camera)
+    # A broad local mean: two passes of a 40-px box along the ray (~ a Gaussian of 16 px).
     box = 2 * round(BROAD_BOX_PX / step / 2) + 1
     found = search(flatten_by_reflectance(polar, local, box, 0.15, 0.15))
     shift = _led_shift(polar, local, found, radii[0], step, centre)
     if shift is None:
         return found
+    # the same division, by the LED frame read where the laser frame's wall is
     moved = flatten_by_reflectance(polar, shift.apply(local), box, 0.15, 0.15)
     return replace(search(moved), led_shift_px=float(np.mean(shift.along)) * step)
 

@@ -7,7 +7,9 @@ the pipe, turned and moved sideways as the probe goes), the laser frames where t
 truth puts them (truth/poses.csv: the laser frames' poses); share 0 is the simulator's
 own habit, both frames taken together. For each: the tilt error (the hypothesis nearer
 the truth, deg) of ``pose`` and of ``run``, median / max over the frames, the spread of
-``run``'s z errors about their mean (mm), and the share ``run`` measured (its message);
+``run``'s z errors about their mean (mm), and the share ``run`` measured (its message:
+"line" where the wall under the laser line told it, "overlaps" where the LED frames'
+patch shifts against the rings' poses did);
 "ours" is the command as it is, "unaware" the same command with the LED frames' shift
 and share taken as 0 (the ring divided by the LED frame as it lies, the rings' prior on
 the laser frames' poses, the LED frames' poses stated): what pipestitch did before.
@@ -106,7 +108,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="one small run (smoke test)")
     args = parser.parse_args()
     print("tilt error (deg, the hypothesis nearer the truth): median / max over the frames; "
-          "run's z errors' spread about their mean (mm); the share run measured")
+          "run's z errors' spread about their mean (mm); the share run measured and what "
+          "told it")
     print(f"{'run':<22} {'share':>5}  {'pose ours':>15} {'pose unaware':>15}  "
           f"{'run ours':>15} {'run unaware':>15}  {'z ours':>7} {'z unaw.':>7}  measured")
     with tempfile.TemporaryDirectory() as tmp:
@@ -121,6 +124,7 @@ def main() -> None:
                     found[(kind, verb)] = errors(data, out / "poses.csv")
             said = (Path(tmp) / f"run_ours_{k}" / "problems.csv").read_text()
             measured = re.search(r"taken ([\d.]+) of a step \(([\d.]+) mm\) (\w+)", said)
+            told = "overlaps" if "LED frames' overlaps" in said else "line"
             z = {kind: np.std(found[(kind, "run")][1]) for kind in ("ours", "unaware")}
             print(f"{f'{scenario} (seed {seed})':<22} {share:>5.1f}  "
                   f"{cell(found[('ours', 'pose')][0]):>15} "
@@ -128,7 +132,7 @@ def main() -> None:
                   f"{cell(found[('ours', 'run')][0]):>15} "
                   f"{cell(found[('unaware', 'run')][0]):>15}  "
                   f"{z['ours']:7.3f} {z['unaware']:7.3f}  "
-                  + (" ".join(measured.groups()) if measured else "-"), flush=True)
+                  + (" ".join([*measured.groups(), told]) if measured else "-"), flush=True)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from pipestitch.mosaic.refine import (
     node_jacobian,
     pair_jacobians,
     patch_shifts,
+    prior_share,
     solve_in_windows,
     solve_pose_errors,
 )
@@ -316,3 +317,39 @@ def test_a_prior_centred_off_the_start_is_the_start_moved_there() -> None:
         np.testing.assert_allclose(windowed[f], windowed_there[f] + moved_start[f], rtol=1e-6,
                                    atol=1e-10)
     assert np.all(ours[3] == 0.0)
+
+
+@pytest.mark.parametrize("noise", [1.0, 3.0])
+def test_prior_share_finds_how_far_the_priors_moved(noise: float) -> None:
+    """Frames whose true errors are s times a direction (the LED frames taken a share s
+    of a step on: pipeline/pair_timing.py) plus their rings' own errors (drawn from the
+    priors' information), priors centred on 0: ``prior_share`` finds s from the patch
+    shifts, scattering over fresh noise as its stated sigma says (shifts as noisy as
+    the model), or less (noisier: the residuals' scale widens the priors' share too)."""
+    rng = np.random.default_rng(11)
+    n, share = 10, 0.4
+    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
+           for i in range(n) for j in (i + 1, i + 2) if j < n}
+    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
+    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    direction = {f: rng.normal(0, [3e-3, 3e-3, 0.05, 0.05]) for f in range(n)}
+    found, stated = [], []
+    for _ in range(300):
+        truth = np.array([share * direction[f] + rng.normal(0, ring_sigma) for f in range(n)])
+        s, sigma = prior_share(_noisy_chain(rng, truth, noise, jac), jac, information,
+                               direction)
+        found.append(s)
+        stated.append(sigma)
+    assert abs(np.mean(found) - share) < 4 * np.std(found) / np.sqrt(len(found))
+    ratio = np.std(found) / np.median(stated)
+    assert (0.8 < ratio < 1.2) if noise == 1.0 else ratio < 1.2, ratio
+    assert np.median(stated) < 0.1   # the patches tell it well here
+
+
+def test_prior_share_of_a_direction_that_moves_no_prior() -> None:
+    rng = np.random.default_rng(12)
+    jac = {(i, i + 1): tuple(rng.normal(0, 40, (2, 30, 2, 4))) for i in range(4)}
+    information = {f: np.eye(4) * 1e3 for f in range(5)}
+    observations = _noisy_chain(rng, np.zeros((5, 4)), 1.0, jac)
+    share, sigma = prior_share(observations, jac, information, {f: np.zeros(4) for f in range(5)})
+    assert share == 0.0 and sigma == np.inf

@@ -3,6 +3,8 @@ and registration's steps, the rings' priors moved to it and the refined poses mo
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -44,10 +46,22 @@ def test_the_share_is_the_shifts_over_the_steps() -> None:
 
 def test_no_share_without_enough_measured_pairs() -> None:
     px_per_mm, steps = 7.5, [5.0, 5.0, 5.0, 5.0]
-    assert led_share({0: 10.0, 1: 11.0}, _links(steps), px_per_mm) == 0.0   # two pairs
-    assert led_share({i: 0.0 for i in range(4)}, _links(steps), px_per_mm) == 0.0
+    # two pairs tell, the others cannot (NaN) or have no shift at all
+    assert led_share({0: 10.0, 1: 11.0}, _links(steps), px_per_mm) is None
+    assert led_share({0: 10.0, 1: 11.0, 2: math.nan, 3: math.nan}, _links(steps),
+                     px_per_mm) is None
     # at a standstill a step says nothing of the share
-    assert led_share({i: 5.0 for i in range(4)}, _links([0.05] * 4), px_per_mm) == 0.0
+    assert led_share({i: 5.0 for i in range(4)}, _links([0.05] * 4), px_per_mm) is None
+
+
+def test_pairs_told_still_make_a_share_of_zero() -> None:
+    # the wall says the frames were taken together (0), not that it cannot tell (NaN)
+    px_per_mm, steps = 7.5, [5.0] * 10
+    still = {i: 0.0 for i in range(10)}
+    assert led_share(still, _links(steps), px_per_mm) == 0.0
+    # a few chance shifts among them do not move the median
+    chance = still | {2: 0.6 * 5.0 * px_per_mm, 7: 0.4 * 5.0 * px_per_mm}
+    assert led_share(chance, _links(steps), px_per_mm) == 0.0
 
 
 def _track(n: int) -> dict[int, Pose]:
@@ -95,7 +109,7 @@ def test_a_frame_alone_or_without_its_neighbours_information_keeps_its_prior() -
 def test_a_few_chance_shifts_in_a_long_run_make_no_share() -> None:
     px_per_mm, steps = 7.5, [5.0] * 1000
     chance = {i: 0.6 * 5.0 * px_per_mm for i in (10, 400, 800)}
-    assert led_share(chance, _links(steps), px_per_mm) == 0.0
+    assert led_share(chance, _links(steps), px_per_mm) is None
     every_tenth = {i: 0.3 * 5.0 * px_per_mm for i in range(0, 1000, 10)}
     assert led_share(every_tenth, _links(steps), px_per_mm) == pytest.approx(0.3)
 

@@ -22,11 +22,11 @@ def _wall(seed: int = 0, grain: float = 3.0) -> np.ndarray:
     return np.exp(0.4 * smooth / smooth.std()).astype(np.float32)
 
 
-def _pair(along: np.ndarray, across: np.ndarray, seed: int = 0
+def _pair(along: np.ndarray, across: np.ndarray, seed: int = 0, grain: float = 3.0
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(laser, led, rays, at): the LED frame is the wall; the laser frame sees at ray r,
     sample s the wall the LED frame shows at ray r + across[r], sample s + along[r]."""
-    led = _wall(seed)
+    led = _wall(seed, grain)
     seen = LedShift(along, across).apply(led)
     rays = np.arange(N_RAYS)
     at = np.rint(RING + 6 * np.sin(rays * 2 * math.pi / N_RAYS)).astype(np.int64)
@@ -57,8 +57,39 @@ def test_a_shift_inward_is_measured() -> None:
     assert np.max(np.abs(found.across)) < 0.5
 
 
-def test_frames_taken_at_one_position_give_no_shift() -> None:
-    assert _measure(*_pair(np.zeros(N_RAYS), np.zeros(N_RAYS))) is None
+def test_frames_taken_at_one_position_are_told_still() -> None:
+    found = _measure(*_pair(np.zeros(N_RAYS), np.zeros(N_RAYS)))
+    assert found is not None and not found.moved   # no shift, and the wall says so
+
+
+def _uneven(laser: np.ndarray, strength: float, seed: int) -> np.ndarray:
+    """The laser frame with its line's brightness varying along the ring by something
+    other than the wall (the laser's own ripple, a dirty mirror): log-normal, smooth
+    over a few rays."""
+    ripple = np.random.default_rng(seed + 100).normal(size=(N_RAYS, 1)).astype(np.float32)
+    ripple = cv2.GaussianBlur(ripple, (0, 0), 3.0)
+    return laser * np.exp(strength * ripple / ripple.std()).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_still_pair_with_an_uneven_line_is_told_still(seed: int) -> None:
+    laser, led, rays, at = _pair(np.zeros(N_RAYS), np.zeros(N_RAYS), seed=seed, grain=8.0)
+    found = _measure(_uneven(laser, 0.2, seed), led, rays, at)
+    assert found is not None and not found.moved
+
+
+@pytest.mark.parametrize("shift", [6.0, -6.0, 8.0, 12.0])
+@pytest.mark.parametrize("strength", [0.2, 0.4])
+def test_a_shift_the_ring_cannot_resolve_is_never_told_still(shift: float,
+                                                              strength: float) -> None:
+    # a coarse texture and an uneven line: the correlation's peak is as wide as the
+    # shift and no shift may correlate about as well as the true one; the ring then
+    # cannot tell, which is no evidence that the frames were taken together
+    for seed in range(4):
+        laser, led, rays, at = _pair(np.full(N_RAYS, shift), np.zeros(N_RAYS), seed=seed,
+                                     grain=8.0)
+        found = _measure(_uneven(laser, strength, seed), led, rays, at)
+        assert found is None or found.moved, seed
 
 
 def test_a_line_that_is_not_on_the_wall_gives_no_shift() -> None:

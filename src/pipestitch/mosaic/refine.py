@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import cholesky_banded
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import splu, spsolve
 
 from pipestitch.camera import CameraModel
 from pipestitch.geometry import PipeSection, Pose, WallGrid, rays_to_wall, theta_z_from_points
@@ -43,8 +43,8 @@ from pipestitch.mosaic._register_kernels import link_patches, patches_valid, pol
 from pipestitch.mosaic.noise import ContrastNoise, patch_noise_sums
 from pipestitch.mosaic.register import MIN_SIGNAL_SHARE, weight_total
 
-__all__ = ["PatchShifts", "node_jacobian", "pair_jacobians", "patch_shifts", "refinement_windows",
-           "solve_in_windows", "solve_pose_errors"]
+__all__ = ["PatchShifts", "node_jacobian", "pair_jacobians", "patch_shifts", "prior_share",
+           "refinement_windows", "solve_in_windows", "solve_pose_errors"]
 
 PATCH_PX = 64
 PATCH_STEP_PX = 64         # non-overlapping: hundreds per pair are plenty
@@ -346,31 +346,99 @@ def solve_pose_errors(observations: Sequence[PatchShifts],
     col = {f: 4 * k for k, f in enumerate(frames)}
     n_pose = 4 * len(frames)
     pairs = _pair_rows(observations, jacobians, col, held)
-    n_unknown = n_pose + 2 * len(pairs)
-    # the priors and a ridge of 1e-9 on every unknown
-    prior = _prior_normal(information, frames, n_unknown)
-    fixed = (prior + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
-    centre = np.zeros(n_unknown)
+    centre = np.zeros(n_pose + 2 * len(pairs))
     for f, e in (prior_errors or {}).items():
         if f in col and f not in held:
             centre[col[f]:col[f] + 4] = e
-    prior_rhs = prior.tocsr() @ centre
-    pattern = _normal_pattern(pairs, fixed)
-    weights = [1.0 / p.sigma**2 for p in pairs]
-    x = np.zeros(n_unknown)
-    for _ in range(iterations):
-        normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
-        x = spsolve(normal, rhs + prior_rhs)
-        z = [np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma for p in pairs]
-        scale = _residual_scale(z, len(pairs))
-        weights = [_huber(zk / scale) / p.sigma**2 for zk, p in zip(z, pairs, strict=True)]
+    solved = _reweighted(pairs, _prior_normal(information, frames, centre.size), centre,
+                         iterations)
+    x = solved.x
     errors = {f: x[col[f]:col[f] + 4] for f in frames}
     motions = {(p.i, p.j): x[p.unknowns[:2]] for p in pairs}
     if covariances is not None and iterations > 0:
         solving = [f for f in frames if f not in held]
-        covariances.update(_pose_covariances(normal, n_pose, scale, solving,
+        covariances.update(_pose_covariances(solved.normal, n_pose, solved.scale, solving,
                                              [col[f] for f in solving]))
     return errors, motions
+
+
+def prior_share(observations: Sequence[PatchShifts],
+                jacobians: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+                information: Mapping[int, np.ndarray | None],
+                direction: Mapping[int, np.ndarray], *,
+                iterations: int = 4) -> tuple[float, float]:
+    """How far the priors' centres move along ``direction`` for the patches to agree
+    with them best: the multiple s of it, solved with the poses.
+
+    The problem of :func:`solve_pose_errors` with each frame's prior centred on s times
+    its ``direction`` (frames not in it: on 0) and s one more unknown, eliminated: the
+    normal matrix N is factored once a reweighting round and solved for the patches'
+    right-hand side and for the priors' pull along the direction (P d), and
+    s = d^T P x0 / (d^T P d - (P d)^T N^-1 P d), its variance the residuals' scale
+    squared over that denominator (the Schur complement of N in the bordered matrix).
+
+    Parameters
+    ----------
+    observations, jacobians, information, iterations
+        As :func:`solve_pose_errors`.
+    direction : mapping
+        Frame -> a pose error (alpha, beta, dx, dy; rad, mm): where its prior's centre
+        goes at s = 1.
+
+    Returns
+    -------
+    share, sigma : float
+        s and its standard deviation; (0, inf) where the direction moves no prior
+        the patches see.
+    """
+    frames = sorted(information)
+    col = {f: 4 * k for k, f in enumerate(frames)}
+    pairs = _pair_rows(observations, jacobians, col)
+    along = np.zeros(4 * len(frames) + 2 * len(pairs))
+    for f, d in direction.items():
+        if f in col:
+            along[col[f]:col[f] + 4] = d
+    solved = _reweighted(pairs, _prior_normal(information, frames, along.size),
+                         np.zeros(along.size), iterations, along)
+    return solved.share, solved.share_sigma
+
+
+@dataclass(frozen=True)
+class _Solved:
+    x: np.ndarray
+    normal: sp.csc_matrix   # the last round's (its weights)
+    scale: float            # the residuals' scale against the shift model
+    share: float = 0.0
+    share_sigma: float = float("inf")
+
+
+def _reweighted(pairs: Sequence[_PairRows], prior: sp.coo_matrix, centre: np.ndarray,
+                iterations: int, along: np.ndarray | None = None) -> _Solved:
+    """The least-squares solution with Huber reweighting: the pairs' rows, each frame's
+    prior (information ``prior``, centred on ``centre``, moved by s ``along`` when that
+    is given: :func:`prior_share`) and a ridge of 1e-9 on every unknown."""
+    n_unknown = centre.size
+    fixed = (prior + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
+    prior_rhs = prior.tocsr() @ centre
+    pull = None if along is None else prior.tocsr() @ along
+    pattern = _normal_pattern(pairs, fixed)
+    weights = [1.0 / p.sigma**2 for p in pairs]
+    x, normal, scale, share, schur = np.zeros(n_unknown), None, 1.0, 0.0, 0.0
+    for _ in range(iterations):
+        normal, rhs = _normal_equations(pairs, weights, fixed, pattern)
+        if pull is None:
+            x = spsolve(normal, rhs + prior_rhs)
+        else:
+            factor = splu(normal)
+            x, moved = factor.solve(rhs + prior_rhs), factor.solve(pull)
+            schur = float(along @ pull - pull @ moved)
+            share = float(pull @ (x - centre)) / schur if schur > 0 else 0.0
+            x = x + share * moved
+        z = [np.abs(p.design() @ x[p.unknowns] - p.shift) / p.sigma for p in pairs]
+        scale = _residual_scale(z, len(pairs))
+        weights = [_huber(zk / scale) / p.sigma**2 for zk, p in zip(z, pairs, strict=True)]
+    sigma = scale / np.sqrt(schur) if schur > 0 else float("inf")
+    return _Solved(x, normal, scale, share, sigma)
 
 
 def _residual_scale(z: Sequence[np.ndarray], n_pairs: int) -> float:

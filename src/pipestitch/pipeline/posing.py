@@ -113,8 +113,9 @@ class FramePose:
     # read): most of a run's so is a dataset whose frames are swapped (io/dataset.py)
     laser_brighter: bool | None = field(default=None, compare=False)
     # how far out along the rays (px) the LED frame's wall lay from the laser frame's
-    # (RingDetection.led_shift_px: the probe moved between the two frames; 0: not seen)
-    led_shift_px: float = field(default=0.0, compare=False)
+    # (RingDetection.led_shift_px: the probe moved between the two frames; 0: taken
+    # together; NaN: the LED frame cannot tell)
+    led_shift_px: float = field(default=math.nan, compare=False)
 
     @property
     def ring(self) -> RingPoints | StoredRing | None:

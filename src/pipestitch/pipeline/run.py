@@ -294,8 +294,8 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
 
 LED_INSTANT_NOTE = ("frames/: the LED frames were taken {share:.2f} of a step ({mm:.2f} mm) "
                     "{when} their laser frames (the probe moves between the two frames of a "
-                    "pair): each pose refined at its LED frame's instant, stated at its laser "
-                    "frame's")
+                    "pair; {told}): each pose refined at its LED frame's instant, "
+                    "stated at its laser frame's")
 
 
 def _led_instant_note(result: MosaicResult | None) -> list[tuple[int, str]]:
@@ -307,7 +307,8 @@ def _led_instant_note(result: MosaicResult | None) -> list[tuple[int, str]]:
     z = [v for v in _finite(result.positions.z_mm).values()]
     step = float(np.median(np.abs(np.diff(z)))) if len(z) > 1 else math.nan
     return [(-1, LED_INSTANT_NOTE.format(share=abs(share), mm=abs(share) * step,
-                                         when="after" if share > 0 else "before"))]
+                                         when="after" if share > 0 else "before",
+                                         told=result.led_share_told))]
 
 
 def _laser_instant_positions(result: MosaicResult, odometry_mm: Mapping[int, float] | None,

@@ -22,7 +22,7 @@ import bisect
 import functools
 import math
 from collections import deque
-from collections.abc import Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple, Protocol
@@ -62,6 +62,7 @@ from pipestitch.mosaic.flat_field import (
 from pipestitch.mosaic.noise import ContrastNoise, NoiseModel, contrast_noise, estimate_noise
 from pipestitch.mosaic.occluders import defect_pixels, occluder_mask
 from pipestitch.mosaic.refine import (
+    WINDOW_FRAMES,
     PatchShifts,
     node_jacobian,
     pair_jacobians,
@@ -96,7 +97,13 @@ from pipestitch.mosaic.unwrap import (
 )
 from pipestitch.mosaic.wall_profile import frame_profiles
 from pipestitch.pipeline.frame_cache import blank_led
-from pipestitch.pipeline.pair_timing import led_instant_priors, led_share, ring_px_per_mm
+from pipestitch.pipeline.pair_timing import (
+    SIGNIFICANT,
+    led_instant_priors,
+    led_share,
+    patch_led_share,
+    ring_px_per_mm,
+)
 from pipestitch.pipeline.progress import StageTimer, track
 from pipestitch.pipeline.ring_store import StoredRing
 from pipestitch.pose.fit import RingPoints
@@ -209,8 +216,8 @@ class FrameView:
     # refinement that gave the pose (mosaic/refine.py; None where it gave none)
     covariance: np.ndarray | None = field(default=None, compare=False)
     # how far out along the rays (px) the LED frame's wall lay from the laser frame's
-    # (RingDetection.led_shift_px; pipeline/pair_timing.py)
-    led_shift_px: float = 0.0
+    # (RingDetection.led_shift_px, NaN where it cannot tell; pipeline/pair_timing.py)
+    led_shift_px: float = field(default=math.nan, compare=False)
     # where the pose is the LED frame's: the change (alpha, beta, dx, dy) the rings put
     # between the laser frame's instant and the LED frame's (None: at the laser frame's)
     led_delta: np.ndarray | None = field(default=None, compare=False)
@@ -242,8 +249,9 @@ class MosaicResult:
     chains: list[ChainLink] = field(default_factory=list)
     # the share of a step by which the LED frames follow their laser frames (negative:
     # precede; 0: taken together or not measured): the views' refined poses are the LED
-    # frames' where their led_delta says so (pipeline/pair_timing.py)
+    # frames' where their led_delta says so (pipeline/pair_timing.py), and what told it
     led_share: float = 0.0
+    led_share_told: str = ""
 
 
 @dataclass(frozen=True)
@@ -703,14 +711,7 @@ def _refine_views(views: dict[int, FrameView], patches: Sequence[PatchShifts],
                                              {i: v.information for i, v in solved.items()},
                                              share)
 
-    def jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
-        # float32: a window's links' Jacobians are held for its solve; a held frame's
-        # is zero in the solve whatever it is (refine.solve_pose_errors): not computed
-        if frame in held:
-            return np.zeros((len(nodes), 2, 4), np.float32)
-        view = views[frame]
-        return node_jacobian(camera, view.pose, view.section, own, nodes).astype(np.float32)
-
+    jacobian = _jacobian_of(views, camera, own, held)
     covariances: dict[int, np.ndarray] = {}
     errors, motions = solve_in_windows(patches, lambda new: pair_jacobians(new, jacobian),
                                        information, held=held, covariances=covariances,
@@ -784,14 +785,48 @@ class _Registration:
     chains: list[ChainLink]         # the latest measured of each pair
     spread: dict[int, tuple[float, float]] = field(default_factory=dict)   # _mirror_spread
     led_share: float = 0.0          # as MosaicResult.led_share
+    led_share_told: str = ""        # as MosaicResult.led_share_told
 
 
 def _measured_led_share(dataset: Dataset, views: Mapping[int, FrameView],
-                        links: Sequence[Link], camera: CameraModel) -> float:
-    """:func:`pipestitch.pipeline.pair_timing.led_share` of the run's frames."""
+                        links: Sequence[Link], camera: CameraModel,
+                        patches: Sequence[PatchShifts], own: WallGrid) -> tuple[float, str]:
+    """The share of a step by which the run's LED frames follow their laser frames, and
+    what told it: the wall under the laser line where it tells
+    (:func:`pipestitch.pipeline.pair_timing.led_share`), else the LED frames' patches
+    of the first refinement window's frames (the camera's frame timing is the run's:
+    :func:`pipestitch.pipeline.pair_timing.patch_led_share`), where that share is
+    ``SIGNIFICANT`` sigmas from 0; else 0."""
     radius = dataset.config.pipe.inner_diameter_mm / 2
     px_per_mm = ring_px_per_mm(camera, dataset.config.laser.plane_distance_mm, radius)
-    return led_share({i: v.led_shift_px for i, v in views.items()}, links, px_per_mm)
+    share = led_share({i: v.led_shift_px for i, v in views.items()}, links, px_per_mm)
+    if share is not None:
+        return share, LINE_TELLS
+    first = {i: views[i] for i in sorted(views)[:WINDOW_FRAMES]}
+    obs = [o for o in patches if o.i in first and o.j in first and len(o.nodes)]
+    jacobians = pair_jacobians(obs, _jacobian_of(first, camera, own))
+    share, sigma = patch_led_share({i: v.pose for i, v in first.items()},
+                                   {i: v.information for i, v in first.items()}, obs,
+                                   dict(zip([(o.i, o.j) for o in obs], jacobians, strict=True)))
+    return (share, PATCHES_TELL) if abs(share) > SIGNIFICANT * sigma else (0.0, "")
+
+
+# what told the share, as the run's message says it
+LINE_TELLS = "measured on the wall under the laser line"
+PATCHES_TELL = "measured from the LED frames' overlaps against the rings' poses"
+
+
+def _jacobian_of(views: Mapping[int, FrameView], camera: CameraModel, own: WallGrid,
+                 held: Collection[int] = ()) -> Callable[[int, np.ndarray], np.ndarray]:
+    """The Jacobian of a frame's strip nodes on its pose (:func:`node_jacobian`, float32:
+    a window's links' Jacobians are held for its solve); zero for a ``held`` frame,
+    whose Jacobian the solve does not read (refine.solve_pose_errors): not computed."""
+    def jacobian(frame: int, nodes: np.ndarray) -> np.ndarray:
+        if frame in held:
+            return np.zeros((len(nodes), 2, 4), np.float32)
+        view = views[frame]
+        return node_jacobian(camera, view.pose, view.section, own, nodes).astype(np.float32)
+    return jacobian
 
 
 def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrapper: _Unwrapper,
@@ -820,7 +855,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     camera, switched = unwrapper.camera, {}
     chains: dict[tuple[int, int], ChainLink] = {}
     spread: dict[int, tuple[float, float]] = {}
-    before, share = views, 0.0
+    before, share, told = views, 0.0, ""
     for k in range(max(1, rounds)):
         own = grids[0] if k < rounds - 1 else grids[1]
         release_free_memory()   # each pass starts from what is live (_runtime/memory.py)
@@ -834,7 +869,8 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
         if pass1.patches:
             with timer("refine"):
                 if k == 0:   # on the rings' poses, before any refinement
-                    share = _measured_led_share(dataset, views, links, camera)
+                    share, told = _measured_led_share(dataset, views, links, camera,
+                                                      pass1.patches, own)
                 views, links = _refine_views(views, pass1.patches, links, camera, own,
                                              share=share if k == 0 else 0.0)
                 views = {i: _refit_section(v) for i, v in views.items()}
@@ -859,7 +895,7 @@ def _registration_rounds(dataset: Dataset, views: dict[int, FrameView], unwrappe
     flat = (RadialFlatField.from_pairs(pairs, unwrapper.edges, unwrapper.centre)
             or RadialFlatField.from_levels(levels, unwrapper.edges, unwrapper.centre))
     return _Registration(views, links, done, switched, flat, list(chains.values()), spread,
-                         share)
+                         share, told)
 
 
 LINEAR_TILT_DEG = 1.0   # after a round that corrects a tilt by more, frames are redone:
@@ -1390,4 +1426,4 @@ def build_mosaic(dataset: Dataset, poses: Mapping[int, FrameView],
     image, weights = canvas.image() if sink is None else (None, None)
     return MosaicResult(canvas.grid, image, weights, positions, links, radius, window,
                         [i for i in placed if i in gains], skipped, gains, reg.switched, views,
-                        reg.chains, reg.led_share)
+                        reg.chains, reg.led_share, reg.led_share_told)

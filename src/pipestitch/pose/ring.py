@@ -71,7 +71,8 @@ class RingDetection:
         How far out along the rays (px, mean over the ring) the LED frame's wall lay
         from the laser frame's, where the ring was searched with the reflectance read
         there (:mod:`pipestitch.pose.pair_motion`: the probe moved between the frames);
-        0 where no shift was measured.
+        0 where the LED frame's wall shows that the two were taken together, NaN where
+        it cannot tell (no LED frame, too little texture under the line, no ring).
     """
 
     pixels: np.ndarray
@@ -83,7 +84,7 @@ class RingDetection:
     line_sigma_px: float = float("nan")
     fainter: RingDetection | None = None
     relative_floor: float = 0.0
-    led_shift_px: float = 0.0
+    led_shift_px: float = float("nan")
 
     @property
     def coverage(self) -> float:
@@ -373,8 +374,8 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     box = 2 * round(BROAD_BOX_PX / step / 2) + 1
     found = search(flatten_by_reflectance(polar, local, box, 0.15, 0.15))
     shift = _led_shift(polar, local, found, radii[0], step, centre)
-    if shift is None:
-        return found
+    if shift is None or not shift.moved:
+        return replace(found, led_shift_px=math.nan if shift is None else 0.0)
     # the same division, by the LED frame read where the laser frame's wall is
     moved = flatten_by_reflectance(polar, shift.apply(local), box, 0.15, 0.15)
     return replace(search(moved), led_shift_px=float(np.mean(shift.along)) * step)

@@ -80,7 +80,8 @@ def leftover_ring(detection: RingDetection, ring_pixels: np.ndarray, centre: np.
     return RingDetection(pixels=detection.pixels[off], azimuth=azimuth,
                          rank=_ranks_within_rays(azimuth, detection.rank[off]),
                          snr=detection.snr[off], n_azimuths=n_az, noise=detection.noise,
-                         line_sigma_px=detection.line_sigma_px)
+                         line_sigma_px=detection.line_sigma_px,
+                         led_shift_px=detection.led_shift_px)
 
 
 def _with_fainter(detection: RingDetection) -> RingDetection:
@@ -96,7 +97,8 @@ def _with_fainter(detection: RingDetection) -> RingDetection:
                          snr=np.concatenate([detection.snr, faint.snr])[order],
                          n_azimuths=detection.n_azimuths, noise=detection.noise,
                          line_sigma_px=detection.line_sigma_px,
-                         relative_floor=detection.relative_floor)
+                         relative_floor=detection.relative_floor,
+                         led_shift_px=detection.led_shift_px)
 
 
 def _typical_snr(azimuth: np.ndarray, snr: np.ndarray) -> float:

@@ -1,18 +1,18 @@
 """The probe moving between the two frames of a pair: ``pipestitch pose`` and ``run``
 against the simulator's truth, as the command runs now and unaware of the motion.
 
-SPEC: "The probe moves a little between the two frames". Each dataset is a simulated
-run whose LED frames are rendered a share of the way to the next pair's pose (on along
-the pipe, turned and moved sideways as the probe goes), the laser frames where the
-truth puts them (truth/poses.csv: the laser frames' poses); share 0 is the simulator's
-own habit, both frames taken together. For each: the tilt error (the hypothesis nearer
-the truth, deg) of ``pose`` and of ``run``, median / max over the frames, the spread of
-``run``'s z errors about their mean (mm), and the share ``run`` measured (its message:
-"line" where the wall under the laser line told it, "overlaps" where the LED frames'
-patch shifts against the rings' poses did);
-"ours" is the command as it is, "unaware" the same command with the LED frames' shift
-and share taken as 0 (the ring divided by the LED frame as it lies, the rings' prior on
-the laser frames' poses, the LED frames' poses stated): what pipestitch did before.
+SPEC: "The probe moves a little between the two frames". Each dataset is a simulated run
+whose LED frames are taken a share of the way to the next pair (``pipestitch simulate
+--led-share``: the probe moves on along its smooth track, turning and moving sideways as
+it goes), the laser frames where the truth puts them (truth/poses.csv: the laser frames'
+poses); share 0 is the simulator's default, both frames taken together. For each: the
+tilt error (the hypothesis nearer the truth, deg) of ``pose`` and of ``run``, median /
+max over the frames, the spread of ``run``'s z errors about their mean (mm), and the
+share ``run`` measured (its message: "line" where the wall under the laser line told it,
+"overlaps" where the LED frames' patch shifts against the rings' poses did); "ours" is
+the command as it is, "unaware" the same command with the LED frames' shift and share
+taken as 0 (the ring divided by the LED frame as it lies, the rings' prior on the laser
+frames' poses, the LED frames' poses stated): what pipestitch did before.
 
 Each command runs as a subprocess, as a user runs it (accuracy, not speed).
 
@@ -27,7 +27,7 @@ import re
 import subprocess
 import sys
 import tempfile
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,34 +45,21 @@ import pipestitch.pipeline.stitching as stitching
 import pipestitch.pose.ring as ring
 ring._led_shift = lambda *args: None
 stitching.led_share = lambda *args: 0.0
-run.laser_instant = lambda values, share: dict(values)
+run.laser_instant = lambda values, share, **_: dict(values)
 from pipestitch.cli.app import app
 app(sys.argv[1:])
 """
 
 
 def simulate(out: Path, scenario: str, seed: int, pairs: int, share: float) -> None:
-    """The scenario's run with each LED frame rendered ``share`` of the way to the next
-    pair's pose (the last one's extrapolated from the step before it)."""
-    from pipestitch.geometry import Pose
-    from pipestitch.io.images import write_image
+    """The scenario's run with each LED frame taken ``share`` of the way to the next
+    pair, the probe moving on along its smooth track (``pipestitch simulate
+    --led-share``)."""
     from pipestitch.pipeline.simulating import simulate_dataset
     from pipestitch.simulate.scenarios import SCENARIOS
 
-    def between(a: Pose, b: Pose, t: float) -> Pose:
-        return Pose(**{f.name: (1 - t) * getattr(a, f.name) + t * getattr(b, f.name)
-                       for f in fields(Pose)})
-
-    run = simulate_dataset(replace(SCENARIOS[scenario], defects="none"), out, seed=seed,
-                           size="half", n_pairs=pairs, show_progress=False, workers=2)
-    if share == 0:
-        return
-    poses = run.poses
-    for i, pose in enumerate(poses):
-        following = poses[i + 1] if i + 1 < len(poses) else between(poses[i - 1], pose, 2.0)
-        _, led = run.renderer.render_pair(between(pose, following, share),
-                                          np.random.default_rng([seed, 7, i]))
-        write_image(out / "frames" / f"led_{i:05d}.png", led)
+    simulate_dataset(replace(SCENARIOS[scenario], defects="none", led_share=share), out,
+                     seed=seed, size="half", n_pairs=pairs, show_progress=False, workers=2)
 
 
 def command(kind: str, verb: str, data: Path, out: Path) -> None:

@@ -72,6 +72,9 @@ def test_check_missing_dataset_exit_2(tmp_path: Path) -> None:
     (["--scenario", "nope"], "unknown scenario"),
     (["--size", "quarter"], "--size"),
     (["--pairs", "0"], "--pairs"),
+    (["--led-share", "1.5"], "--led-share"),
+    (["--led-share", "nan"], "--led-share"),
+    (["--scenario", "table1", "--led-share", "0.5"], "no LED frames"),
 ])
 def test_simulate_bad_options_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
     result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "x"), "--quiet", *args])

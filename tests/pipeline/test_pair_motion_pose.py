@@ -130,7 +130,7 @@ def test_run_refines_the_led_frames_poses_and_states_the_laser_frames(
     together, z_together = _run_errors(still, tmp_path / "still")
     ours, z = _run_errors(moving, tmp_path / "ours")
     monkeypatch.setattr(stitching, "led_share", lambda *args: 0.0)   # as if taken together
-    monkeypatch.setattr(run, "laser_instant", lambda values, share: dict(values))
+    monkeypatch.setattr(run, "laser_instant", lambda values, share, **_: dict(values))
     unaware, z_unaware = _run_errors(moving, tmp_path / "unaware")
     # measured: tilt 0.003-0.016 deg taken together; 0.020-0.030 here; 0.28-0.49 with
     # the prior on the laser frames' poses and the LED frames' poses stated; z within

@@ -95,6 +95,30 @@ def test_priors_at_the_led_instant_and_poses_back_at_the_laser_instant(share: fl
     assert laser_instant({i: float(i) for i in range(4)}, 0.0) == {i: float(i) for i in range(4)}
 
 
+@pytest.mark.parametrize("share", [0.2, 0.5, -0.3])
+def test_back_at_the_laser_instant_interpolates_between_led_frames(share: float) -> None:
+    # a bending track p(t) = t^2 / 2 (a pair a unit of time): the LED frame k is at
+    # t = k + share; the laser frame i lies between two LED frames, and linear
+    # interpolation there is off by s (1 - s) / 2 of the bend (extrapolating from the pair
+    # ahead would be s (1 + s) / 2 off)
+    s = abs(share)
+    led = {k: 0.5 * (k + share) ** 2 for k in range(6)}
+    back = laser_instant(led, share)
+    inside = range(1, 6) if share > 0 else range(0, 5)
+    for i in inside:
+        assert abs(back[i] - 0.5 * i**2) == pytest.approx(s * (1 - s) / 2, abs=1e-12)
+    moved = laser_instant(led, share, average=False)
+    for i in range(0, 5) if share > 0 else range(1, 6):
+        assert abs(moved[i] - 0.5 * i**2) == pytest.approx(s * (1 + s) / 2, abs=1e-12)
+    # and noise is averaged, not amplified: weights 1 - s and s (1 + s and -s moved back)
+    rng = np.random.default_rng(3)
+    noise = {k: rng.normal(size=4000) for k in range(6)}
+    spread = np.std(laser_instant(noise, share)[3])
+    assert spread == pytest.approx(np.sqrt((1 - s) ** 2 + s**2), rel=0.05)
+    spread = np.std(laser_instant(noise, share, average=False)[3])
+    assert spread == pytest.approx(np.sqrt((1 + s) ** 2 + s**2), rel=0.05)
+
+
 def test_a_frame_alone_or_without_its_neighbours_information_keeps_its_prior() -> None:
     rings = {0: Pose(), 5: Pose(alpha=0.01)}
     info = {0: np.eye(4), 5: np.eye(4)}
@@ -128,7 +152,7 @@ def test_an_extrapolated_prior_on_a_ring_with_a_free_direction_is_semidefinite()
 
 def test_positions_back_at_the_laser_instant_keep_their_reference() -> None:
     before = {0: 0.0, 1: 5.0, 2: 10.0, 3: 15.0}         # LED instants, first frame at 0
-    moved = laser_instant(before, 0.5)                   # 2.5 mm back each
+    moved = laser_instant(before, 0.5, average=False)    # 2.5 mm back each
     assert same_reference(moved, before) == pytest.approx({0: 0.0, 1: 5.0, 2: 10.0, 3: 15.0})
     odometer = {0: 100.0, 1: 105.2, 2: 109.8, 3: 115.0}  # read at the laser frames' instants
     on_it = same_reference(moved, before, odometer, scale=1.0)

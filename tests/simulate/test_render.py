@@ -173,3 +173,33 @@ def test_a_texture_off_its_grid_is_refused() -> None:
     WallTexture(albedo=np.zeros((360, 20), np.float32), grid=grid)
     with pytest.raises(ValueError, match="shape"):
         WallTexture(albedo=np.zeros((360, 21), np.float32), grid=grid)
+
+
+def test_led_frames_taken_as_the_probe_moves_on_along_its_track(tmp_path: Path) -> None:
+    """``led_share``: each LED frame at the track's pose that share of the step further
+    on (smooth: between the pairs' poses, off their straight line by the track's bend
+    only); the laser frames, and a share of 0, as without it."""
+    still = build_run(SCENARIOS["corrosion"], seed=3, size="half", n_pairs=6)
+    moving = build_run(replace(SCENARIOS["corrosion"], led_share=0.5), seed=3, size="half",
+                       n_pairs=6)
+    assert still.led_poses is None and moving.poses == still.poses
+    assert np.array_equal(moving.render(2)[0], still.render(2)[0])   # the laser frame
+    assert not np.array_equal(moving.render(2)[1], still.render(2)[1])
+    z = np.array([p.z_mm for p in moving.poses])
+    led = moving.led_poses
+    assert led is not None
+    np.testing.assert_allclose([p.z_mm for p in led[:-1]], 0.5 * (z[:-1] + z[1:]))
+    assert led[-1].z_mm == pytest.approx(z[-1] + 0.5 * (z[-1] - z[-2]))
+    for i in range(5):
+        a, b, m = (np.array([p.alpha, p.beta, p.dx_mm, p.dy_mm])
+                   for p in (moving.poses[i], moving.poses[i + 1], led[i]))
+        # the midpoint of a smooth track within its bend (<< a step's change), and the
+        # steps (3 %) by which a body near the wall is drawn in to clear it
+        mid = 0.5 * (a + b)
+        assert np.all(np.abs(m - mid) <= 0.1 * np.abs(b - a) + 0.03 * np.abs(mid) + 1e-4)
+    written = simulate_dataset(replace(SCENARIOS["corrosion"], led_share=0.5), tmp_path / "ds",
+                               seed=3, size="half", n_pairs=2, show_progress=False)
+    assert written.led_poses is not None
+    truth = read_csv_columns(tmp_path / "ds" / "truth" / "led_poses.csv", ("frame", "z_mm"))
+    np.testing.assert_allclose(truth["z_mm"], [p.z_mm for p in written.led_poses], atol=1e-5)
+    assert [p for p in check_dataset(tmp_path / "ds") if p.severity == "error"] == []

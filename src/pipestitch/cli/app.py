@@ -11,6 +11,7 @@ import functools
 import os
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, NoReturn, TypeVar
 
@@ -150,6 +151,11 @@ def simulate(
     pairs: Annotated[int | None, typer.Option(help="Override the number of frame pairs.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     workers: Annotated[int, typer.Option(help="Processes rendering frames (same output).")] = 1,
+    led_share: Annotated[float, typer.Option(
+        help="Share of the step to the next pair by which each LED frame follows its laser "
+             "frame, the probe moving on between the two (0.5: frames alternating at a "
+             "steady rate; negative: the LED frame first; truth/led_poses.csv has their "
+             "poses); default 0, taken together.")] = 0.0,
 ) -> None:
     """Simulate a probe run and write it as a dataset (SPEC layout, with truth/).
 
@@ -171,9 +177,18 @@ def simulate(
     if workers < 1:
         console.print(f"[bold red]error:[/] --workers: expected at least 1, got {workers}")
         raise typer.Exit(2)
+    if not -1.0 < led_share < 1.0:
+        console.print(f"[bold red]error:[/] --led-share: expected between -1 and 1, got "
+                      f"{led_share}")
+        raise typer.Exit(2)
+    chosen = SCENARIOS[scenario]
+    if led_share != 0 and (chosen.trajectory != "wander" or chosen.laser_only):
+        console.print(f"[bold red]error:[/] --led-share: scenario {scenario!r} has no LED "
+                      "frames taken along a track")
+        raise typer.Exit(2)
     check_out_folder_path(out)
-    run = simulate_dataset(SCENARIOS[scenario], out, seed=seed, size=size, n_pairs=pairs,
-                           show_progress=not quiet, workers=workers)
+    run = simulate_dataset(replace(chosen, led_share=led_share), out, seed=seed, size=size,
+                           n_pairs=pairs, show_progress=not quiet, workers=workers)
     typer.echo(f"wrote {len(run.poses)} pairs of scenario {scenario!r} to {out}")
 
 

@@ -322,8 +322,9 @@ def _laser_instant_positions(result: MosaicResult, odometry_mm: Mapping[int, flo
     z, roll = _finite(positions.z_mm), _finite(positions.roll_deg)
     if share == 0.0:
         return z, roll
-    z_back = same_reference(laser_instant(z, share), z, odometry_mm, positions.odometer_scale)
-    roll_back = laser_instant(roll, share)
+    z_back = same_reference(laser_instant(z, share, average=False), z, odometry_mm,
+                            positions.odometer_scale)
+    roll_back = laser_instant(roll, share, average=False)
     found = imu_roll_offset(roll_back, imu) if positions.roll_reference == "imu" else None
     roll_back = ({i: r + found[0] for i, r in roll_back.items()} if found is not None
                  else same_reference(roll_back, roll))

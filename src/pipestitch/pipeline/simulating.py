@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipestitch.errors import DatasetError
+from pipestitch.geometry import Pose
 from pipestitch.io.atomic import atomic_write_text
 from pipestitch.io.dataset import TRUTH_POSE_COLUMNS
 from pipestitch.io.images import write_image
@@ -35,12 +36,9 @@ def _csv(header: list[str], rows: list[list[object]]) -> str:
 def write_truth(run: SyntheticRun, out: Path) -> None:
     """Write truth/ (poses, wall, defects, simulation parameters)."""
     truth = out / "truth"
-    rows = []
-    for i, pose in enumerate(run.poses):
-        d = pose.as_degrees()
-        rows.append([i, d["alpha_deg"], d["beta_deg"], d["dx_mm"], d["dy_mm"], d["z_mm"],
-                     d["roll_deg"]])
-    atomic_write_text(truth / "poses.csv", _csv(list(TRUTH_POSE_COLUMNS), rows))
+    atomic_write_text(truth / "poses.csv", _pose_rows(run.poses))
+    if run.led_poses is not None:   # the LED frames' own (not in SPEC: readers skip it)
+        atomic_write_text(truth / "led_poses.csv", _pose_rows(run.led_poses))
     write_image(truth / "wall.png", np.clip(np.rint(run.albedo * 255), 0, 255).astype(np.uint8))
     atomic_write_text(truth / "wall.json", json.dumps(run.grid.to_json(), indent=2))
     atomic_write_text(truth / "defects.csv", _csv(
@@ -53,11 +51,23 @@ def write_truth(run: SyntheticRun, out: Path) -> None:
                  "angle_deg": float(np.rad2deg(run.section.angle))},
         "body": dataclasses.asdict(run.body),
     }
+    if run.scenario.led_share != 0:
+        sim["led_share"] = run.scenario.led_share
     if run.profile is not None:   # the wall's mean diameter along world z (a reducer)
         sim["diameter_profile"] = {
             "z_mm": run.profile.z_mm.tolist(),
             "diameter_mm": (2 * run.section.mean_radius_mm * run.profile.scale).tolist()}
     atomic_write_text(truth / "simulation.json", json.dumps(sim, indent=2))
+
+
+def _pose_rows(poses: list[Pose]) -> str:
+    """truth/poses.csv's text for ``poses`` (frame i is poses[i])."""
+    rows = []
+    for i, pose in enumerate(poses):
+        d = pose.as_degrees()
+        rows.append([i, d["alpha_deg"], d["beta_deg"], d["dx_mm"], d["dy_mm"], d["z_mm"],
+                     d["roll_deg"]])
+    return _csv(list(TRUTH_POSE_COLUMNS), rows)
 
 
 _RUN: tuple[SyntheticRun, Path] | None = None    # a rendering worker's run (inherited by fork)

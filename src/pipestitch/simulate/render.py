@@ -257,17 +257,20 @@ class Renderer:
         laser = self._laser_signal(tr, albedo, rng)
         return self._colourise(laser * self.visibility, (0.08, 0.12, 1.0), rng)
 
-    def render_pair(self, pose: Pose, rng: np.random.Generator, *,
-                    exposure: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def render_pair(self, pose: Pose, rng: np.random.Generator, *, exposure: float = 1.0,
+                    led_pose: Pose | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Render the (laser, LED) frames of one pair at ``pose`` (the LED frame at
-        ``exposure`` times the optics' ``led_gain``)."""
+        ``exposure`` times the optics' ``led_gain``, and at ``led_pose`` where given: the
+        probe moved between the two)."""
         tr, albedo = self._traced_albedo(pose)
+        laser = self._laser_signal(tr, albedo, rng) * self.visibility
+        if led_pose is not None:
+            tr, albedo = self._traced_albedo(led_pose)
         o = self.optics
         vignette = 1 - o.vignetting * (self._incidence / np.deg2rad(o.fov_deg / 2)) ** 2
         led = o.led_gain * exposure * albedo * tr["light"] * vignette * self.visibility
         if self.occluder_light is not None:
             led = led + self.occluder_light
-        laser = self._laser_signal(tr, albedo, rng) * self.visibility
         return (self._colourise(laser, (0.08, 0.12, 1.0), rng),
                 self._colourise(led, (0.85, 1.0, 1.05), rng))
 

@@ -47,6 +47,10 @@ class Scenario:
     optics: Optics = field(default_factory=Optics)
     declare_body: bool = True         # write the probe body into probe.toml (table1: a point probe)
     reducer_mm: float = 0.0           # diameter change over REDUCER_LENGTH_MM (< 0: narrows)
+    # the share of the step to the next pair by which each LED frame follows its laser
+    # frame (< 0: precedes it), the probe moving on along its track between the two (a
+    # camera alternating laser and LED frames at a steady rate: 0.5); 0: taken together
+    led_share: float = 0.0
 
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in [
@@ -107,11 +111,15 @@ class SyntheticRun:
     renderer: Renderer
     seed: int
     profile: RadiusProfile | None = None   # the wall's scale along z (a reducer)
+    # the LED frames' poses where the probe moved between the two frames of a pair
+    # (Scenario.led_share); None: each LED frame at its laser frame's pose
+    led_poses: list[Pose] | None = None
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(laser, LED) frames of pair ``index`` (deterministic per seed and index)."""
-        return self.renderer.render_pair(self.poses[index], self._rng(index),
-                                         exposure=self.renderer.optics.exposure(index))
+        return self.renderer.render_pair(
+            self.poses[index], self._rng(index), exposure=self.renderer.optics.exposure(index),
+            led_pose=None if self.led_poses is None else self.led_poses[index])
 
     def render_laser(self, index: int) -> np.ndarray:
         """Laser frame of pair ``index`` only."""
@@ -153,7 +161,7 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     from pipestitch.geometry import BodyEnvelope, PipeSection, WallGrid
     from pipestitch.simulate.render import Renderer, WallTexture
     from pipestitch.simulate.textures import make_wall, reference_test_piece
-    from pipestitch.simulate.trajectory import odometer_readings, table1_poses, wandering_poses
+    from pipestitch.simulate.trajectory import WanderingTrack, odometer_readings, table1_poses
 
     rng = np.random.default_rng(seed)
     n = scenario.n_pairs if n_pairs is None else int(n_pairs)
@@ -166,14 +174,18 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
                if scenario.ovality > 0 else PipeSection.circle(scenario.pipe_diameter_mm))
     body = BodyEnvelope()
     narrowing = min(1.0, 1.0 + scenario.reducer_mm / scenario.pipe_diameter_mm)
+    led_poses = None
     if scenario.trajectory == "table1":
         # Independent poses at one axial position: z means nothing between them.
         poses = table1_poses(n, radius, PLANE_DISTANCE_MM, rng)
     else:
         narrowest = PipeSection(section.a_mm * narrowing, section.b_mm * narrowing,
                                 section.angle)
-        poses = wandering_poses(n, narrowest, body, rng, step_mm=scenario.step_mm,
-                                wander=scenario.wander)
+        track = WanderingTrack(n, narrowest, body, rng, step_mm=scenario.step_mm,
+                               wander=scenario.wander)
+        poses = track.poses(track.z_mm)
+        if scenario.led_share != 0:
+            led_poses = track.poses(track.led_positions(scenario.led_share))
     z = np.array([p.z_mm for p in poses])
     profile = _reducer(scenario, float(np.median(z)) + PLANE_DISTANCE_MM)
     reach = 3.5 * max(section.a_mm, section.b_mm)
@@ -193,7 +205,7 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     renderer = Renderer(camera, section, wall, PLANE_DISTANCE_MM, scenario.optics,
                         profile=profile)
     return SyntheticRun(scenario, camera, section, body, poses, grid, albedo, defects, odometry,
-                        renderer, seed, profile)
+                        renderer, seed, profile, led_poses)
 
 
 def _reducer(scenario: Scenario, middle_mm: float) -> RadiusProfile | None:

@@ -42,3 +42,10 @@ def test_read_table_of_a_header_only_file_and_a_missing_file(tmp_path) -> None:
 def test_unknown_scenario_is_refused(tmp_path) -> None:
     with pytest.raises(ValueError, match="scenario"):
         ps.simulate(tmp_path / "x", scenario="no-such-scenario")
+
+
+def test_simulate_takes_the_led_frames_share(tmp_path) -> None:
+    made = ps.simulate(tmp_path / "moving", scenario="default", pairs=2, led_share=0.5)
+    assert made.n_pairs == 2 and (tmp_path / "moving" / "truth" / "led_poses.csv").is_file()
+    with pytest.raises(ValueError, match="led_share"):
+        ps.simulate(tmp_path / "x", scenario="default", pairs=2, led_share=1.5)

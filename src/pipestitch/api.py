@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -175,7 +175,8 @@ def _column(cells: list[str]) -> np.ndarray:
 
 
 def simulate(out: str | Path, *, scenario: str = "default", pairs: int | None = None,
-             size: str = "half", seed: int = 0, progress: bool = False) -> SimulatedDataset:
+             size: str = "half", seed: int = 0, progress: bool = False,
+             led_share: float = 0.0) -> SimulatedDataset:
     """Simulate a probe run and write it as a dataset folder (``pipestitch simulate``).
 
     Parameters
@@ -192,16 +193,19 @@ def simulate(out: str | Path, *, scenario: str = "default", pairs: int | None = 
         Seed of the wall texture, trajectory and noise.
     progress : bool
         Show a progress bar.
+    led_share : float
+        The share of the step to the next pair by which each LED frame follows its laser
+        frame, the probe moving on between the two (``--led-share``; 0: taken together).
 
     Raises
     ------
     ValueError
-        For an unknown scenario or size.
+        For an unknown scenario or size, or a share out of (-1, 1).
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario: expected one of {', '.join(SCENARIOS)}, got {scenario!r}")
-    synthetic = simulate_dataset(SCENARIOS[scenario], out, seed=seed, size=size, n_pairs=pairs,
-                                 show_progress=progress)
+    synthetic = simulate_dataset(replace(SCENARIOS[scenario], led_share=led_share), out,
+                                 seed=seed, size=size, n_pairs=pairs, show_progress=progress)
     return SimulatedDataset(Path(out), len(synthetic.poses), scenario)
 
 

@@ -28,7 +28,7 @@ from pipestitch.cli.mask_command import register as register_mask
 from pipestitch.cli.review_command import register as register_review
 from pipestitch.errors import PipestitchError
 from pipestitch.pipeline.progress import console
-from pipestitch.simulate.scenarios import SCENARIOS
+from pipestitch.simulate.scenarios import SCENARIOS, led_share_problem
 
 if TYPE_CHECKING:
     from pipestitch.pipeline.run import RunSummary
@@ -177,18 +177,13 @@ def simulate(
     if workers < 1:
         console.print(f"[bold red]error:[/] --workers: expected at least 1, got {workers}")
         raise typer.Exit(2)
-    if not -1.0 < led_share < 1.0:
-        console.print(f"[bold red]error:[/] --led-share: expected between -1 and 1, got "
-                      f"{led_share}")
-        raise typer.Exit(2)
-    chosen = SCENARIOS[scenario]
-    if led_share != 0 and (chosen.trajectory != "wander" or chosen.laser_only):
-        console.print(f"[bold red]error:[/] --led-share: scenario {scenario!r} has no LED "
-                      "frames taken along a track")
+    chosen = replace(SCENARIOS[scenario], led_share=led_share)
+    if (problem := led_share_problem(chosen)) is not None:
+        console.print(f"[bold red]error:[/] --{problem.replace('_', '-')}")
         raise typer.Exit(2)
     check_out_folder_path(out)
-    run = simulate_dataset(replace(chosen, led_share=led_share), out, seed=seed, size=size,
-                           n_pairs=pairs, show_progress=not quiet, workers=workers)
+    run = simulate_dataset(chosen, out, seed=seed, size=size, n_pairs=pairs,
+                           show_progress=not quiet, workers=workers)
     typer.echo(f"wrote {len(run.poses)} pairs of scenario {scenario!r} to {out}")
 
 

@@ -21,7 +21,7 @@ if TYPE_CHECKING:   # the renderer and textures load when a run is built, not to
     from pipestitch.simulate.render import Renderer
     from pipestitch.simulate.textures import Defect
 
-__all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run"]
+__all__ = ["SCENARIOS", "Scenario", "SyntheticRun", "build_run", "led_share_problem"]
 
 PLANE_DISTANCE_MM = 16.0
 REDUCER_LENGTH_MM = 20.0
@@ -142,6 +142,16 @@ def _random_defects(radius_mm: float, z0: float, z1: float,
     return out
 
 
+def led_share_problem(scenario: Scenario) -> str | None:
+    """What is wrong with ``scenario.led_share`` (None: nothing)."""
+    share = scenario.led_share
+    if not -1.0 < share < 1.0:
+        return f"led_share: expected between -1 and 1, got {share}"
+    if share != 0 and (scenario.trajectory != "wander" or scenario.laser_only):
+        return f"led_share: scenario {scenario.name!r} has no LED frames taken along a track"
+    return None
+
+
 def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
               n_pairs: int | None = None) -> SyntheticRun:
     """Draw the trajectory, texture and defects of ``scenario`` and set up the renderer.
@@ -163,6 +173,8 @@ def build_run(scenario: Scenario, *, seed: int = 0, size: str = "full",
     from pipestitch.simulate.textures import make_wall, reference_test_piece
     from pipestitch.simulate.trajectory import WanderingTrack, odometer_readings, table1_poses
 
+    if (problem := led_share_problem(scenario)) is not None:
+        raise ValueError(problem)
     rng = np.random.default_rng(seed)
     n = scenario.n_pairs if n_pairs is None else int(n_pairs)
     if n < 1:

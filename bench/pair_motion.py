@@ -35,7 +35,8 @@ import numpy as np
 # (scenario, seed, pairs, share of a step between the laser and the LED frame)
 RUNS = [(scenario, seed, pairs, share)
         for scenario, seed, pairs in (("corrosion", 0, 30), ("corrosion", 3, 12), ("hard", 3, 12),
-                                      ("chart83", 3, 12), ("aluminium", 3, 12))
+                                      ("chart83", 3, 12), ("aluminium", 3, 12),
+                                      ("chart83", 0, 12), ("aluminium", 0, 12))
         for share in (0.0, 0.2, 0.5)]
 QUICK = [("corrosion", 1, 6, 0.3)]
 UNAWARE = """

@@ -43,7 +43,10 @@ __all__ = ["laser_instant", "led_instant_priors", "led_share", "patch_led_share"
 T = TypeVar("T", float, np.ndarray)
 
 MIN_FRAMES = 3        # pairs that must measure the share before it is taken
-MIN_MEASURED = 0.1    # ... and at least this share of the pairs registration stepped from
+# ... and at least this share of the pairs registration stepped from: where most pairs
+# cannot tell (a test chart moving sideways: 3 of 11, measuring 0.05 where 0.2 was
+# made), the few that do are not to be trusted over the LED frames' overlaps (0.18)
+MIN_MEASURED = 0.5
 MIN_STEP_PX = 2.0     # a step to the next pair moving the ring's wall less (px) says nothing
 SIGNIFICANT = 3.0     # sigmas from 0 a share the patches find must be to be taken
 
@@ -64,8 +67,8 @@ def led_share(shift_px: Mapping[int, float], links: Sequence[Link],
     :attr:`RingDetection.led_shift_px`: 0 where it saw the frames taken together, NaN
     where it could not tell) and whose step registration measured; None where fewer
     than ``MIN_FRAMES`` pairs, or fewer than ``MIN_MEASURED`` of the pairs with a step,
-    tell (a few chance detections on a wall too plain to tell do not make a run's
-    share)."""
+    tell (a few chance detections, or a few frames of a wall that mostly cannot tell, do
+    not make a run's share)."""
     if not math.isfinite(px_per_mm) or px_per_mm <= 0:
         return None
     step = {ln.i: ln.dz_mm for ln in links if ln.j == ln.i + 1 and math.isfinite(ln.dz_mm)
@@ -176,9 +179,10 @@ def laser_instant(values: Mapping[int, T], share: float, *, average: bool = True
     interpolation :func:`led_instant_priors` makes: weights 1 + s and -s, 1.6 times a
     frame's error, s (1 + s) / 2 of a bend), exact where the probe moves at a steady
     speed between pairs and changes it at the laser frames. The refined poses, whose
-    noise is the larger part of their error, are averaged (1.2-2.8 times less median
-    tilt error on the simulator's smooth tracks: docs/benchmarks.md); z and roll, which
-    registration measures to microns and hundredths of a degree, are moved back."""
+    noise is the larger part of their error, are averaged (a smaller median tilt error
+    on seven of eight simulated runs along smooth tracks, up to 2.8 times:
+    docs/benchmarks.md); z and roll, which registration measures to microns and
+    hundredths of a degree, are moved back."""
     out = dict(values)
     for i, v in values.items():
         weights = _instant_weights(i, values, -share if average else share)

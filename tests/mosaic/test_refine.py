@@ -353,3 +353,51 @@ def test_prior_share_of_a_direction_that_moves_no_prior() -> None:
     observations = _noisy_chain(rng, np.zeros((5, 4)), 1.0, jac)
     share, sigma = prior_share(observations, jac, information, {f: np.zeros(4) for f in range(5)})
     assert share == 0.0 and sigma == np.inf
+
+
+@pytest.mark.parametrize("per_step", [0.0, 1.0])
+def test_patch_led_share_finds_none_on_a_run_taken_together(per_step: float) -> None:
+    """Rings with their own errors along a track changing by ``per_step`` of them from
+    pair to pair, LED frames taken with the laser frames: the share the patches find
+    is 0 within its sigma (the step to the next ring as the direction, which holds the
+    frame's own ring error, made it 0.45 and 0.21 here)."""
+    from pipestitch.pipeline.pair_timing import patch_led_share
+
+    rng = np.random.default_rng(21)
+    n = 20
+    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
+           for i in range(n) for j in (i + 1, i + 2) if j < n}
+    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
+    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    found, significant = [], 0
+    for _ in range(40):
+        track = np.cumsum(rng.normal(0, per_step, (n, 4)), axis=0) * ring_sigma
+        rings = track + rng.normal(0, 1, (n, 4)) * ring_sigma
+        poses = {f: Pose(*rings[f]) for f in range(n)}
+        share, sigma = patch_led_share(poses, information,
+                                       _noisy_chain(rng, rings - track, 1.0, jac), jac)
+        found.append(share)
+        significant += abs(share) > 3 * sigma
+    assert abs(np.mean(found)) < 3 * np.std(found) / np.sqrt(len(found)), np.mean(found)
+    assert significant <= 4
+
+
+def test_patch_led_share_finds_the_share_along_a_smooth_track() -> None:
+    from pipestitch.pipeline.pair_timing import patch_led_share
+
+    rng = np.random.default_rng(22)
+    n, share = 20, 0.5
+    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
+           for i in range(n) for j in (i + 1, i + 2) if j < n}
+    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
+    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    t = np.arange(n + 1, dtype=float)[:, None]
+    track = (10 * t + 0.05 * t**2) * ring_sigma * np.array([1.0, -0.7, 0.5, 1.2])
+    found = []
+    for _ in range(20):
+        rings = track[:n] + rng.normal(0, 1, (n, 4)) * ring_sigma
+        led = track[:n] + share * (track[1:] - track[:n])
+        poses = {f: Pose(*rings[f]) for f in range(n)}
+        found.append(patch_led_share(poses, information,
+                                     _noisy_chain(rng, rings - led, 1.0, jac), jac)[0])
+    assert abs(np.mean(found) - share) < 0.03, found

@@ -388,8 +388,9 @@ def prior_share(observations: Sequence[PatchShifts],
     Returns
     -------
     share, sigma : float
-        s and its standard deviation; (0, inf) where the direction moves no prior
-        the patches see.
+        s and its standard deviation (large where the direction moves the priors
+        little); (0, inf) where it moves none, or the problem cannot be solved (a
+        singular or non-finite normal matrix).
     """
     frames = sorted(information)
     col = {f: 4 * k for k, f in enumerate(frames)}
@@ -429,7 +430,10 @@ def _reweighted(pairs: Sequence[_PairRows], prior: sp.coo_matrix, centre: np.nda
         if pull is None:
             x = spsolve(normal, rhs + prior_rhs)
         else:
-            factor = splu(normal)
+            try:
+                factor = splu(normal)
+            except RuntimeError:   # singular or not finite (spsolve gives NaN there)
+                return _Solved(np.full(n_unknown, np.nan), normal, scale)
             x, moved = factor.solve(rhs + prior_rhs), factor.solve(pull)
             schur = float(along @ pull - pull @ moved)
             share = float(pull @ (x - centre)) / schur if schur > 0 else 0.0

@@ -86,21 +86,42 @@ def patch_led_share(poses: Mapping[int, Pose], information: Mapping[int, np.ndar
                     ) -> tuple[float, float]:
     """The share of a step by which the LED frames follow their laser frames as their
     patches tell it, where the wall under the laser line cannot (brushed metal, a test
-    chart moving sideways): the share at which the rings' priors moved to the LED
-    frames' instants (:func:`led_instant_priors`, whose move is the share times its move
-    at a share of 1) agree best with the LED frames' overlaps
-    (:func:`pipestitch.mosaic.refine.prior_share`); (share, its sigma).
+    chart moving sideways): the share at which the rings' priors, each moved by it along
+    the rings' track, agree best with the LED frames' overlaps
+    (:func:`pipestitch.mosaic.refine.prior_share`); (share, its sigma), the share
+    within [-1, 1].
 
     Each LED frame's strips warp by its pose's error at its instant: strips unwrapped
     with the rings' poses disagree where the LED frames were taken elsewhere, by an
     amount that grows with how far; the patch shifts between overlapping strips measure
-    that to a few hundredths of a step (0.21 and 0.52 +- 0.02 on brushed aluminium
-    whose LED frames followed 0.2 and 0.5 of a step later; 0.00 +- 0.02 taken
-    together). Where the rings' poses barely change along the run the share moves no
-    prior, and its sigma says so.
+    that (0.21 and 0.52 +- 0.02 on brushed aluminium whose LED frames followed 0.2 and
+    0.5 of a step later; 0.00 +- 0.02 taken together). The track's direction at a frame
+    is the slope of the rings' poses of its neighbours (:func:`_track_slope`), not the
+    step to the next ring (as :func:`led_instant_priors` moves the priors): that step
+    holds the frame's own ring error, which the patches also see: on a run taken together
+    whose poses change by about their rings' errors from pair to pair, it made a share of
+    0.2-0.45 (tests/pipeline/test_pair_timing.py). Where the rings' poses barely change,
+    the share moves the priors little, and its sigma says so.
     """
-    _, direction = led_instant_priors(poses, information, 1.0)
-    return prior_share(observations, jacobians, information, direction)
+    direction = {i: -slope for i in poses if (slope := _track_slope(poses, i)) is not None}
+    share, sigma = prior_share(observations, jacobians, information, direction)
+    return float(np.clip(share, -1.0, 1.0)), sigma
+
+
+SLOPE_FRAMES = 4   # neighbours on each side whose rings give a frame's track slope
+
+
+def _track_slope(poses: Mapping[int, Pose], i: int) -> np.ndarray | None:
+    """The rings' poses' change per frame at frame ``i``: the derivative there of the
+    least-squares quadratic (a line with fewer than four) through its neighbours within
+    ``SLOPE_FRAMES`` (itself left out); None with fewer than two."""
+    near = [k for k in range(i - SLOPE_FRAMES, i + SLOPE_FRAMES + 1) if k != i and k in poses]
+    if len(near) < 2:
+        return None
+    offset = np.array(near, float) - i
+    design = np.vander(offset, 3 if len(near) >= 4 else 2, increasing=True)
+    values = np.array([pose_vector(poses[k]) for k in near])
+    return np.linalg.lstsq(design, values, rcond=None)[0][1]
 
 
 def pose_vector(pose: Pose) -> np.ndarray:

@@ -16,9 +16,9 @@ multiplies both). It is found for the whole ring first, then measured in sectors
 the ring along and across the rays and fitted with a constant and a first harmonic
 each (the axial motion moves the near wall's image more than the far wall's when the
 probe is off-centre; a sideways motion, a change of tilt and a roll move it across the
-rays). Where the whole ring's best shift does not correlate clearly better than no
-shift, there is no shift: the frames were taken together where no shift correlates
-clearly better than every other, else the wall has too little texture to tell.
+rays). Where no shift correlates clearly better than none, either the frames were taken
+together (the correlation peaks at no shift, clearly above every shift outside that
+peak) or the wall shows too little texture under the line to tell (anything else).
 
 Why hand-written: no library measures a shift along a set of rays from a line's
 brightness; the correlations themselves are array sums.
@@ -164,13 +164,14 @@ class LedShift:
 
 def _still(total: np.ndarray, zero: int, error: float) -> bool:
     """Whether the whole ring's correlation over the shifts (``total``, no shift at
-    ``zero``), which peaks there, says the LED frame saw the wall where the laser frame
-    did: at no shift at least ``MIN_CORRELATION``, and above every shift outside its own
-    peak (beyond where it first falls to half of that on either side) by
-    ``SIGNIFICANT`` standard errors (``error``). A wall with too little texture under
-    the line correlates weakly or alike at every shift: it cannot tell (0.22-0.46 at no
-    shift on brushed aluminium and a wall with a lit arm, 0.94-0.98 on a corroded wall,
-    a test chart, an oval pipe with the frames taken together)."""
+    ``zero``), which peaks there (within one coarse step), says the LED frame saw
+    the wall where the laser frame did: at no shift at least ``MIN_CORRELATION``,
+    and above every shift outside its own peak (beyond where it first falls to half
+    of that on either side) by ``SIGNIFICANT`` standard errors (``error``). A wall
+    with too little texture under the line correlates weakly or alike at every
+    shift: it cannot tell (0.22-0.46 at no shift on brushed aluminium and a wall
+    with a lit arm, 0.94-0.98 on a corroded wall, a test chart, an oval pipe with
+    the frames taken together)."""
     if total[zero] < MIN_CORRELATION:
         return False
     low = total < 0.5 * total[zero]

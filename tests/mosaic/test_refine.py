@@ -401,3 +401,14 @@ def test_patch_led_share_finds_the_share_along_a_smooth_track() -> None:
         found.append(patch_led_share(poses, information,
                                      _noisy_chain(rng, rings - led, 1.0, jac), jac)[0])
     assert abs(np.mean(found) - share) < 0.03, found
+
+
+def test_prior_share_of_a_problem_that_cannot_be_solved() -> None:
+    # a NaN in a Jacobian (a ray off the wall): the factorisation fails; no share, no raise
+    rng = np.random.default_rng(13)
+    jac = {(i, i + 1): tuple(rng.normal(0, 40, (2, 30, 2, 4))) for i in range(4)}
+    jac[(1, 2)][0][3, 0, 0] = np.nan
+    information = {f: np.eye(4) * 1e3 for f in range(5)}
+    observations = _noisy_chain(rng, np.zeros((5, 4)), 1.0, jac)
+    direction = {f: np.full(4, 1e-3) for f in range(5)}
+    assert prior_share(observations, jac, information, direction) == (0.0, np.inf)

@@ -22,6 +22,7 @@ from pipestitch.mosaic.refine import (
     solve_pose_errors,
 )
 from pipestitch.mosaic.unwrap import unwrap_maps
+from pipestitch.pipeline.pair_timing import patch_led_share
 
 R = 32.5
 
@@ -319,6 +320,16 @@ def test_a_prior_centred_off_the_start_is_the_start_moved_there() -> None:
     assert np.all(ours[3] == 0.0)
 
 
+def _ring_chain(seed: int, n: int) -> tuple[np.random.Generator, dict, np.ndarray, dict]:
+    """A chain of ``n`` frames (each linked to the next two, random Jacobians) whose rings
+    measure the pose to 3e-4 rad and 0.01 mm: (rng, Jacobians, ring sigma, information)."""
+    rng = np.random.default_rng(seed)
+    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
+           for i in range(n) for j in (i + 1, i + 2) if j < n}
+    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
+    return rng, jac, ring_sigma, {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+
+
 @pytest.mark.parametrize("noise", [1.0, 3.0])
 def test_prior_share_finds_how_far_the_priors_moved(noise: float) -> None:
     """Frames whose true errors are s times a direction (the LED frames taken a share s
@@ -326,12 +337,8 @@ def test_prior_share_finds_how_far_the_priors_moved(noise: float) -> None:
     priors' information), priors centred on 0: ``prior_share`` finds s from the patch
     shifts, scattering over fresh noise as its stated sigma says (shifts as noisy as
     the model), or less (noisier: the residuals' scale widens the priors' share too)."""
-    rng = np.random.default_rng(11)
     n, share = 10, 0.4
-    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
-           for i in range(n) for j in (i + 1, i + 2) if j < n}
-    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
-    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    rng, jac, ring_sigma, information = _ring_chain(11, n)
     direction = {f: rng.normal(0, [3e-3, 3e-3, 0.05, 0.05]) for f in range(n)}
     found, stated = [], []
     for _ in range(300):
@@ -361,14 +368,8 @@ def test_patch_led_share_finds_none_on_a_run_taken_together(per_step: float) -> 
     pair to pair, LED frames taken with the laser frames: the share the patches find
     is 0 within its sigma (the step to the next ring as the direction, which holds the
     frame's own ring error, made it 0.45 and 0.21 here)."""
-    from pipestitch.pipeline.pair_timing import patch_led_share
-
-    rng = np.random.default_rng(21)
     n = 20
-    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
-           for i in range(n) for j in (i + 1, i + 2) if j < n}
-    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
-    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    rng, jac, ring_sigma, information = _ring_chain(21, n)
     found, significant = [], 0
     for _ in range(40):
         track = np.cumsum(rng.normal(0, per_step, (n, 4)), axis=0) * ring_sigma
@@ -383,14 +384,8 @@ def test_patch_led_share_finds_none_on_a_run_taken_together(per_step: float) -> 
 
 
 def test_patch_led_share_finds_the_share_along_a_smooth_track() -> None:
-    from pipestitch.pipeline.pair_timing import patch_led_share
-
-    rng = np.random.default_rng(22)
     n, share = 20, 0.5
-    jac = {(i, j): tuple(rng.normal(0, 40, (2, 30, 2, 4)))
-           for i in range(n) for j in (i + 1, i + 2) if j < n}
-    ring_sigma = np.array([3e-4, 3e-4, 0.01, 0.01])
-    information = {f: np.diag(1.0 / ring_sigma**2) for f in range(n)}
+    rng, jac, ring_sigma, information = _ring_chain(22, n)
     t = np.arange(n + 1, dtype=float)[:, None]
     track = (10 * t + 0.05 * t**2) * ring_sigma * np.array([1.0, -0.7, 0.5, 1.2])
     found = []

@@ -420,8 +420,9 @@ def _reweighted(pairs: Sequence[_PairRows], prior: sp.coo_matrix, centre: np.nda
     is given: :func:`prior_share`) and a ridge of 1e-9 on every unknown."""
     n_unknown = centre.size
     fixed = (prior + sp.identity(n_unknown, format="coo") * 1e-9).tocoo()
-    prior_rhs = prior.tocsr() @ centre
-    pull = None if along is None else prior.tocsr() @ along
+    by_row = prior.tocsr()
+    prior_rhs = by_row @ centre
+    pull = None if along is None else by_row @ along
     pattern = _normal_pattern(pairs, fixed)
     weights = [1.0 / p.sigma**2 for p in pairs]
     x, normal, scale, share, schur = np.zeros(n_unknown), None, 1.0, 0.0, 0.0

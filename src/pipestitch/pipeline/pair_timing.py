@@ -15,10 +15,12 @@ the way that a camera's fixed frame timing keeps constant along a run (a half fo
 video alternating laser and LED frames at a steady rate). That share is measured: the
 ring search finds how far out along the rays the LED frame's wall lies
 (:mod:`pipestitch.pose.pair_motion`), that is how far the probe moved on between the
-two frames, and registration finds the step between pairs. The refinement's prior is
-then the ring poses interpolated at that share, and the refined poses (the LED
-frames') are moved back by it for the poses the output states (the laser frames', as
-the ring measures them).
+two frames, and registration finds the step between pairs (:func:`led_share`); where
+the wall under the laser line cannot tell, the LED frames' overlaps do
+(:func:`patch_led_share`). The refinement's prior is then the ring poses interpolated
+at that share, and the refined poses (the LED frames') are taken back to the laser
+frames' instants for the poses the output states (as the ring measures them:
+:func:`laser_instant`).
 
 Pure: views, links and poses in, priors and poses out.
 """
@@ -193,8 +195,9 @@ def laser_instant(values: Mapping[int, T], share: float, *, average: bool = True
 
     ``average``: each laser frame's instant lies between its own LED frame's and the
     previous pair's (the next pair's where the LED frames come first), ``|share|`` of
-    the way from its own: the two are interpolated there (at the run's start,
-    extrapolated from the other side). Each value's error is then averaged with its
+    the way from its own: the two are interpolated there (where that neighbour is
+    missing, at the run's start or, the LED frames first, at its end, extrapolated from
+    the other side). Each value's error is then averaged with its
     neighbour's (weights 1 - s and s: 0.7 times a frame's error at a share of 0.5) and a
     smooth track's bend leaves s (1 - s) / 2 of it. Otherwise each is moved back by
     ``|share|`` of the way to the pair ahead (the inverse, to first order, of the

@@ -51,6 +51,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
      "f8:2 i8:1A i8:1A i8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8:1r f8:2r f8 f8 i8 f8 i8 i8 f8 f8:2"),
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
     ("pose._ring_kernels", "flatten_by_reflectance", "f4:2 f4:2 i8 f8 f8"),
+    ("pose._ring_kernels", "flatten_by_moved_reflectance", "f4:2 f4:2 f8:1 f8:1 i8 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),
     ("pose._ring_kernels", "line_widths", "f4:2 i8:1 i8:1 i8"),
     ("pose._ring_kernels", "centroids", "f4:2 f4:2 i8:1 i8:1 i8 f8:1"),

@@ -92,9 +92,12 @@ def test_every_entry_starts_once_and_after_what_it_waits_for() -> None:
 
 @pytest.mark.slow   # a simulated run and the pipeline in a child process
 def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
+    # LED frames taken half a step after their laser frames, as a probe that moves
+    # between them takes them: the ring search's second pass runs too
     data, out = tmp_path / "data", tmp_path / "out"
     subprocess.run([sys.executable, "-m", "pipestitch.cli", "simulate", "--scenario",
-                    "default", "--size", "half", "--pairs", "3", "--out", str(data), "-q"],
+                    "default", "--size", "half", "--pairs", "3", "--led-share", "0.5",
+                    "--out", str(data), "-q"],
                    check=True, capture_output=True, timeout=600)
     proc = subprocess.run([sys.executable, "-c", CHILD, str(SCRIPT), str(data), str(out)],
                           capture_output=True, text=True, timeout=900, check=False)

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pipestitch.pose import pair_motion as pm
 from pipestitch.pose.pair_motion import LedShift, led_shift
 
 N_RAYS, N_SAMPLES, RING = 1440, 400, 180.0
@@ -122,3 +123,31 @@ def test_apply_reads_the_frame_where_the_shift_says(across: float) -> None:
     if across < 0:
         np.testing.assert_allclose(moved[0, 5], 5 + 7.25 + 1000.0 * (N_RAYS + across),
                                    atol=0.1)
+
+
+def test_the_correlations_are_each_sectors_pearson_coefficient(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every sector, turn and shift at once (and in blocks of a few turns) against
+    numpy's correlation coefficient of the same samples; a sector with too few rays
+    is NaN."""
+    laser, led, rays, at = _pair(np.full(N_RAYS, 9.0), np.zeros(N_RAYS), seed=5)
+    keep = (rays < 700) | (rays % 97 == 0)   # sectors 4-7 keep too few rays but one
+    rays, at = rays[keep], at[keep]
+    sectors = rays * pm.SECTORS // N_RAYS
+    shifts, turns = np.arange(-3, 12), np.arange(-2, 3)
+    line = pm._brightness(laser, rays, at)
+    monkeypatch.setattr(pm, "BLOCK_SAMPLES", 2 * shifts.size * rays.size)   # 3 blocks
+    got = pm._correlations(line, led, rays, at, sectors, shifts, turns)
+    assert got.shape == (pm.SECTORS, turns.size, shifts.size)
+    counts = np.bincount(sectors, minlength=pm.SECTORS)
+    for k in range(pm.SECTORS):
+        if counts[k] < pm.MIN_SECTOR_RAYS:
+            assert np.all(np.isnan(got[k]))
+            continue
+        mine = sectors == k
+        for i, turn in enumerate(turns):
+            for j, shift in enumerate(shifts):
+                wall = led[(rays + turn) % N_RAYS, np.clip(at + shift, 0, N_SAMPLES - 1)]
+                wall = pm._high_pass(np.log(wall)[None, :])[0]   # along the whole ring
+                want = np.corrcoef(wall[mine], line[mine])[0, 1]
+                assert got[k, i, j] == pytest.approx(want, abs=1e-6)

@@ -10,10 +10,12 @@ from pipestitch.pose._ring_kernels import (
     _percentile_20,
     _window_sum,
     centroids,
+    flatten_by_moved_reflectance,
     flatten_by_reflectance,
     line_widths,
     ridge_peaks,
 )
+from pipestitch.pose.pair_motion import LedShift
 
 RNG = np.random.default_rng(7)
 
@@ -48,6 +50,57 @@ def test_reflectance_division_is_opencvs_blurs_and_the_numpy_expression(
     want = np.where(valid, polar / np.maximum(relative, 0.15), 0.0).astype(np.float32)
     got = flatten_by_reflectance(polar, local, box, 0.15, 0.15)
     np.testing.assert_array_equal(got, want)
+    assert np.any(got == 0) and np.any(got != 0)
+
+
+def _moved_frames(n_rays: int = 37, n: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    polar, local = (RNG.random((n_rays, n)).astype(np.float32) + 0.05 for _ in range(2))
+    local[: n_rays // 3, : n // 4] *= 0.05   # a dark patch: zeros in the division
+    return polar, local
+
+
+@pytest.mark.parametrize(("along", "across"), [(7.0, -2.0), (-75.0, 40.0), (0.0, 0.0)])
+def test_moved_division_is_the_division_by_the_moved_frame_at_whole_shifts(
+        along: float, across: float) -> None:
+    """Whole shifts, past a row's ends and across the first and last rows (they wrap):
+    the LED frame moved by ``LedShift.apply`` (OpenCV's remap, exact at whole shifts)
+    and divided, to the bit."""
+    polar, local = _moved_frames()
+    shift = LedShift.constant(polar.shape[0], along, across)
+    want = flatten_by_reflectance(polar, shift.apply(local), 41, 0.15, 0.15)
+    got = flatten_by_moved_reflectance(polar, local, shift.along, shift.across, 41, 0.15,
+                                       0.15)
+    np.testing.assert_array_equal(got, want)
+    assert np.any(got != 0)
+
+
+def test_moved_division_interpolates_a_shift_varying_along_the_ring() -> None:
+    """Fractional shifts, different on every ray: the moved frame linearly interpolated
+    in both directions (here in float64: the kernel's float32 agrees to 1e-5), and
+    within OpenCV's remap, which rounds each weight to 1/32 of a sample."""
+    polar, local = _moved_frames()
+    n_rays, n = local.shape
+    phi = np.arange(n_rays) * (2 * np.pi / n_rays)
+    shift = LedShift(5.3 + 2.6 * np.cos(phi), 1.7 * np.sin(phi) - 0.4)
+    rows = np.arange(n_rays) + shift.across
+    low = np.floor(rows).astype(int)
+    cols = np.clip(np.arange(n)[None, :] + shift.along[:, None], 0, n - 1)
+    left = np.floor(cols).astype(int)
+    right = np.minimum(left + 1, n - 1)
+    wx, wy = cols - left, (rows - low)[:, None]
+
+    def along_row(r: np.ndarray) -> np.ndarray:
+        row = local.astype(np.float64)[r % n_rays]
+        return (1 - wx) * np.take_along_axis(row, left, 1) + wx * np.take_along_axis(row,
+                                                                                      right, 1)
+
+    moved = ((1 - wy) * along_row(low) + wy * along_row(low + 1)).astype(np.float32)
+    got = flatten_by_moved_reflectance(polar, local, shift.along, shift.across, 41, 0.15,
+                                       0.15)
+    want = flatten_by_reflectance(polar, moved, 41, 0.15, 0.15)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    by_remap = flatten_by_reflectance(polar, shift.apply(local), 41, 0.15, 0.15)
+    assert 0 < np.max(np.abs(got - by_remap)) < 0.05 * np.max(np.abs(want))
     assert np.any(got == 0) and np.any(got != 0)
 
 

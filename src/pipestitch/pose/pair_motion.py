@@ -54,6 +54,7 @@ COARSE = 2               # the first search takes every COARSE-th shift (samples
 # ... and smooths both sides along the ring over this many of its rays, so that a wall
 # also turned by a few rays (a sideways motion, a roll) still correlates
 COARSE_SMOOTH = 5
+BLOCK_SAMPLES = 1 << 20  # LED-frame samples gathered at once (memory stays bounded)
 
 
 def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray,
@@ -92,7 +93,7 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     every = slice(None, None, COARSE)
     rays, at, sectors = rays[every], at[every], sectors[every]
     corr = _correlations(_brightness(laser, rays, at, COARSE_SMOOTH), led, rays, at, sectors,
-                         coarse, 0, COARSE_SMOOTH)
+                         coarse, np.zeros(1, np.int64), COARSE_SMOOTH)[:, 0]
     seen = np.all(np.isfinite(corr), axis=1)
     if np.count_nonzero(seen) < 3:
         return None
@@ -111,9 +112,8 @@ def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarr
     along = np.arange(coarse[best] - half, coarse[best] + half + 1)
     reach = int(np.ceil(WITHIN_MEAN * half / samples_per_ray))   # a turn moves less
     across = np.arange(-reach, reach + 1)
-    line = _brightness(laser, rays, at)   # the same for every turn
-    corr = np.stack([_correlations(line, led, rays, at, sectors, along, turn)
-                     for turn in across], axis=1)                # (sector, across, along)
+    corr = _correlations(_brightness(laser, rays, at), led, rays, at, sectors, along,
+                         across)                                 # (sector, across, along)
     kept, found = _sector_peaks(corr, seen)
     if np.count_nonzero(kept) < 4:   # too few sectors: the ring's mean shift only
         middle = np.unravel_index(np.argmax(weight @ np.nan_to_num(
@@ -205,29 +205,46 @@ def _brightness(laser: np.ndarray, rays: np.ndarray, at: np.ndarray,
 
 
 def _correlations(line: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray,
-                  sectors: np.ndarray, shifts: np.ndarray, turn: int,
+                  sectors: np.ndarray, shifts: np.ndarray, turns: np.ndarray,
                   smooth: int = 1) -> np.ndarray:
-    """(SECTORS, shifts) correlation of the line's brightness along the ring (``line``:
-    :func:`_brightness` with the same ``smooth``) with the LED frame's reflectance along
-    the ring moved by each shift along the rays and by ``turn`` rays (logarithms,
-    high-passed along the ring; the LED frame's ends of a ray repeated beyond it); NaN
-    where a sector has too few rays."""
+    """(SECTORS, turns, shifts) correlation of the line's brightness along the ring
+    (``line``: :func:`_brightness` with the same ``smooth``) with the LED frame's
+    reflectance along the ring moved by each shift along the rays and each turn (rays)
+    across them (logarithms, high-passed along the ring; the LED frame's ends of a ray
+    repeated beyond it); NaN where a sector has too few rays. Every turn and sector at
+    once, in blocks of at most ``BLOCK_SAMPLES`` samples read from the LED frame."""
+    member = np.zeros((rays.size, SECTORS))
+    member[np.arange(rays.size), sectors] = 1.0   # which sector each ring ray is in
+    count = member.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centred = line - (line @ member / count)[sectors]   # each sector's own mean off
+        spread = (centred * centred) @ member / count
+    per_turn = max(1, BLOCK_SAMPLES // (shifts.size * rays.size))
+    out = np.concatenate([_block_correlations(centred, spread, led, rays, at, member, count,
+                                              shifts, turns[i:i + per_turn], smooth)
+                          for i in range(0, turns.size, per_turn)], axis=1)
+    out[count < MIN_SECTOR_RAYS] = np.nan
+    return out
+
+
+def _block_correlations(centred: np.ndarray, spread: np.ndarray, led: np.ndarray,
+                        rays: np.ndarray, at: np.ndarray, member: np.ndarray,
+                        count: np.ndarray, shifts: np.ndarray, turns: np.ndarray,
+                        smooth: int) -> np.ndarray:
+    """:func:`_correlations` for some turns: each sector's sums as one product with the
+    rays' sector membership (``member``, ``count`` rays each), the line's brightness
+    already centred in each sector (``centred``, its variance ``spread``)."""
     n_rays, n = led.shape
     # flat indices: one gather (numpy's two-index gather takes twice as long)
-    index = np.clip(at[None, :] + shifts[:, None], 0, n - 1) + (((rays + turn) % n_rays) * n)
-    wall = _high_pass(np.log(np.maximum(np.take(led, index), F32(1e-6))), smooth)
-    out = np.full((SECTORS, shifts.size), np.nan)
-    for k in range(SECTORS):
-        mine = np.flatnonzero(sectors == k)
-        if mine.size < MIN_SECTOR_RAYS:
-            continue
-        b = line[mine] - line[mine].mean()
-        r = wall[:, mine]
-        mean = r.mean(axis=1)
-        var_r = np.einsum("ij,ij->i", r, r) / mine.size - mean * mean
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[k] = (r @ b) / mine.size / np.sqrt(var_r * (b @ b) / mine.size)
-    return out
+    cols = np.clip(at[None, :] + shifts[:, None], 0, n - 1)
+    index = cols[None] + (((rays[None, :] + turns[:, None]) % n_rays) * n)[:, None, :]
+    wall = _high_pass(np.log(np.maximum(np.take(led, index.reshape(-1, rays.size)),
+                                        F32(1e-6))), smooth).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = wall @ member / count
+        var = (wall * wall) @ member / count - mean * mean
+        corr = ((wall * centred) @ member / count) / np.sqrt(var * spread)
+    return corr.T.reshape(SECTORS, turns.size, shifts.size)
 
 
 def _high_pass(values: np.ndarray, smooth: int = 1) -> np.ndarray:

@@ -28,6 +28,7 @@ from pipestitch.camera import CameraModel
 from pipestitch.imaging import gaussian_blur, mad_sigma, median, scaled_float32
 from pipestitch.pose._ring_kernels import (
     centroids,
+    flatten_by_moved_reflectance,
     flatten_by_reflectance,
     line_widths,
     ridge_peaks,
@@ -377,7 +378,8 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     if shift is None or not shift.moved:
         return replace(found, led_shift_px=math.nan if shift is None else 0.0)
     # the same division, by the LED frame read where the laser frame's wall is
-    moved = flatten_by_reflectance(polar, shift.apply(local), box, 0.15, 0.15)
+    moved = flatten_by_moved_reflectance(polar, local, shift.along, shift.across, box,
+                                         0.15, 0.15)
     return replace(search(moved), led_shift_px=float(np.mean(shift.along)) * step)
 
 

@@ -14,6 +14,7 @@ from pipestitch.mosaic.refine import PRIOR_SIGMA
 from pipestitch.mosaic.register import Link
 from pipestitch.pipeline.pair_timing import (
     laser_instant,
+    laser_instant_poses,
     led_instant_priors,
     led_share,
     pose_vector,
@@ -117,6 +118,71 @@ def test_back_at_the_laser_instant_interpolates_between_led_frames(share: float)
     assert spread == pytest.approx(np.sqrt((1 - s) ** 2 + s**2), rel=0.05)
     spread = np.std(laser_instant(noise, share, average=False)[3])
     assert spread == pytest.approx(np.sqrt((1 + s) ** 2 + s**2), rel=0.05)
+
+
+def _bending_run(share: float, bend: float, sigma: float, seed: int, n: int = 40
+                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], np.ndarray]:
+    """LED-instant poses of a track bending along the run (each parameter a sine of
+    period 32 pairs, amplitude ``bend``) with independent noise ``sigma``, their stated
+    sigmas, and the track at the laser instants (the truth). What a parabola through
+    three poses misses of it is ~(1 + s) / 3 x 2 pi / 32 of the interpolation's error."""
+    rng = np.random.default_rng(seed)
+
+    def track(t: np.ndarray) -> np.ndarray:
+        return bend * np.sin(2 * np.pi * t / 32.0)[:, None] * np.array([1.0, 0.5, 2.0, -1.0])
+
+    frames = np.arange(n, dtype=float)
+    led = track(frames + share) + rng.normal(0.0, sigma, (n, 4))
+    return ({i: led[i] for i in range(n)}, {i: np.full(4, sigma) for i in range(n)},
+            track(frames))
+
+
+@pytest.mark.parametrize("share", [0.5, 0.2, -0.3])
+def test_poses_back_at_the_laser_instant_take_off_the_bend_the_track_shows(share: float
+                                                                           ) -> None:
+    # a track that bends far more than its poses scatter: the parabola through three LED
+    # poses, where the interpolation is s (1 - s) / 2 of the bend off
+    led, sigmas, truth = _bending_run(share, bend=1.0, sigma=1e-4, seed=1)
+    back, std = laser_instant_poses(led, sigmas, share)
+    linear = laser_instant(led, share)
+    inside = range(1, 39)
+    error = np.array([back[i] - truth[i] for i in inside])
+    off = np.array([linear[i] - truth[i] for i in inside])
+    assert np.sqrt(np.mean(error**2)) < 0.15 * np.sqrt(np.mean(off**2))
+    # the stated sigma holds the error left (what the parabola misses, and the noise)
+    ratio = np.abs(error) / np.array([std[i] for i in inside])
+    assert np.median(ratio) < 1.0 and np.max(ratio) < 3.0
+    # ... and not the interpolation's error, which was taken off
+    stated = np.median(np.array([std[i] for i in inside]), axis=0)
+    assert np.all(stated < 0.25 * np.sqrt(np.mean(off**2, axis=0)))
+
+
+@pytest.mark.parametrize("share", [0.5, -0.3])
+def test_poses_back_at_the_laser_instant_interpolate_where_the_noise_hides_a_bend(
+        share: float) -> None:
+    # a straight track: nothing to take off beyond the scatter, the interpolation as it
+    # is; over many runs the stated sigma is not below the scatter of the errors
+    errors, stated = [], []
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        led = {i: np.full(4, 0.3 * (i + share)) + rng.normal(0.0, 0.01, 4) for i in range(12)}
+        sigmas = {i: np.full(4, 0.01) for i in range(12)}
+        back, std = laser_instant_poses(led, sigmas, share)
+        linear = laser_instant(led, share)
+        differs = np.max(np.abs(np.array([back[i] - linear[i] for i in range(1, 11)])))
+        assert differs < 0.01   # at most a share of one scatter: the bend the noise shows
+        errors.append([back[i] - 0.3 * i for i in range(1, 11)])
+        stated.append([std[i] for i in range(1, 11)])
+    scatter = np.std(np.array(errors), axis=(0, 1))
+    assert np.all(np.median(np.array(stated), axis=(0, 1)) >= scatter)
+    assert np.all(np.median(np.array(stated), axis=(0, 1)) < 1.6 * scatter)
+
+
+def test_poses_back_at_the_laser_instant_without_a_share_are_as_refined() -> None:
+    led, sigmas, _ = _bending_run(0.0, bend=1.0, sigma=1e-3, seed=2, n=5)
+    back, std = laser_instant_poses(led, sigmas, 0.0)
+    assert all(np.array_equal(back[i], led[i]) and np.array_equal(std[i], sigmas[i])
+               for i in led)
 
 
 def test_a_frame_alone_or_without_its_neighbours_information_keeps_its_prior() -> None:

@@ -39,8 +39,8 @@ from pipestitch.mosaic.refine import PRIOR_SIGMA, PatchShifts, prior_share
 from pipestitch.mosaic.register import Link
 from pipestitch.pose.ring import ring_centre
 
-__all__ = ["laser_instant", "led_instant_priors", "led_share", "patch_led_share", "pose_vector",
-           "ring_px_per_mm", "same_reference"]
+__all__ = ["laser_instant", "laser_instant_poses", "led_instant_priors", "led_share",
+           "patch_led_share", "pose_vector", "ring_px_per_mm", "same_reference"]
 
 T = TypeVar("T", float, np.ndarray)
 
@@ -217,6 +217,79 @@ def laser_instant(values: Mapping[int, T], share: float, *, average: bool = True
         # moved back: the neighbour's value stands for its ring's (first order)
         out[i] = own * v + other * values[n] if average else v - other * (values[n] - v)
     return out
+
+
+def laser_instant_poses(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
+                        share: float) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """Refined poses ((alpha, beta, dx, dy): :func:`pose_vector`) and their one-sigma
+    uncertainties (NaN where not known) at the laser frames' instants, from those at the
+    LED frames'.
+
+    Each pose is interpolated between its own LED frame's and its neighbour's
+    (:func:`laser_instant`), which leaves ``s (1 - s) / 2`` of the track's second
+    difference there (``s = |share|``: the bend of a smooth track). Where both its
+    neighbours were refined, that bend is taken off as far as the run's track shows one
+    beyond the poses' own scatter: per parameter, the mean square of the track's second
+    differences less what the stated uncertainties explain is the bend's variance
+    ``B`` (:func:`_track_bend`), and each frame's second difference is taken off scaled
+    by ``B / (B + N)``, ``N`` its noise variance: all of it where the track bends far more
+    than the poses scatter (the offsets of a probe wandering across the pipe), none where
+    the scatter hides the bend (the minimum-variance blend of the interpolation and the
+    parabola through the three LED poses). The stated sigma: the poses' sigmas through
+    the weights as if their errors were one (neighbours refined together share much of
+    theirs: the bound whatever their correlation), the bend the interpolation leaves, and
+    what the parabola misses (``s (1 - s^2) / 6`` of the track's third difference, whose
+    variance beyond the scatter is measured as the bend's).
+    """
+    s = abs(share)
+    out, std = dict(poses), dict(sigmas)
+    if s == 0:
+        return out, std
+    bend, noise = _track_bend(poses, sigmas)
+    turn = _track_bend(poses, sigmas, order=3)[0]   # what a parabola misses
+    with np.errstate(invalid="ignore", divide="ignore"):
+        keep = np.where(bend > 0, bend / (bend + noise), 0.0)
+    half = s * (1 - s) / 2
+    for i in poses:
+        found = _instant_weights(i, poses, -share)
+        if found is None:
+            continue
+        own, other, n = found
+        weights = {i: np.full(4, own), n: np.full(4, other)}
+        left = half if other > 0 else s * (1 + s) / 2   # extrapolated at the run's end
+        if i - 1 in poses and i + 1 in poses:
+            for j, c in ((i - 1, 1.0), (i, -2.0), (i + 1, 1.0)):
+                weights[j] = weights.get(j, 0.0) - keep * half * c
+            left = np.hypot((1 - keep) * half * np.sqrt(bend),
+                            keep * s * (1 - s * s) / 6 * np.sqrt(turn))
+        else:
+            left = left * np.sqrt(bend)
+        out[i] = sum(w * poses[j] for j, w in weights.items())
+        scatter = sum(np.abs(w) * sigmas[j] for j, w in weights.items())
+        std[i] = np.hypot(scatter, left)
+    return out, std
+
+
+def _track_bend(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
+                order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Per parameter: the variance of the track's difference of ``order`` (2: its bend,
+    3: how the bend changes) beyond what the poses' sigmas explain (0 where they explain
+    it all, or where no ``order + 1`` consecutive frames have poses), and the mean noise
+    variance of such a difference."""
+    taps = np.array([math.comb(order, k) * (-1) ** k for k in range(order + 1)], float)
+    rows = [(sum(c * poses[i + k] for k, c in enumerate(taps)),
+             sum(c * c * sigmas[i + k] ** 2 for k, c in enumerate(taps)))
+            for i in poses if all(i + k in poses for k in range(order + 1))]
+    if not rows:
+        return np.zeros(4), np.zeros(4)
+    difference, noise = (np.array(r) for r in zip(*rows, strict=True))
+    finite = np.isfinite(noise) & np.isfinite(difference)
+    count = np.count_nonzero(finite, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        square = np.where(finite, difference ** 2, 0.0).sum(axis=0) / count
+        expected = np.where(finite, noise, 0.0).sum(axis=0) / count
+    excess = np.where(count > 0, np.maximum(square - expected, 0.0), 0.0)
+    return excess, np.where(count > 0, expected, 0.0)
 
 
 def same_reference(moved: Mapping[int, float], before: Mapping[int, float],

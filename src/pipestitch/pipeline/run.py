@@ -36,7 +36,12 @@ from pipestitch.mosaic.register import Link
 from pipestitch.pipeline.coding import CodedRun, code_run
 from pipestitch.pipeline.frame_cache import DEFAULT_BUDGET_BYTES, CachedLedFrames
 from pipestitch.pipeline.measuring import write_defects_csv
-from pipestitch.pipeline.pair_timing import laser_instant, pose_vector, same_reference
+from pipestitch.pipeline.pair_timing import (
+    laser_instant,
+    laser_instant_poses,
+    pose_vector,
+    same_reference,
+)
 from pipestitch.pipeline.posing import (
     INFEASIBLE_SIGMAS,
     OVAL_TILT_WARNING,
@@ -263,18 +268,26 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     laser frame's instant where the LED frames were taken ``share`` of a step later or
     earlier: :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
     led = {i: pose_vector(v.pose) for i, v in views.items() if v.refined}
-    back = laser_instant(led, share)
+    stated = {f.index: _refined_std(views[f.index], h.stated_std)
+              for f, _, h in _chosen(frames, choices) if f.index in led}
+    back, back_std = laser_instant_poses(
+        led, {i: np.array([stated.get(i, {}).get(k, math.nan) for k in PARAMS[:4]])
+              for i in led}, share)
     # only the poses that are the LED frames' move (not a frame whose refinement kept
     # its ring's pose, nor one whose ring had no neighbour to move its prior)
-    refined = {i: back[i] if views[i].led_delta is not None else v for i, v in led.items()}
+    moved = {i for i in led if views[i].led_delta is not None}
     out = []
     for frame, choice in zip(frames, choices, strict=True):
         view = views.get(frame.index)
         if view is not None and view.refined and choice.chosen is not None:
             hyps = list(frame.fit.hypotheses)
             h = hyps[choice.chosen]
-            h = replace(h, pose=Pose(*refined[frame.index]),
-                        std_override=_refined_std(view, h.stated_std))
+            i = frame.index
+            std = stated.get(i, {})
+            if i in moved and std and np.all(np.isfinite(back_std[i])):
+                std = dict(zip(PARAMS[:4], map(float, back_std[i]), strict=True))
+            h = replace(h, pose=Pose(*(back[i] if i in moved else led[i])),
+                        std_override=std)
             model = frame.fit.model
             if view.measured is not None:  # the section fitted at the refined tilt
                 m = view.measured

@@ -72,19 +72,28 @@ def command(kind: str, verb: str, data: Path, out: Path) -> None:
         raise SystemExit(f"{verb} {data} ({kind}) failed:\n{done.stdout}{done.stderr}")
 
 
-def errors(data: Path, poses_csv: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: the tilt error of the hypothesis nearer the truth (deg), and the z
-    error (mm; nan where the file has none)."""
+def errors(data: Path, poses_csv: Path) -> dict[str, np.ndarray]:
+    """Per frame, of the hypothesis nearer the truth in tilt: the tilt error (deg), the
+    offset error (mm, the larger of dx and dy), the largest |error| / stated sigma of
+    the four pose parameters; and the z error (mm; nan where the file has none)."""
     with (data / "truth" / "poses.csv").open(newline="") as fh:
         truth = {r["frame"]: r for r in csv.DictReader(fh)}
-    tilt, z = [], []
+    found: dict[str, list[float]] = {"tilt": [], "offset": [], "sigmas": [], "z": []}
     with poses_csv.open(newline="") as fh:
         for row in csv.DictReader(fh):
             true = truth[row["frame"]]
-            tilt.append(min(max(abs(float(row[p + k]) - float(true[k]))
-                                for k in ("alpha_deg", "beta_deg")) for p in ("", "alt_")))
-            z.append(float(row["z_mm"]) - float(true["z_mm"]))
-    return np.array(tilt), np.array(z)
+            error = {p: {k: float(row[p + k]) - float(true[k]) for k in POSE} for p in ("", "alt_")}
+            p = min(error, key=lambda q: max(abs(error[q][k]) for k in POSE[:2]))
+            found["tilt"].append(max(abs(error[p][k]) for k in POSE[:2]))
+            found["offset"].append(max(abs(error[p][k]) for k in POSE[2:]))
+            found["sigmas"].append(max(abs(error[p][k]) / float(row[s])
+                                       for k, s in zip(POSE, SIGMA, strict=True)))
+            found["z"].append(float(row["z_mm"]) - float(true["z_mm"]))
+    return {k: np.array(v) for k, v in found.items()}
+
+
+POSE = ("alpha_deg", "beta_deg", "dx_mm", "dy_mm")
+SIGMA = ("alpha_std_deg", "beta_std_deg", "dx_std_mm", "dy_std_mm")
 
 
 def cell(values: np.ndarray) -> str:
@@ -96,10 +105,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="one small run (smoke test)")
     args = parser.parse_args()
     print("tilt error (deg, the hypothesis nearer the truth): median / max over the frames; "
-          "run's z errors' spread about their mean (mm); the share run measured and what "
-          "told it")
+          "run's offset error (mm, the larger of dx and dy), median; run's largest "
+          "|error| / stated sigma of a frame's four pose parameters, median; run's z "
+          "errors' spread about their mean (mm); the share run measured and what told it")
     print(f"{'run':<22} {'share':>5}  {'pose ours':>15} {'pose unaware':>15}  "
-          f"{'run ours':>15} {'run unaware':>15}  {'z ours':>7} {'z unaw.':>7}  measured")
+          f"{'run ours':>15} {'run unaware':>15}  {'off ours':>8} {'unaw.':>6}  "
+          f"{'e/s ours':>8} {'unaw.':>6}  {'z ours':>7} {'z unaw.':>7}  measured")
     with tempfile.TemporaryDirectory() as tmp:
         for k, (scenario, seed, pairs, share) in enumerate(QUICK if args.quick else RUNS):
             data = Path(tmp) / f"data{k}"
@@ -113,13 +124,14 @@ def main() -> None:
             said = (Path(tmp) / f"run_ours_{k}" / "problems.csv").read_text()
             measured = re.search(r"taken ([\d.]+) of a step \(([\d.]+) mm\) (\w+)", said)
             told = "overlaps" if "LED frames' overlaps" in said else "line"
-            z = {kind: np.std(found[(kind, "run")][1]) for kind in ("ours", "unaware")}
+            ours, unaware = found[("ours", "run")], found[("unaware", "run")]
             print(f"{f'{scenario} (seed {seed})':<22} {share:>5.1f}  "
-                  f"{cell(found[('ours', 'pose')][0]):>15} "
-                  f"{cell(found[('unaware', 'pose')][0]):>15}  "
-                  f"{cell(found[('ours', 'run')][0]):>15} "
-                  f"{cell(found[('unaware', 'run')][0]):>15}  "
-                  f"{z['ours']:7.3f} {z['unaware']:7.3f}  "
+                  f"{cell(found[('ours', 'pose')]['tilt']):>15} "
+                  f"{cell(found[('unaware', 'pose')]['tilt']):>15}  "
+                  f"{cell(ours['tilt']):>15} {cell(unaware['tilt']):>15}  "
+                  f"{np.median(ours['offset']):8.3f} {np.median(unaware['offset']):6.3f}  "
+                  f"{np.median(ours['sigmas']):8.2f} {np.median(unaware['sigmas']):6.2f}  "
+                  f"{np.std(ours['z']):7.3f} {np.std(unaware['z']):7.3f}  "
                   + (" ".join([*measured.groups(), told]) if measured else "-"), flush=True)
 
 

@@ -20,7 +20,7 @@ the wall under the laser line cannot tell, the LED frames' overlaps do
 (:func:`patch_led_share`). The refinement's prior is then the ring poses interpolated
 at that share, and the refined poses (the LED frames') are taken back to the laser
 frames' instants for the poses the output states (as the ring measures them:
-:func:`laser_instant`).
+:func:`laser_instant_poses`; z and roll: :func:`laser_instant`).
 
 Pure: views, links and poses in, priors and poses out.
 """

@@ -266,7 +266,8 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
                   views: dict[int, FrameView], share: float) -> list[FramePose]:
     """Frames whose chosen hypothesis carries the photometrically refined pose (at the
     laser frame's instant where the LED frames were taken ``share`` of a step later or
-    earlier: :func:`pipestitch.pipeline.pair_timing.laser_instant`)."""
+    earlier, with the sigma that holds what taking it there leaves:
+    :func:`pipestitch.pipeline.pair_timing.laser_instant_poses`)."""
     led = {i: pose_vector(v.pose) for i, v in views.items() if v.refined}
     stated = {f.index: _refined_std(views[f.index], h.stated_std)
               for f, _, h in _chosen(frames, choices) if f.index in led}

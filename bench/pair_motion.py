@@ -47,6 +47,7 @@ import pipestitch.pose.ring as ring
 ring._led_shift = lambda *args: None
 stitching.led_share = lambda *args: 0.0
 run.laser_instant = lambda values, share, **_: dict(values)
+run.laser_instant_poses = lambda poses, sigmas, share, **_: (dict(poses), dict(sigmas))
 from pipestitch.cli.app import app
 app(sys.argv[1:])
 """
@@ -75,7 +76,8 @@ def command(kind: str, verb: str, data: Path, out: Path) -> None:
 def errors(data: Path, poses_csv: Path) -> dict[str, np.ndarray]:
     """Per frame, of the hypothesis nearer the truth in tilt: the tilt error (deg), the
     offset error (mm, the larger of dx and dy), the largest |error| / stated sigma of
-    the four pose parameters; and the z error (mm; nan where the file has none)."""
+    the four pose parameters (the sigma poses.csv states, the chosen hypothesis's); and
+    the z error (mm; nan where the file has none)."""
     with (data / "truth" / "poses.csv").open(newline="") as fh:
         truth = {r["frame"]: r for r in csv.DictReader(fh)}
     found: dict[str, list[float]] = {"tilt": [], "offset": [], "sigmas": [], "z": []}

@@ -38,6 +38,13 @@ def signatures():
 
 
 before = signatures()
+import pipestitch.pose.ring as ring
+moved = []   # the ring search's second pass (frames that moved between a pair's two)
+kernel = ring.flatten_by_moved_reflectance
+def counted(*args):
+    moved.append(1)
+    return kernel(*args)
+ring.flatten_by_moved_reflectance = counted
 from pipestitch.cli import main
 sys.argv = ["pipestitch", "run", sys.argv[2], "--out", sys.argv[3], "-q"]
 try:
@@ -46,8 +53,8 @@ except SystemExit as stop:
     if stop.code:
         raise
 after = signatures()
-print(json.dumps({k: sorted(v - before.get(k, set())) for k, v in after.items()
-                  if v - before.get(k, set())}))
+print(json.dumps({"added": {k: sorted(v - before.get(k, set())) for k, v in after.items()
+                            if v - before.get(k, set())}, "second_pass": len(moved)}))
 """
 
 
@@ -102,7 +109,9 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", CHILD, str(SCRIPT), str(data), str(out)],
                           capture_output=True, text=True, timeout=900, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    added = json.loads(proc.stdout.strip().splitlines()[-1])
+    found = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert found["second_pass"] > 0, "no frame took the ring search's second pass"
+    added = found["added"]
     assert added == {}, f"compiled at run time, not by scripts/compile_kernels.py: {added}"
 
 

@@ -114,6 +114,8 @@ def test_run_refines_the_led_frames_poses_and_states_the_laser_frames(
     ours, z = _run_errors(moving, tmp_path / "ours")
     monkeypatch.setattr(stitching, "led_share", lambda *args: 0.0)   # as if taken together
     monkeypatch.setattr(run, "laser_instant", lambda values, share, **_: dict(values))
+    monkeypatch.setattr(run, "laser_instant_poses",
+                        lambda poses, sigmas, share, **_: (dict(poses), dict(sigmas)))
     unaware, z_unaware = _run_errors(moving, tmp_path / "unaware")
     # measured: tilt 0.011 / 0.016 deg (median / max) taken together; 0.019 / 0.041 here
     # (0.020-0.030 with the LED frames at the straight-line mean of two pairs'); 0.28-0.49 with

@@ -131,7 +131,7 @@ def test_the_correlations_are_each_sectors_pearson_coefficient(
     numpy's correlation coefficient of the same samples; a sector with too few rays
     is NaN."""
     laser, led, rays, at = _pair(np.full(N_RAYS, 9.0), np.zeros(N_RAYS), seed=5)
-    keep = (rays < 700) | (rays % 97 == 0)   # sectors 4-7 keep too few rays but one
+    keep = (rays < 700) | (rays % 97 == 0)   # sectors 4-7: a ray or two each, too few
     rays, at = rays[keep], at[keep]
     sectors = rays * pm.SECTORS // N_RAYS
     shifts, turns = np.arange(-3, 12), np.arange(-2, 3)

@@ -59,12 +59,13 @@ def _moved_frames(n_rays: int = 37, n: int = 60) -> tuple[np.ndarray, np.ndarray
     return polar, local
 
 
-@pytest.mark.parametrize(("along", "across"), [(7.0, -2.0), (-75.0, 40.0), (0.0, 0.0)])
+@pytest.mark.parametrize(("along", "across"), [(7.0, -2.0), (-45.0, 3.0), (20.0, -30.0),
+                                               (0.0, 0.0)])
 def test_moved_division_is_the_division_by_the_moved_frame_at_whole_shifts(
         along: float, across: float) -> None:
-    """Whole shifts, past a row's ends and across the first and last rows (they wrap):
-    the LED frame moved by ``LedShift.apply`` (OpenCV's remap, exact at whole shifts)
-    and divided, to the bit."""
+    """Whole shifts, out past a row's end and in past its start (most of a row), before
+    the first row and past the last (rows wrap): the LED frame moved by
+    ``LedShift.apply`` (OpenCV's remap, exact at whole shifts) and divided, to the bit."""
     polar, local = _moved_frames()
     shift = LedShift.constant(polar.shape[0], along, across)
     want = flatten_by_reflectance(polar, shift.apply(local), 41, 0.15, 0.15)
@@ -75,13 +76,14 @@ def test_moved_division_is_the_division_by_the_moved_frame_at_whole_shifts(
 
 
 def test_moved_division_interpolates_a_shift_varying_along_the_ring() -> None:
-    """Fractional shifts, different on every ray: the moved frame linearly interpolated
-    in both directions (here in float64: the kernel's float32 agrees to 1e-5), and
-    within OpenCV's remap, which rounds each weight to 1/32 of a sample."""
+    """Fractional shifts, different on every ray, inward and outward, the last rays
+    reading past the last row (they wrap): the moved frame linearly interpolated in both
+    directions (here in float64: the kernel's float32 agrees to 1e-5), and within
+    OpenCV's remap, which rounds each weight to 1/32 of a sample."""
     polar, local = _moved_frames()
     n_rays, n = local.shape
     phi = np.arange(n_rays) * (2 * np.pi / n_rays)
-    shift = LedShift(5.3 + 2.6 * np.cos(phi), 1.7 * np.sin(phi) - 0.4)
+    shift = LedShift(-1.3 + 6.6 * np.cos(phi), 1.7 * np.sin(phi) + 0.4)
     rows = np.arange(n_rays) + shift.across
     low = np.floor(rows).astype(int)
     cols = np.clip(np.arange(n)[None, :] + shift.along[:, None], 0, n - 1)

@@ -28,7 +28,7 @@ Pure: views, links and poses in, priors and poses out.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import TypeVar
 
 import numpy as np
@@ -220,35 +220,37 @@ def laser_instant(values: Mapping[int, T], share: float, *, average: bool = True
 
 
 def laser_instant_poses(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
-                        share: float) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+                        share: float, track: Collection[int] | None = None
+                        ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
     """Refined poses ((alpha, beta, dx, dy): :func:`pose_vector`) and their one-sigma
     uncertainties (NaN where not known) at the laser frames' instants, from those at the
-    LED frames'.
+    LED frames' (``track``: the frames whose poses are the LED frames', default all).
 
     Each pose is interpolated between its own LED frame's and its neighbour's
-    (:func:`laser_instant`), which leaves ``s (1 - s) / 2`` of the track's second
+    (:func:`laser_instant`), which leaves ``h = s (1 - s) / 2`` of the track's second
     difference there (``s = |share|``: the bend of a smooth track). Where both its
-    neighbours were refined, that bend is taken off as far as the run's track shows one
-    beyond the poses' own scatter: per parameter, the mean square of the track's second
-    differences less what the stated uncertainties explain is the bend's variance
-    ``B`` (:func:`_track_bend`), and each frame's second difference is taken off scaled
-    by ``B / (B + N)``, ``N`` its noise variance: all of it where the track bends far more
-    than the poses scatter (the offsets of a probe wandering across the pipe), none where
-    the scatter hides the bend (the minimum-variance blend of the interpolation and the
-    parabola through the three LED poses). The stated sigma: the poses' sigmas through
-    the weights as if their errors were one (neighbours refined together share much of
-    theirs: the bound whatever their correlation), the bend the interpolation leaves, and
-    what the parabola misses (``s (1 - s^2) / 6`` of the track's third difference, whose
-    variance beyond the scatter is measured as the bend's).
+    neighbours have poses, a share ``k`` of that second difference is taken off, per
+    parameter: the share of least expected square error, ``(B + C / h) / (B + N)``
+    clipped to [0, 1] (between the interpolation and the parabola through the three LED
+    poses), where ``B`` is the variance of the track's second differences beyond what
+    the stated uncertainties explain (:func:`_track_bend`, over ``track``), ``N`` the
+    frame's second difference's noise variance and ``C`` its covariance with the
+    interpolation's noise (the poses' errors taken as independent): all of it where the
+    track bends far more than the poses scatter (the offsets of a probe wandering across
+    the pipe), none where the scatter hides the bend. The stated sigma: the poses'
+    sigmas through the weights as if their errors were one (neighbours refined together
+    share much of theirs: the bound whatever their correlation), the bend left (``(1 -
+    k) h`` of it, ``s (1 + s) / 2`` where extrapolated at the run's end), and what the
+    parabola misses (``s (1 - s^2) / 6`` of the track's third difference, its variance
+    beyond the scatter measured as the bend's).
     """
     s = abs(share)
     out, std = dict(poses), dict(sigmas)
     if s == 0:
         return out, std
-    bend, noise = _track_bend(poses, sigmas)
-    turn = _track_bend(poses, sigmas, order=3)[0]   # what a parabola misses
-    with np.errstate(invalid="ignore", divide="ignore"):
-        keep = np.where(bend > 0, bend / (bend + noise), 0.0)
+    on_track = poses if track is None else {i: poses[i] for i in track if i in poses}
+    bend = _track_bend(on_track, sigmas)
+    turn = _track_bend(on_track, sigmas, order=3)   # what a parabola misses
     half = s * (1 - s) / 2
     for i in poses:
         found = _instant_weights(i, poses, -share)
@@ -256,40 +258,55 @@ def laser_instant_poses(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np
             continue
         own, other, n = found
         weights = {i: np.full(4, own), n: np.full(4, other)}
-        left = half if other > 0 else s * (1 + s) / 2   # extrapolated at the run's end
+        left = (half if other > 0 else s * (1 + s) / 2) * np.sqrt(bend)
         if i - 1 in poses and i + 1 in poses:
+            keep = _bend_share(weights, {i + d: sigmas[i + d] for d in (-1, 0, 1)}, bend,
+                               half, i)
             for j, c in ((i - 1, 1.0), (i, -2.0), (i + 1, 1.0)):
                 weights[j] = weights.get(j, 0.0) - keep * half * c
-            left = np.hypot((1 - keep) * half * np.sqrt(bend),
-                            keep * s * (1 - s * s) / 6 * np.sqrt(turn))
-        else:
-            left = left * np.sqrt(bend)
+            left = np.hypot((1 - keep) * left, keep * s * (1 - s * s) / 6 * np.sqrt(turn))
         out[i] = sum(w * poses[j] for j, w in weights.items())
-        scatter = sum(np.abs(w) * sigmas[j] for j, w in weights.items())
+        # a frame of weight 0 (the unused neighbour of a parameter kept as interpolated)
+        # adds nothing, not even an unknown sigma
+        scatter = sum(np.where(w != 0, np.abs(w) * sigmas[j], 0.0)
+                      for j, w in weights.items())
         std[i] = np.hypot(scatter, left)
     return out, std
 
 
+def _bend_share(weights: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
+                bend: np.ndarray, half: float, i: int) -> np.ndarray:
+    """Per parameter, the share of frame ``i``'s second difference taken off its
+    interpolation (``weights``) that minimises the expected square error, in [0, 1]:
+    ``(B + C / h) / (B + N)`` (:func:`laser_instant_poses`); 0 where not known."""
+    variance = {j: sigmas[j] ** 2 for j in (i - 1, i, i + 1)}
+    noise = variance[i - 1] + 4 * variance[i] + variance[i + 1]
+    shared = sum(weights.get(j, 0.0) * c * variance[j]
+                 for j, c in ((i - 1, 1.0), (i, -2.0), (i + 1, 1.0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        keep = (bend + shared / half) / (bend + noise)
+    return np.where(np.isfinite(keep), np.clip(keep, 0.0, 1.0), 0.0)
+
+
 def _track_bend(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
-                order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                order: int = 2) -> np.ndarray:
     """Per parameter: the variance of the track's difference of ``order`` (2: its bend,
-    3: how the bend changes) beyond what the poses' sigmas explain (0 where they explain
-    it all, or where no ``order + 1`` consecutive frames have poses), and the mean noise
-    variance of such a difference."""
+    3: how the bend changes) beyond what the poses' sigmas explain (their noise taken as
+    independent; 0 where they explain it all, or where no ``order + 1`` consecutive
+    frames have poses with sigmas)."""
     taps = np.array([math.comb(order, k) * (-1) ** k for k in range(order + 1)], float)
     rows = [(sum(c * poses[i + k] for k, c in enumerate(taps)),
              sum(c * c * sigmas[i + k] ** 2 for k, c in enumerate(taps)))
             for i in poses if all(i + k in poses for k in range(order + 1))]
     if not rows:
-        return np.zeros(4), np.zeros(4)
+        return np.zeros(4)
     difference, noise = (np.array(r) for r in zip(*rows, strict=True))
     finite = np.isfinite(noise) & np.isfinite(difference)
     count = np.count_nonzero(finite, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         square = np.where(finite, difference ** 2, 0.0).sum(axis=0) / count
         expected = np.where(finite, noise, 0.0).sum(axis=0) / count
-    excess = np.where(count > 0, np.maximum(square - expected, 0.0), 0.0)
-    return excess, np.where(count > 0, expected, 0.0)
+    return np.where(count > 0, np.maximum(square - expected, 0.0), 0.0)
 
 
 def same_reference(moved: Mapping[int, float], before: Mapping[int, float],

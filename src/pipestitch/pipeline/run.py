@@ -271,12 +271,13 @@ def _with_refined(frames: list[FramePose], choices: list[Choice],
     led = {i: pose_vector(v.pose) for i, v in views.items() if v.refined}
     stated = {f.index: _refined_std(views[f.index], h.stated_std)
               for f, _, h in _chosen(frames, choices) if f.index in led}
+    # only the poses that are the LED frames' move (not a frame whose refinement kept
+    # its ring's pose, nor one whose ring had no neighbour to move its prior), and only
+    # they say how the LED frames' track bends
+    moved = {i for i in led if views[i].led_delta is not None}
     back, back_std = laser_instant_poses(
         led, {i: np.array([stated.get(i, {}).get(k, math.nan) for k in PARAMS[:4]])
-              for i in led}, share)
-    # only the poses that are the LED frames' move (not a frame whose refinement kept
-    # its ring's pose, nor one whose ring had no neighbour to move its prior)
-    moved = {i for i in led if views[i].led_delta is not None}
+              for i in led}, share, track=moved)
     out = []
     for frame, choice in zip(frames, choices, strict=True):
         view = views.get(frame.index)

@@ -206,8 +206,9 @@ def laser_instant(values: Mapping[int, T], share: float, *, average: bool = True
     speed between pairs and changes it at the laser frames. The refined poses, whose
     noise is the larger part of their error, are averaged (a smaller median tilt error
     on seven of eight simulated runs along smooth tracks, up to 2.8 times:
-    docs/benchmarks.md); z and roll, which registration measures to microns and
-    hundredths of a degree, are moved back."""
+    docs/benchmarks.md), and the track's bend taken off as far as it shows
+    (:func:`laser_instant_poses`); z and roll, which registration measures to microns
+    and hundredths of a degree, are moved back."""
     out = dict(values)
     for i, v in values.items():
         weights = _instant_weights(i, values, -share if average else share)
@@ -260,10 +261,9 @@ def laser_instant_poses(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np
         weights = {i: np.full(4, own), n: np.full(4, other)}
         left = (half if other > 0 else s * (1 + s) / 2) * np.sqrt(bend)
         if i - 1 in poses and i + 1 in poses:
-            keep = _bend_share(weights, {i + d: sigmas[i + d] for d in (-1, 0, 1)}, bend,
-                               half, i)
-            for j, c in ((i - 1, 1.0), (i, -2.0), (i + 1, 1.0)):
-                weights[j] = weights.get(j, 0.0) - keep * half * c
+            keep = _bend_share(weights, sigmas, bend, half, i)
+            for d, c in SECOND_DIFFERENCE:
+                weights[i + d] = weights.get(i + d, 0.0) - keep * half * c
             left = np.hypot((1 - keep) * left, keep * s * (1 - s * s) / 6 * np.sqrt(turn))
         out[i] = sum(w * poses[j] for j, w in weights.items())
         # a frame of weight 0 (the unused neighbour of a parameter kept as interpolated)
@@ -274,15 +274,17 @@ def laser_instant_poses(poses: Mapping[int, np.ndarray], sigmas: Mapping[int, np
     return out, std
 
 
+SECOND_DIFFERENCE = ((-1, 1.0), (0, -2.0), (1, 1.0))   # (frame offset, tap) about a frame
+
+
 def _bend_share(weights: Mapping[int, np.ndarray], sigmas: Mapping[int, np.ndarray],
                 bend: np.ndarray, half: float, i: int) -> np.ndarray:
     """Per parameter, the share of frame ``i``'s second difference taken off its
     interpolation (``weights``) that minimises the expected square error, in [0, 1]:
     ``(B + C / h) / (B + N)`` (:func:`laser_instant_poses`); 0 where not known."""
-    variance = {j: sigmas[j] ** 2 for j in (i - 1, i, i + 1)}
-    noise = variance[i - 1] + 4 * variance[i] + variance[i + 1]
-    shared = sum(weights.get(j, 0.0) * c * variance[j]
-                 for j, c in ((i - 1, 1.0), (i, -2.0), (i + 1, 1.0)))
+    variance = {d: sigmas[i + d] ** 2 for d, _ in SECOND_DIFFERENCE}
+    noise = sum(c * c * variance[d] for d, c in SECOND_DIFFERENCE)
+    shared = sum(weights.get(i + d, 0.0) * c * variance[d] for d, c in SECOND_DIFFERENCE)
     with np.errstate(invalid="ignore", divide="ignore"):
         keep = (bend + shared / half) / (bend + noise)
     return np.where(np.isfinite(keep), np.clip(keep, 0.0, 1.0), 0.0)

@@ -502,8 +502,8 @@ def test_the_run_imports_matplotlib_only_to_draw_the_report() -> None:
     """The run's modules load without matplotlib (its import is ~0.25 s of every start),
     without PyAV (only a video needs it), without scipy.stats and scipy.signal (~0.5 s
     and 30 MB) and without scipy.optimize (~0.15 s; the section fit's rare fallback
-    imports it); the report's first figure (:func:`pipestitch.report.html.agg_pyplot`)
-    loads matplotlib."""
+    imports it); the report's first figure (:func:`pipestitch.report.html.agg_pyplot`,
+    which a run calls beside its pose pass) loads matplotlib."""
     import subprocess
     import sys
 

@@ -84,9 +84,11 @@ from pipestitch.report.html import (
     TABLES,
     FrameRow,
     ReportData,
+    agg_pyplot,
     draw_track_figures,
     render_report,
 )
+from pipestitch.report.review_page import REVIEW_NAME
 from pipestitch.standards.roll_reference import imu_roll_offset
 
 __all__ = ["RunSummary", "run_dataset"]
@@ -658,6 +660,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
     ahead = ThreadPoolExecutor(max_workers=1)
     try:
         occluders = _occluders_ahead(ahead, dataset, settings, timer, in_order, declared)
+        # The report's plotting library, imported while the poses are fitted: a third of
+        # a second of the run's last stretch on one core otherwise.
+        ahead.submit(agg_pyplot)
         frames, choices = _poses(dataset, refits, show_progress, settings.workers, timer,
                                  rings, declared)
         if rings.problem:
@@ -701,7 +706,9 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
                                     dataset.config.laser.plane_distance_mm, tolerance_pct,
                                     {i for i, v in result.views.items() if v.profile is not None})
     rows = _frame_rows(frames, choices, z)
-    tail = ThreadPoolExecutor(max_workers=1)
+    # Two threads: the plots (one thread at a time draws with pyplot) beside the PNG
+    # encoding of mosaic.png and then the review page.
+    tail = ThreadPoolExecutor(max_workers=2)
     try:
         # the pose and profile plots need only the rows: drawn while the outputs are written
         track_figures = tail.submit(draw_track_figures, ReportData(
@@ -740,7 +747,7 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
             data.defects = coded.defects if coded is not None and result is not None else defects
             data.tolerance_pct = tolerance_pct
             data.standards = coded.report_view() if coded is not None else None
-            _write_report(out, data, result is not None)
+            _write_report(out, data, result is not None, tail)
         if png is not None:
             png.result()
         return summary
@@ -752,13 +759,18 @@ def _run(dataset: Dataset, out: Path, settings: MosaicSettings, show_progress: b
         tail.shutdown(wait=True)
 
 
-def _write_report(out: Path, data: ReportData, with_mosaic: bool) -> None:
-    """report.html, the problems it lists as problems.csv beside it, and review.html."""
+def _write_report(out: Path, data: ReportData, with_mosaic: bool,
+                  pool: ThreadPoolExecutor) -> None:
+    """report.html, the problems it lists as problems.csv beside it, and review.html
+    (written by ``pool`` while the report is rendered: it reads the outputs written
+    before, not the report; its error, if any, is raised here)."""
     write_csv(out / PROBLEMS_CSV, ("frame", "problem"), data.problems)
-    if with_mosaic:
-        data.review_href = write_review_page(out, data.mosaic).name
+    review = pool.submit(write_review_page, out, data.mosaic) if with_mosaic else None
+    data.review_href = REVIEW_NAME if with_mosaic else None
     data.tables = [name for name, _ in TABLES if (out / name).is_file()]
     atomic_write_text(out / "report.html", render_report(data))
+    if review is not None:
+        review.result()
 
 
 def _coded(out: Path, dataset: Dataset, crown_deg: float | None,

@@ -68,6 +68,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._unwrap_kernels", "contrast_of", "f4:2 f4:2 f4:2 f4:2"),
     ("mosaic._noise_kernels", "contrast_fields", "f4:2 f4:2 f4:2 f8 f8 i8"),
     ("mosaic._occluder_kernels", "quantile_over_frames", "f4:3 f8 b1"),
+    ("mosaic._occluder_kernels", "variance_over_frames", "f4:3 i8"),
     ("mosaic._register_kernels", "cross_power_ccs", "f4:2 f4:2"),
     ("mosaic._register_kernels", "weighted_peak", "f4:2 f4:1 f4:1 f8"),
     ("mosaic._register_kernels", "gradient_moments", "f4:2 f4:2"),

@@ -1,11 +1,11 @@
-"""The compiled frame-stack quantile against numpy's quantile."""
+"""The compiled frame-stack quantile and variance against numpy's."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipestitch.mosaic._occluder_kernels import quantile_over_frames
+from pipestitch.mosaic._occluder_kernels import quantile_over_frames, variance_over_frames
 
 RNG = np.random.default_rng(7)
 
@@ -20,3 +20,15 @@ def test_frame_quantiles_are_numpy_quantiles(n: int, q: float) -> None:
     quant, med = quantile_over_frames(stack, n * q + (1 - q) - 1, True)
     np.testing.assert_array_equal(quant, np.quantile(stack, q, axis=0))
     np.testing.assert_array_equal(med, np.median(stack, axis=0))
+
+
+@pytest.mark.parametrize("n", [2, 3, 5, 11, 12])
+@pytest.mark.parametrize("ddof", [0, 1])
+def test_frame_variances_are_numpy_variances_to_the_bit(n: int, ddof: int) -> None:
+    """Values of very different scales (a dark sensor's thousandths, 8-bit counts) and a
+    constant pixel: every rounding of numpy's float32 sums and float64 divisions."""
+    scale = RNG.choice(np.array([1e-3, 1.0, 255.0], np.float32), size=(n, 17, 23))
+    stack = (RNG.random((n, 17, 23)).astype(np.float32) * scale).astype(np.float32)
+    stack[:, 3, 4] = 0.25
+    np.testing.assert_array_equal(variance_over_frames(stack, ddof),
+                                  np.var(stack, axis=0, ddof=ddof))

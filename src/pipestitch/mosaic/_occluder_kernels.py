@@ -1,8 +1,9 @@
-"""Compiled quantile over a stack of frames (numba), for the occluder mask.
+"""Compiled quantile and variance over a stack of frames (numba), for the occluder mask.
 
 Why hand-written: numpy's quantile over a frame stack sorts with one partition per
 pixel; this sorts a row of pixels' values at once (an odd-even transposition sort,
-branch-free and contiguous over the row).
+branch-free and contiguous over the row). numpy's variance over the frames makes two
+temporaries the size of the stack; this keeps one row's mean.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -58,3 +59,34 @@ def quantile_over_frames(stack: np.ndarray, virtual: float,
                 mid = n // 2
                 med[i, j] = buf[mid, j] if n % 2 else F32(buf[mid - 1, j] + buf[mid, j]) / F32(2)
     return quant, med
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def variance_over_frames(stack: np.ndarray, ddof: int) -> np.ndarray:
+    """Per pixel of an (n, H, W) float32 stack: its variance over the frames, as
+    ``numpy.var(stack, axis=0, ddof=ddof)`` computes it (bitwise): the frames summed in
+    order in float32, the mean that sum over n in float64 rounded to float32, the squared
+    float32 deviations summed in order, that sum over n - ddof in float64 rounded to
+    float32. One pass a row instead of numpy's frame-sized temporaries (11 frames of
+    1224 x 1024: ~0.2 s of the occluder mask's work beside the pose pass).
+    """
+    n, height, width = stack.shape
+    out = np.empty((height, width), np.float32)
+    mean = np.empty(width, np.float32)
+    for i in range(height):
+        for j in range(width):
+            mean[j] = stack[0, i, j]
+        for f in range(1, n):
+            for j in range(width):
+                mean[j] += stack[f, i, j]
+        for j in range(width):
+            mean[j] = F32(np.float64(mean[j]) / n)
+            d = stack[0, i, j] - mean[j]
+            out[i, j] = d * d
+        for f in range(1, n):
+            for j in range(width):
+                d = stack[f, i, j] - mean[j]
+                out[i, j] += d * d
+        for j in range(width):
+            out[i, j] = F32(np.float64(out[i, j]) / max(n - ddof, 0))
+    return out

@@ -32,7 +32,7 @@ import numpy as np
 
 from pipestitch.camera.frames import to_grey
 from pipestitch.imaging import MAD_TO_SIGMA, median
-from pipestitch.mosaic._occluder_kernels import quantile_over_frames
+from pipestitch.mosaic._occluder_kernels import quantile_over_frames, variance_over_frames
 
 __all__ = ["FULL_SCALES", "defect_pixels", "full_scale", "noise_variance", "occluder_mask",
            "static_pixels"]
@@ -267,7 +267,7 @@ def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
     noise = noise_variance(stack, level)
     if not np.any(np.isfinite(noise)):
         return np.zeros(level.shape, bool)
-    temporal = np.var(stack, axis=0, ddof=1)
+    temporal = variance_over_frames(stack, 1)   # numpy.var(stack, axis=0, ddof=1)
     ratio = cv2.blur(temporal / np.maximum(noise, 1e-12), (5, 5))
     saturated = level >= 0.999 * full_scale(float(stack.max()))
     static = ((ratio < STATIC_RATIO) & (_mean_ratio(stack, noise) < MEAN_STATIC_RATIO)

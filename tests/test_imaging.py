@@ -29,6 +29,21 @@ def test_blur_is_opencvs_gaussian_blur(shape: tuple[int, int], sigma: float,
     np.testing.assert_allclose(got_rows, want_rows, rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("sigma", [0.5, 6.0, 20.0])   # GaussianBlur, filter2D, GaussianBlur
+@pytest.mark.parametrize("along_rows", [False, True])
+def test_a_blur_written_into_a_given_array_is_the_same_blur(sigma: float,
+                                                            along_rows: bool) -> None:
+    """``out``: the blur is written into it and it is returned, on every route; its
+    values are those of a blur into a new array, to the bit."""
+    img = np.random.default_rng(2).random((30, 70)).astype(np.float32)
+    taps = 2 * int(np.ceil(4 * sigma)) + 1 if along_rows else None
+    want = gaussian_blur(img, sigma, along_rows=along_rows, taps=taps)
+    out = np.full(img.shape, np.nan, np.float32)
+    got = gaussian_blur(img, sigma, along_rows=along_rows, taps=taps, out=out)
+    assert got is out
+    np.testing.assert_array_equal(out, want)
+
+
 def test_long_float32_kernels_take_filter2d_and_others_gaussian_blur(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The route: filter2D for float32 kernels of 11 to 129 taps, GaussianBlur for the

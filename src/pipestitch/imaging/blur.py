@@ -34,7 +34,8 @@ def kernel_taps(sigma: float) -> int:
 
 
 def gaussian_blur(image: np.ndarray, sigma: float, *, along_rows: bool = False,
-                  taps: int | None = None, border: int = cv2.BORDER_REFLECT_101) -> np.ndarray:
+                  taps: int | None = None, border: int = cv2.BORDER_REFLECT_101,
+                  out: np.ndarray | None = None) -> np.ndarray:
     """``cv2.GaussianBlur`` of a 2-D image, through ``cv2.filter2D`` where that is faster.
 
     Parameters
@@ -51,23 +52,26 @@ def gaussian_blur(image: np.ndarray, sigma: float, *, along_rows: bool = False,
         type (:func:`kernel_taps` for float32, and along the rows).
     border : int
         OpenCV border mode (default OpenCV's).
+    out : numpy.ndarray, optional
+        An array of the image's shape and type to write the blur into (not the image
+        itself): a caller's buffer reused frame after frame (a new array otherwise).
 
     Returns
     -------
     numpy.ndarray
-        A new array of the image's shape and type.
+        The blur (``out`` when given), of the image's shape and type.
     """
     k = kernel_taps(sigma) if taps is None else int(taps)
     if image.dtype != np.float32 or not FILTER2D_FROM_TAPS <= k < DFT_FROM_TAPS:
         # GaussianBlur sizes the kernel itself when it is not given (by the image's type)
         size = (0, 0) if taps is None and not along_rows else (k, 1 if along_rows else k)
         return cv2.GaussianBlur(image, size, sigmaX=sigma, sigmaY=0 if along_rows else sigma,
-                                borderType=border)
+                                dst=out, borderType=border)
     row = _row_kernel(k, float(sigma))
-    out = cv2.filter2D(image, -1, row, borderType=border)
     if along_rows:
-        return out
-    return cv2.filter2D(out, -1, row.T, borderType=border)
+        return cv2.filter2D(image, -1, row, dst=out, borderType=border)
+    return cv2.filter2D(cv2.filter2D(image, -1, row, borderType=border), -1, row.T, dst=out,
+                        borderType=border)
 
 
 @functools.lru_cache(maxsize=32)

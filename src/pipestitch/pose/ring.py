@@ -361,7 +361,8 @@ def _search_rays(img: np.ndarray, reflectance: np.ndarray | None, camera: Camera
     # grey and the reflectance's temporaries do not outlive this call: scratch buffers
     grey = prepare_laser_frame(part, channel, out=scratch.buffer("ring.laser", part.shape[:2],
                                                                  np.float32))
-    polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    polar = cv2.remap(grey, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      dst=scratch.buffer("ring.polar", map_x.shape, np.float32))
     hidden = None if occluded is None else _polar_occluded(occluded, camera, n_azimuths, step,
                                                            band_px)
     search = functools.partial(_ring_search, sigma=sigma, step=step, hidden=hidden,
@@ -387,10 +388,13 @@ def _ring_search(polar: np.ndarray, *, sigma: float, step: float, hidden: np.nda
                  dtype: np.dtype, first_radius_px: float, centre: np.ndarray, n_azimuths: int,
                  min_snr: float, max_candidates: int, min_relative: float) -> RingDetection:
     """The ring candidates of a polar laser profile (divided by the reflectance or not)."""
-    # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px).
-    narrow = _blur_along_rays(polar, sigma / step)
-    wide = _blur_along_rays(polar, 4 * sigma / step)
-    ridge = narrow - wide
+    # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px). Both
+    # in this thread's buffers, the same for each frame and both searches of a frame:
+    # fresh frame-sized arrays each time cost the ring search ~5 % (their memory
+    # traffic slows the steps around them too).
+    narrow = _blur_along_rays(polar, sigma / step, "ring.narrow")
+    wide = _blur_along_rays(polar, 4 * sigma / step, "ring.wide")
+    ridge = np.subtract(narrow, wide, out=wide)   # in place: the wide blur is not read again
     noise = _ridge_noise(ridge, hidden, dtype)
     if hidden is not None:
         # No candidate where the camera never sees the wall, nor on a sample next to
@@ -567,11 +571,13 @@ def _check_frame(what: str, img: np.ndarray, camera: CameraModel) -> None:
                          f"got {shape[1]}x{shape[0]}")
 
 
-def _blur_along_rays(polar: np.ndarray, sigma: float) -> np.ndarray:
+def _blur_along_rays(polar: np.ndarray, sigma: float, key: str) -> np.ndarray:
     """Gaussian blur along each ray (axis 1) only, over +-4 sigma
-    (:func:`pipestitch.imaging.gaussian_blur`)."""
+    (:func:`pipestitch.imaging.gaussian_blur`), into this thread's buffer ``key``
+    (:func:`pipestitch._runtime.scratch.buffer`: valid until the next call with it)."""
     return gaussian_blur(polar, sigma, along_rows=True, taps=2 * int(np.ceil(4 * sigma)) + 1,
-                         border=cv2.BORDER_REPLICATE)
+                         border=cv2.BORDER_REPLICATE,
+                         out=scratch.buffer(key, polar.shape, np.float32))
 
 
 def _led_polar(reflectance: np.ndarray, channel: int | None, crop: tuple[slice, slice],
@@ -589,7 +595,8 @@ def _led_polar(reflectance: np.ndarray, channel: int | None, crop: tuple[slice, 
                               out=scratch.buffer("ring.led", part.shape[:2], np.float32))
     led = cv2.GaussianBlur(led, (0, 0), 0.5, dst=scratch.buffer("ring.led_blur", led.shape,
                                                                 np.float32))
-    return cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return cv2.remap(led, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     dst=scratch.buffer("ring.local", map_x.shape, np.float32))
 
 
 def _half_way_to_neighbours(others: np.ndarray, found: np.ndarray, idx: np.ndarray,

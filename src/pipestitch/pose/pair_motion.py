@@ -56,7 +56,7 @@ COARSE = 2               # the first search takes every COARSE-th shift (samples
 COARSE_SMOOTH = 5
 # LED-frame samples gathered at once: memory stays bounded, and a block's temporaries
 # (indices, logarithms, products: ~40 bytes a sample) stay in a core's cache; blocks of
-# 2^20 took a moving half-size frame's ring search 2.5-3.5 ms (~12 %) longer
+# 2^20 took a moving half-size frame's ring search 2-3.5 ms (~10 %) longer
 BLOCK_SAMPLES = 1 << 16
 
 

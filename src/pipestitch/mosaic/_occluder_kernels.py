@@ -2,8 +2,8 @@
 
 Why hand-written: numpy's quantile over a frame stack sorts with one partition per
 pixel; this sorts a row of pixels' values at once (an odd-even transposition sort,
-branch-free and contiguous over the row). numpy's variance over the frames makes two
-temporaries the size of the stack; this keeps one row's mean.
+branch-free and contiguous over the row). numpy's variance over the frames makes a
+temporary the size of the stack; this keeps one row's mean.
 
 How the compiled kernels are written and tested: docs/conventions.md, "Compiled kernels".
 """
@@ -63,12 +63,13 @@ def quantile_over_frames(stack: np.ndarray, virtual: float,
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def variance_over_frames(stack: np.ndarray, ddof: int) -> np.ndarray:
-    """Per pixel of an (n, H, W) float32 stack: its variance over the frames, as
-    ``numpy.var(stack, axis=0, ddof=ddof)`` computes it (bitwise): the frames summed in
-    order in float32, the mean that sum over n in float64 rounded to float32, the squared
-    float32 deviations summed in order, that sum over n - ddof in float64 rounded to
-    float32. One pass a row instead of numpy's frame-sized temporaries (11 frames of
-    1224 x 1024: ~0.2 s of the occluder mask's work beside the pose pass).
+    """Per pixel of a C-ordered (n, H, W) float32 stack (n >= 1): its variance over the
+    frames, as ``numpy.var(stack, axis=0, ddof=ddof)`` computes it for such a stack, to
+    the bit (numpy sums pairwise where the frames' axis is the contiguous one): the
+    frames summed in order in float32, the mean that sum over n in float64 rounded to
+    float32, the squared float32 deviations summed in order, that sum over n - ddof in
+    float64 rounded to float32. One pass a row instead of numpy's stack-sized temporary
+    (11 frames of 1224 x 1024: ~0.2 s of the occluder mask's work beside the pose pass).
     """
     n, height, width = stack.shape
     out = np.empty((height, width), np.float32)

@@ -267,7 +267,8 @@ def static_pixels(stack: np.ndarray, level: np.ndarray) -> np.ndarray:
     noise = noise_variance(stack, level)
     if not np.any(np.isfinite(noise)):
         return np.zeros(level.shape, bool)
-    temporal = variance_over_frames(stack, 1)   # numpy.var(stack, axis=0, ddof=1)
+    # numpy.var(stack, axis=0, ddof=1), to the bit
+    temporal = variance_over_frames(np.ascontiguousarray(stack, np.float32), 1)
     ratio = cv2.blur(temporal / np.maximum(noise, 1e-12), (5, 5))
     saturated = level >= 0.999 * full_scale(float(stack.max()))
     static = ((ratio < STATIC_RATIO) & (_mean_ratio(stack, noise) < MEAN_STATIC_RATIO)

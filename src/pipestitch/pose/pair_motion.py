@@ -215,7 +215,8 @@ def _correlations(line: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.nd
     reflectance along the ring moved by each shift along the rays and each turn (rays)
     across them (logarithms, high-passed along the ring; the LED frame's ends of a ray
     repeated beyond it); NaN where a sector has too few rays. Every turn and sector at
-    once, in blocks of at most ``BLOCK_SAMPLES`` samples read from the LED frame."""
+    once, in blocks of about ``BLOCK_SAMPLES`` samples read from the LED frame (whole turns, at
+    least one)."""
     member = np.zeros((rays.size, SECTORS))
     member[np.arange(rays.size), sectors] = 1.0   # which sector each ring ray is in
     count = member.sum(axis=0)

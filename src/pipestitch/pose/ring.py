@@ -390,8 +390,8 @@ def _ring_search(polar: np.ndarray, *, sigma: float, step: float, hidden: np.nda
     """The ring candidates of a polar laser profile (divided by the reflectance or not)."""
     # Ridge filter: a narrow Gaussian minus a wide one (in samples of `step` px). Both
     # in this thread's buffers, the same for each frame and both searches of a frame:
-    # fresh frame-sized arrays each time cost the ring search ~5 % (their memory
-    # traffic slows the steps around them too).
+    # fresh frame-sized arrays each time cost the ring search a few per cent (1-5 %
+    # measured; their memory traffic slows the steps around them too).
     narrow = _blur_along_rays(polar, sigma / step, "ring.narrow")
     wide = _blur_along_rays(polar, 4 * sigma / step, "ring.wide")
     ridge = np.subtract(narrow, wide, out=wide)   # in place: the wide blur is not read again

@@ -36,6 +36,34 @@ def test_registration_recovers_axial_shift_and_roll(texture, shifted) -> None:
     assert link.dz_mm == pytest.approx(3.73, abs=0.01)
     assert link.droll_deg == pytest.approx(13.4 * 0.5, abs=0.01)
     assert measure_shift(images[0], np.zeros_like(images[1]), grid, 0, 1) is None
+    assert measure_shift(np.zeros_like(images[0]), images[1], grid, 0, 1) is None
+
+
+def _one_value(shape: tuple[int, ...], at: tuple[int, ...], value: float,
+               dtype: type) -> np.ndarray:
+    image = np.zeros(shape, dtype)
+    image[at] = value
+    return image
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8])
+def test_any_nonzero_is_numpy_any(dtype) -> None:
+    """The emptiness test of measure_shift answers as numpy.any: every position (the
+    last one too), views with strides, -0.0 (zero), NaN and the smallest subnormal
+    (not zero), an empty image, and other dimensions than 2 (numpy's own path)."""
+    from pipestitch.mosaic.register import _any_nonzero
+
+    cases = [np.zeros((7, 5), dtype), np.zeros((0, 5), dtype)]
+    cases += [_one_value((7, 5), (r, c), 3, dtype) for r in range(7) for c in range(5)]
+    cases += [_one_value((8, 6), (1, 3), 1, dtype)[::2, ::2],    # the value left out
+              _one_value((8, 6), (2, 4), 1, dtype)[::2, ::2],    # the value kept
+              _one_value((8, 6), (2, 4), 1, dtype).T,
+              _one_value((4,), (3,), 1, dtype), _one_value((3, 4, 2), (2, 3, 1), 1, dtype)]
+    if np.issubdtype(dtype, np.floating):
+        cases += [_one_value((7, 5), (6, 4), value, dtype)
+                  for value in (-0.0, np.nan, np.finfo(dtype).smallest_subnormal, -np.inf)]
+    for image in cases:
+        assert _any_nonzero(image) == bool(np.any(image)), (image.shape, image.strides)
 
 
 @pytest.mark.parametrize("shape", [(720, 300), (675, 300), (720, 243), (675, 243)])

@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 
 from pipestitch.geometry import PipeSection, Pose, laser_ring
-from pipestitch.mosaic.photometric import StripPair, contrast_strips, pair_costs, strip_misfit
+from pipestitch.mosaic.photometric import (
+    StripPair,
+    _compare,
+    contrast_strips,
+    pair_costs,
+    strip_misfit,
+)
 from pipestitch.pose.fit import ConicModel, Hypothesis, PoseFit, pose_from_conic
 from pipestitch.pose.ring import prepare_laser_frame
 from pipestitch.simulate.render import Renderer
@@ -55,8 +61,12 @@ def test_costs_read_the_strips_as_prepared_once(holed_renderer: Renderer) -> Non
     first, second = _strips_at(holed_renderer, 20.0), _strips_at(holed_renderer, 25.0)
     for pair in (first, second):
         for strip, prepared in zip(pair.strips, pair.comparable, strict=True):
-            np.testing.assert_array_equal(prepared.valid, np.isfinite(strip).astype(np.float32))
+            assert prepared.valid.dtype == bool
+            np.testing.assert_array_equal(prepared.valid, np.isfinite(strip))
             assert prepared.count == np.count_nonzero(np.isfinite(strip)) > 100
+    for a, pa in zip(first.strips, first.comparable, strict=True):
+        for b, pb in zip(second.strips, second.comparable, strict=True):
+            assert _compare(pa, pb)[1] == np.count_nonzero(np.isfinite(a) & np.isfinite(b))
     misfit = np.array([[strip_misfit(a, b) for b in second.strips] for a in first.strips])
     window = cv2.createHanningWindow(first.strips[0].shape[::-1], cv2.CV_32F)
     window = np.tile(window[window.shape[0] // 2], (window.shape[0], 1))   # along z only

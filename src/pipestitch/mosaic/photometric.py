@@ -45,9 +45,10 @@ MIN_PEAK = 0.05
 
 @dataclass(frozen=True)
 class _Comparable:
-    """What a comparison reads of a strip: where it has values (1/0, float32, the
-    strip's shape), how many nodes that is, and the spectrum ``cv2.phaseCorrelate``
-    takes of it (:func:`_spectrum`)."""
+    """What a comparison reads of a strip: where it has values (bool, the strip's
+    shape: two strips' common nodes are counted in a few microseconds, against ~50 for
+    a product of float masks), how many nodes that is, and the spectrum
+    ``cv2.phaseCorrelate`` takes of it (:func:`_spectrum`)."""
 
     valid: np.ndarray
     count: int
@@ -56,7 +57,8 @@ class _Comparable:
 
 def _comparable(strip: np.ndarray) -> _Comparable:
     filled, valid = fill_invalid(np.ascontiguousarray(strip, np.float32))
-    return _Comparable(valid, int(np.count_nonzero(valid)), _spectrum(filled))
+    mask = valid.astype(bool)
+    return _Comparable(mask, int(np.count_nonzero(mask)), _spectrum(filled))
 
 
 def _spectrum(filled: np.ndarray) -> np.ndarray:
@@ -177,7 +179,7 @@ def _compare(a: _Comparable, b: _Comparable) -> tuple[float, int]:
     if a.count < 100 or b.count < 100 or a.valid.shape != b.valid.shape:
         return np.nan, 0
     response = _peak_response(b.spectrum, a.spectrum)
-    return 1.0 - response, int(np.count_nonzero(a.valid * b.valid))
+    return 1.0 - response, int(np.count_nonzero(a.valid & b.valid))
 
 
 @functools.lru_cache(maxsize=8)

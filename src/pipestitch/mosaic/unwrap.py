@@ -43,21 +43,28 @@ __all__ = ["PackedMask", "Strip", "UnwrapMaps", "default_mm_per_px", "local_cont
            "strip_window_mm", "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
+def _node_columns(grid: WallGrid, step: int) -> int:
+    """How many node columns :func:`_grid_points` takes: every ``step``-th and the last."""
+    return -(-(grid.n_cols - 1) // step) + 1
+
+
 def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
-                 profile: RadiusProfile | None = None
+                 profile: RadiusProfile | None = None, columns: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nodes of every ``step``-th row and column (the last ones always included).
 
     Returns the wall points of the rows' ring at z = 0 (rows, 3), the columns' z
     (cols,), their scale about the axis (cols,; ones without ``profile``) and the nodes
-    in the probe frame (rows · cols, 3), row after row. The wall's section depends on
+    in the probe frame (rows · cols, 3), row after row; with ``columns`` (indices of
+    node columns, int64) those columns only, their z to the bit as in the whole grid's.
+    The wall's section depends on
     theta alone (scaled about the axis by ``profile`` at each column's z) and the
     world-to-probe map is affine, so the ring is mapped once and each column scales it
     about the axis and adds z times the pipe axis seen from the probe
     (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
     """
-    n_c = -(-(grid.n_cols - 1) // step) + 1
-    z = grid.z0_mm + np.arange(n_c) * step * grid.mm_per_px_axial
+    index = np.arange(_node_columns(grid, step)) if columns is None else columns
+    z = grid.z0_mm + index * step * grid.mm_per_px_axial
     ring = _ring(float(section.a_mm), float(section.b_mm), float(section.angle),
                  float(grid.theta0_deg), float(grid.deg_per_px), int(step),
                  -(-(grid.n_rows - 1) // step) + 1)
@@ -145,10 +152,10 @@ def unwrap_maps(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wal
 
 
 def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: WallGrid,
-                 step: int, with_quality: bool, profile: RadiusProfile | None = None
-                 ) -> tuple[MapFields, np.ndarray]:
-    """The maps' fields at every ``step``-th node (see :func:`_grid_points`), and the
-    nodes' column z.
+                 step: int, with_quality: bool, profile: RadiusProfile | None = None,
+                 columns: np.ndarray | None = None) -> tuple[MapFields, np.ndarray]:
+    """The maps' fields at every ``step``-th node (see :func:`_grid_points`; only the
+    node ``columns`` given, as if they were neighbours), and the nodes' column z.
 
     Pixel column and row (0 where invisible), validity (1/0) and, ``with_quality``, the
     quality and the shading of :class:`UnwrapMaps` (else None), each (node rows, node
@@ -156,7 +163,7 @@ def _node_fields(camera: CameraModel, pose: Pose, section: PipeSection, grid: Wa
     """
     # Roll and axial position are those of the strip's own frame: zero by construction.
     local = Pose(pose.alpha, pose.beta, pose.dx_mm, pose.dy_mm)
-    ring, z, scale, probe = _grid_points(grid, section, local, step, profile)
+    ring, z, scale, probe = _grid_points(grid, section, local, step, profile, columns)
     rows, cols = ring.shape[0], z.shape[0]
     px = camera.project(probe)
     # Smooth quantities (quality, shading): computed on the projected nodes, interpolated
@@ -314,9 +321,19 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
     resolves anything.
     """
     grid = WallGrid.window(radius_mm, mm_per_px, *window_mm)
+    n_columns = _node_columns(grid, step)
+    first = last = -1   # the node columns some view resolves: the first and the last
     lo, hi = np.inf, -np.inf
     for pose, section in views:
-        nodes, z = _node_fields(camera, pose, section, grid, step, True)
+        if first == 0 and last == n_columns - 1:
+            break   # every column is resolved: no view can widen the window
+        # Only the columns outside those already resolved can widen it: each view is
+        # evaluated there alone, with the two resolved end columns as their neighbours
+        # (a node's quality reads its neighbours along z); what it says of those two
+        # (next to each other here) does not matter, they are resolved already.
+        columns = (None if first < 0 else
+                   np.r_[np.arange(first + 1), np.arange(last, n_columns)])
+        nodes, z = _node_fields(camera, pose, section, grid, step, True, columns=columns)
         col, row = np.rint(nodes.map_x).astype(int), np.rint(nodes.map_y).astype(int)
         good = ((nodes.valid > 0) & (nodes.quality >= min_resolution) & (col >= 0)
                 & (col < camera.width)
@@ -325,6 +342,9 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
             good[good] = ~occluded[row[good], col[good]]
         seen = np.flatnonzero(good.any(axis=0))
         if seen.size:
+            index = np.arange(n_columns) if columns is None else columns
+            first = int(index[seen[0]]) if first < 0 else min(first, int(index[seen[0]]))
+            last = max(last, int(index[seen[-1]]))
             lo, hi = min(lo, z[seen[0]]), max(hi, z[seen[-1]])
     if not np.isfinite(lo):
         return window_mm

@@ -57,11 +57,10 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     (cols,), their scale about the axis (cols,; ones without ``profile``) and the nodes
     in the probe frame (rows · cols, 3), row after row; with ``columns`` (indices of
     node columns, int64) those columns only, their z to the bit as in the whole grid's.
-    The wall's section depends on
-    theta alone (scaled about the axis by ``profile`` at each column's z) and the
-    world-to-probe map is affine, so the ring is mapped once and each column scales it
-    about the axis and adds z times the pipe axis seen from the probe
-    (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
+    The wall's section depends on theta alone (scaled about the axis by ``profile`` at
+    each column's z) and the world-to-probe map is affine, so the ring is mapped once
+    and each column scales it about the axis and adds z times the pipe axis seen from
+    the probe (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
     """
     index = np.arange(_node_columns(grid, step)) if columns is None else columns
     z = grid.z0_mm + index * step * grid.mm_per_px_axial

@@ -43,9 +43,16 @@ __all__ = ["PackedMask", "Strip", "UnwrapMaps", "default_mm_per_px", "local_cont
            "strip_window_mm", "unwrap", "unwrap_maps", "unwrap_with_quality"]
 
 
-def _node_columns(grid: WallGrid, step: int) -> int:
-    """How many node columns :func:`_grid_points` takes: every ``step``-th and the last."""
-    return -(-(grid.n_cols - 1) // step) + 1
+def _node_count(n: int, step: int) -> int:
+    """How many of ``n`` rows or columns :func:`_grid_points` takes as nodes: every
+    ``step``-th and the last."""
+    return -(-(n - 1) // step) + 1
+
+
+def _column_z(grid: WallGrid, step: int, columns: np.ndarray) -> np.ndarray:
+    """The z (mm) of node ``columns`` (int64 indices), each to the bit whatever the
+    other indices given."""
+    return grid.z0_mm + columns * step * grid.mm_per_px_axial
 
 
 def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
@@ -62,11 +69,11 @@ def _grid_points(grid: WallGrid, section: PipeSection, pose: Pose, step: int,
     and each column scales it about the axis and adds z times the pipe axis seen from
     the probe (:func:`~pipestitch.mosaic._unwrap_kernels.node_points`).
     """
-    index = np.arange(_node_columns(grid, step)) if columns is None else columns
-    z = grid.z0_mm + index * step * grid.mm_per_px_axial
+    z = _column_z(grid, step, np.arange(_node_count(grid.n_cols, step)) if columns is None
+                  else columns)
     ring = _ring(float(section.a_mm), float(section.b_mm), float(section.angle),
                  float(grid.theta0_deg), float(grid.deg_per_px), int(step),
-                 -(-(grid.n_rows - 1) // step) + 1)
+                 _node_count(grid.n_rows, step))
     # Pose.to_probe's (p - t) @ R, with R and t made once for the ring and the axis
     rotation, translation = pose.rotation_world_probe(), pose.translation_world_probe()
     axis = rotation[2]   # world z in the probe frame: to_probe's row 2
@@ -320,9 +327,8 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
     resolves anything.
     """
     grid = WallGrid.window(radius_mm, mm_per_px, *window_mm)
-    n_columns = _node_columns(grid, step)
-    first = last = -1   # the node columns some view resolves: the first and the last
-    lo, hi = np.inf, -np.inf
+    n_columns = _node_count(grid.n_cols, step)
+    first, last = n_columns, -1   # the node columns some view resolves: first and last
     for pose, section in views:
         if first == 0 and last == n_columns - 1:
             break   # every column is resolved: no view can widen the window
@@ -330,9 +336,9 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
         # evaluated there alone, with the two resolved end columns as their neighbours
         # (a node's quality reads its neighbours along z); what it says of those two
         # (next to each other here) does not matter, they are resolved already.
-        columns = (None if first < 0 else
+        columns = (np.arange(n_columns) if last < 0 else
                    np.r_[np.arange(first + 1), np.arange(last, n_columns)])
-        nodes, z = _node_fields(camera, pose, section, grid, step, True, columns=columns)
+        nodes, _ = _node_fields(camera, pose, section, grid, step, True, columns=columns)
         col, row = np.rint(nodes.map_x).astype(int), np.rint(nodes.map_y).astype(int)
         good = ((nodes.valid > 0) & (nodes.quality >= min_resolution) & (col >= 0)
                 & (col < camera.width)
@@ -341,12 +347,10 @@ def seen_window_mm(camera: CameraModel, views: Iterable[tuple[Pose, PipeSection]
             good[good] = ~occluded[row[good], col[good]]
         seen = np.flatnonzero(good.any(axis=0))
         if seen.size:
-            index = np.arange(n_columns) if columns is None else columns
-            first = int(index[seen[0]]) if first < 0 else min(first, int(index[seen[0]]))
-            last = max(last, int(index[seen[-1]]))
-            lo, hi = min(lo, z[seen[0]]), max(hi, z[seen[-1]])
-    if not np.isfinite(lo):
+            first, last = min(first, int(columns[seen[0]])), max(last, int(columns[seen[-1]]))
+    if last < 0:
         return window_mm
+    lo, hi = _column_z(grid, step, np.array([first, last]))
     pad = step * mm_per_px + margin_mm
     return max(window_mm[0], float(lo) - pad), min(window_mm[1], float(hi) + pad)
 

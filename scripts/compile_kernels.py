@@ -194,7 +194,10 @@ def compile_entries(indices: list[int]) -> float:
 def source_key() -> str:
     """Key of what the compiled cache depends on: the stamp numba's cache of the kernels
     carries (:func:`pipestitch._runtime.kernel_sources.sources_stamp`: every file kernel
-    code comes from), this file, the interpreter, numba's version and the cache folder.
+    code comes from), this file, the interpreter, numba's version, the cache folder and
+    the processor the kernels are compiled for
+    (:func:`pipestitch._runtime.kernel_cache.compile_target`: the same on every machine
+    that runs x86-64-v3 code, the machine's own elsewhere).
 
     Returns
     -------
@@ -203,11 +206,12 @@ def source_key() -> str:
     """
     from importlib.metadata import version
 
+    from pipestitch._runtime.kernel_cache import compile_target
     from pipestitch._runtime.kernel_sources import sources_stamp
 
     h = hashlib.sha256(Path(__file__).read_bytes())
     h.update(f"{sources_stamp()}|{sys.executable}|{version('numba')}|"
-             f"{os.environ.get('NUMBA_CACHE_DIR', '')}".encode())
+             f"{os.environ.get('NUMBA_CACHE_DIR', '')}|{compile_target()}".encode())
     return h.hexdigest()
 
 

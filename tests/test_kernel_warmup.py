@@ -118,8 +118,9 @@ def test_a_run_compiles_nothing_beyond_the_set_up(tmp_path: Path) -> None:
 def test_the_set_up_key_follows_the_kernel_sources(monkeypatch: pytest.MonkeyPatch) -> None:
     # The set-up compiles again (from an empty cache) when the key changes: whenever the
     # stamp numba's cache of the kernels carries changes (tests/_runtime/
-    # test_kernel_cache.py: every file kernel code comes from), and the cache folder.
-    from pipestitch._runtime import kernel_sources
+    # test_kernel_cache.py: every file kernel code comes from), the cache folder, and
+    # the processor the kernels are compiled for.
+    from pipestitch._runtime import kernel_cache, kernel_sources
 
     ck = _load_script()
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
@@ -130,6 +131,9 @@ def test_the_set_up_key_follows_the_kernel_sources(monkeypatch: pytest.MonkeyPat
     moved = ck.source_key()
     monkeypatch.setenv("NUMBA_CACHE_DIR", "/elsewhere")
     assert ck.source_key() != moved
+    elsewhere = ck.source_key()
+    monkeypatch.setattr(kernel_cache, "compile_target", lambda: ("znver4", "+avx512f"))
+    assert ck.source_key() != elsewhere
 
 
 def test_a_compile_starts_from_an_empty_cache(tmp_path: Path,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import platform
 import re
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import textwrap
 from pathlib import Path
 
 import numba.core.registry
+import pytest
 
 from pipestitch._runtime import kernel_cache, kernel_sources
 
@@ -142,3 +144,84 @@ def test_a_caller_is_compiled_again_when_its_callee_changes(tmp_path: Path,
         printed.append(int(proc.stdout.split()[-1]))
     assert list((tmp_path / "__pycache__").glob("b.f-*.nbc")), "b.f was not cached"
     assert printed == [20, 30]
+
+
+# A child interpreter: its environment's NUMBA_* as given, optionally a kernel of its
+# own compiled first; prints the (platform, processor, features) numba keys kernels by
+# after the package's kernel cache is imported.
+TARGET = textwrap.dedent("""
+    import sys
+    import numba
+    if sys.argv[1] == "own-kernel-first":
+        numba.njit(lambda x: x + 1)(1)
+    from numba.core.registry import cpu_target
+    from pipestitch._runtime import kernel_cache  # noqa: F401
+    print("|".join(cpu_target.target_context.codegen().magic_tuple()))
+""")
+
+
+def _child_target(monkeypatch: pytest.MonkeyPatch, first: str = "",
+                  **numba_env: str) -> list[str]:
+    for name in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in numba_env.items():
+        monkeypatch.setenv(name, value)
+    proc = subprocess.run([sys.executable, "-c", TARGET, first], capture_output=True,
+                          text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.strip().splitlines()[-1].split("|")
+
+
+def _cpuinfo_flags() -> set[str]:
+    """The processor's flags as Linux lists them (empty elsewhere)."""
+    path = Path("/proc/cpuinfo")
+    if not path.is_file():
+        return set()
+    for line in path.read_text().splitlines():
+        if line.startswith("flags"):
+            return set(line.split(":", 1)[1].split())
+    return set()
+
+
+def test_kernels_are_compiled_for_the_best_level_the_processor_runs(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # What Linux says the processor has, apart from LLVM's view that the code reads:
+    # level 3 is AVX2, FMA, BMI1/2, F16C, MOVBE, LZCNT (abm), XSAVE, SSE4.2, POPCNT,
+    # CMPXCHG16B; level 4 adds AVX-512 F, BW, CD, DQ and VL
+    level_3 = {"avx2", "fma", "bmi1", "bmi2", "f16c", "movbe", "abm", "xsave", "sse4_2",
+               "popcnt", "cx16"}
+    level_4 = level_3 | {"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"}
+    flags = _cpuinfo_flags()
+    if platform.machine().lower() not in ("x86_64", "amd64") or not level_3 <= flags:
+        pytest.skip("not an x86-64-v3 processor under Linux")
+    _, name, features = _child_target(monkeypatch)
+    assert (name, features) == ("x86-64-v4" if level_4 <= flags else "x86-64-v3", "")
+
+
+def test_the_users_choice_of_processor_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, name, features = _child_target(monkeypatch, NUMBA_CPU_NAME="generic")
+    assert (name, features) == ("generic", "")
+
+
+def test_a_process_that_compiled_for_its_own_processor_keeps_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # numba makes its compiler once, at the first kernel: the package's kernels are
+    # then compiled (and cached) for that processor, never labelled as another's
+    import llvmlite.binding as llvm
+
+    _, name, _ = _child_target(monkeypatch, "own-kernel-first")
+    assert name == llvm.get_host_cpu_name()
+
+
+def test_the_level_is_the_best_whose_every_feature_the_processor_has() -> None:
+    level_3 = dict.fromkeys(kernel_cache.LEVEL_3, True)
+    level_4 = dict.fromkeys(kernel_cache.LEVEL_4, True)
+    assert kernel_cache.portable_cpu("x86_64", level_3) == "x86-64-v3"
+    assert kernel_cache.portable_cpu("AMD64", level_4 | {"avx512fp16": True}) == "x86-64-v4"
+    for name in ("avx512vl", "avx512dq"):
+        assert kernel_cache.portable_cpu("x86_64", level_4 | {name: False}) == "x86-64-v3"
+    for name in ("avx2", "fma", "movbe", "sse4.2"):
+        assert kernel_cache.portable_cpu("x86_64", level_4 | {name: False}) is None
+        assert kernel_cache.portable_cpu("x86_64", {k: v for k, v in level_3.items()
+                                                    if k != name}) is None
+    assert kernel_cache.portable_cpu("aarch64", level_4) is None

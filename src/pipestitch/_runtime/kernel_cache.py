@@ -16,17 +16,28 @@ compiles them again. Each module that defines kernels imports this one before it
 first ``numba.njit`` (``tests/_runtime/test_kernel_cache.py`` checks it, and that the
 list of sources is whole). ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, replaces
 numba's list, and this one, with its own.
+
+Importing it also chooses the processor numba compiles for (:func:`pin_portable_target`):
+on x86-64 the best of the psABI's levels x86-64-v4 (AVX-512) and x86-64-v3 (AVX2, FMA)
+that the processor runs, rather than the processor itself, so that the cache the set-up
+fills serves any machine of that level (a container image built on another model, a
+worker on another kind of node), where numba would otherwise compile every kernel again
+on first use.
 """
 
 from __future__ import annotations
 
 import os
+import platform
+from collections.abc import Mapping
 
-from numba.core import caching
+import llvmlite.binding as llvm
+from numba.core import caching, codegen, config, registry
 
 from pipestitch._runtime.kernel_sources import PACKAGE, sources_stamp
 
-__all__ = ["LOCATORS", "in_package"]
+__all__ = ["LOCATORS", "PORTABLE_CPUS", "compile_target", "in_package", "pin_portable_target",
+           "portable_cpu"]
 
 
 def in_package(py_file: str) -> bool:
@@ -62,6 +73,84 @@ class PackageUserWideLocator(_PackageStamp, caching.UserWideCacheLocator):
 LOCATORS = (PackageUserProvidedLocator, PackageInTreeLocator, PackageUserWideLocator)
 
 
+# The processors the kernels are compiled for, best first, where the machine runs their
+# code: the psABI's levels (LLVM's names) and the features each needs (LLVM's names).
+# x86-64-v3: AVX2, FMA, BMI1/2, F16C, LZCNT, MOVBE, XSAVE over SSE4.2, POPCNT, CMPXCHG16B
+# (Intel since 2013, AMD since 2015); x86-64-v4: AVX-512 F, BW, CD, DQ and VL over it.
+# On an AVX-512 Xeon v4 code fitted a pose as fast as code for the Xeon itself, v3 code
+# ~5 % slower; a 60-pair run took the same time with all three, every output the same
+# (docs/benchmarks.md).
+LEVEL_3 = ("cmov", "cx8", "fxsr", "mmx", "sse", "sse2", "sse3", "ssse3", "sse4.1", "sse4.2",
+           "popcnt", "cx16", "sahf", "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt",
+           "movbe", "xsave")
+LEVEL_4 = (*LEVEL_3, "avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl")
+PORTABLE_CPUS = (("x86-64-v4", LEVEL_4), ("x86-64-v3", LEVEL_3))
+
+
+def portable_cpu(machine: str, features: Mapping[str, bool]) -> str | None:
+    """The best of :data:`PORTABLE_CPUS` whose code a processor runs; None when it runs
+    neither's (not x86-64, or older than level 3).
+
+    Parameters
+    ----------
+    machine : str
+        ``platform.machine()``.
+    features : mapping of str to bool
+        The processor's features as LLVM names them (``llvmlite.binding.
+        get_host_cpu_features()``: what the processor and the operating system enable).
+
+    Returns
+    -------
+    str or None
+        LLVM's name of the level.
+    """
+    if machine.lower() not in ("x86_64", "amd64"):
+        return None
+    for name, needed in PORTABLE_CPUS:
+        if all(features.get(feature, False) for feature in needed):
+            return name
+    return None
+
+
+def pin_portable_target() -> bool:
+    """Make numba compile for :func:`portable_cpu`'s level (``NUMBA_CPU_NAME``, no
+    extra ``NUMBA_CPU_FEATURES``) where the processor has one; True when it does.
+
+    numba keys each cached kernel by the processor's name and every feature it has, so
+    a kernel compiled on one model is compiled again on any other (a minute of the
+    first run); compiled for a level, it serves every processor of that level. Nothing
+    is changed when the user set either variable (their choice: ``NUMBA_CPU_NAME=
+    x86-64-v3`` and an empty ``NUMBA_CPU_FEATURES`` at the set-up and in every run
+    share one cache between AVX2 and AVX-512 machines), when numba of this process
+    already compiles for the processor itself (its compiler is made once, at the first
+    kernel: a kernel of this package compiled then is cached for that processor, as
+    without this), or on a processor of neither level (not x86-64, or older).
+    """
+    if "NUMBA_CPU_NAME" in os.environ or "NUMBA_CPU_FEATURES" in os.environ:
+        return False
+    if "_toplevel_target_context" in vars(registry.cpu_target):
+        return False
+    try:
+        features = llvm.get_host_cpu_features()
+    except RuntimeError:   # LLVM cannot tell on this system
+        return False
+    name = portable_cpu(platform.machine(), features)
+    if name is None:
+        return False
+    os.environ["NUMBA_CPU_NAME"], os.environ["NUMBA_CPU_FEATURES"] = name, ""
+    config.reload_config()
+    return True
+
+
+def compile_target() -> tuple[str, str]:
+    """(processor, features) numba compiles this process' kernels for: what it keys
+    each cached kernel by (with the platform)."""
+    name = config.CPU_NAME or llvm.get_host_cpu_name()
+    features = (config.CPU_FEATURES if config.CPU_FEATURES is not None
+                else codegen.get_host_cpu_features())
+    return name, features
+
+
 def _register() -> None:
     classes = caching.CacheImpl._locator_classes
     for cls in reversed(LOCATORS):
@@ -70,3 +159,4 @@ def _register() -> None:
 
 
 _register()
+pin_portable_target()

@@ -17,7 +17,8 @@ kernel whose signature changes must change here too.
 
 Usage: ``python scripts/compile_kernels.py [--jobs N] [--stamp FILE]``. With
 ``--stamp``, nothing is done when FILE holds the key of the current kernel sources,
-numba version and cache folder (and FILE is written after a successful compile).
+numba version, cache folder and the processor the kernels are compiled for (and FILE
+is written after a successful compile).
 """
 
 from __future__ import annotations

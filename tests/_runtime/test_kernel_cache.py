@@ -150,12 +150,17 @@ def test_a_caller_is_compiled_again_when_its_callee_changes(tmp_path: Path,
 # own compiled first; prints the (platform, processor, features) numba keys kernels by
 # after the package's kernel cache is imported.
 TARGET = textwrap.dedent("""
-    import sys
+    import os, sys
     import numba
     if sys.argv[1] == "own-kernel-first":
         numba.njit(lambda x: x + 1)(1)
+    from numba.core import config
     from numba.core.registry import cpu_target
-    from pipestitch._runtime import kernel_cache  # noqa: F401
+    from pipestitch._runtime import kernel_cache
+    if sys.argv[1].startswith("then-"):   # a kernel, then the processor's name changed
+        numba.njit(lambda x: x + 1)(1)
+        os.environ["NUMBA_CPU_NAME"] = sys.argv[1][5:]
+        config.reload_config()
     print("|".join(cpu_target.target_context.codegen().magic_tuple()))
 """)
 
@@ -194,13 +199,28 @@ def test_kernels_are_compiled_for_the_best_level_the_processor_runs(
     flags = _cpuinfo_flags()
     if platform.machine().lower() not in ("x86_64", "amd64") or not level_3 <= flags:
         pytest.skip("not an x86-64-v3 processor under Linux")
+    level = "x86-64-v4" if level_4 <= flags else "x86-64-v3"
     _, name, features = _child_target(monkeypatch)
-    assert (name, features) == ("x86-64-v4" if level_4 <= flags else "x86-64-v3", "")
+    assert (name, features) == (level, kernel_cache.level_features(level))
+    # a name changed after the first kernel (numba reads the name in its key afresh,
+    # the features as its compiler was made): no key of the other level's code
+    other = "x86-64-v3" if level == "x86-64-v4" else "x86-64-v4"
+    _, name, features = _child_target(monkeypatch, f"then-{other}")
+    assert (name, features) != (other, kernel_cache.level_features(other))
+    assert features == kernel_cache.level_features(level)
 
 
 def test_the_users_choice_of_processor_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
     _, name, features = _child_target(monkeypatch, NUMBA_CPU_NAME="generic")
     assert (name, features) == ("generic", "")
+
+
+def test_avx_turned_off_by_the_user_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    import llvmlite.binding as llvm
+
+    _, name, features = _child_target(monkeypatch, NUMBA_ENABLE_AVX="0")
+    assert name == llvm.get_host_cpu_name()
+    assert "+avx" not in features
 
 
 def test_a_process_that_compiled_for_its_own_processor_keeps_it(
@@ -211,6 +231,19 @@ def test_a_process_that_compiled_for_its_own_processor_keeps_it(
 
     _, name, _ = _child_target(monkeypatch, "own-kernel-first")
     assert name == llvm.get_host_cpu_name()
+
+
+def test_the_levels_are_the_psabis() -> None:
+    # x86-64 psABI: v1 CMOV CX8 FPU FXSR MMX OSFXSR SCE SSE SSE2; v2 CMPXCHG16B LAHF-SAHF
+    # POPCNT SSE3 SSE4_1 SSE4_2 SSSE3; v3 AVX AVX2 BMI1 BMI2 F16C FMA LZCNT MOVBE OSXSAVE;
+    # v4 AVX512F AVX512BW AVX512CD AVX512DQ AVX512VL (LLVM's names; the x87 unit, SCE
+    # and OSFXSR every x86-64 processor has)
+    v3 = {"cmov", "cx8", "fxsr", "mmx", "sse", "sse2", "cx16", "sahf", "popcnt", "sse3",
+          "sse4.1", "sse4.2", "ssse3", "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt",
+          "movbe", "xsave"}
+    assert set(kernel_cache.LEVEL_3) == v3
+    assert set(kernel_cache.LEVEL_4) == v3 | {"avx512f", "avx512bw", "avx512cd", "avx512dq",
+                                              "avx512vl"}
 
 
 def test_the_level_is_the_best_whose_every_feature_the_processor_has() -> None:

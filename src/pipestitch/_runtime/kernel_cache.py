@@ -36,8 +36,8 @@ from numba.core import caching, codegen, config, registry
 
 from pipestitch._runtime.kernel_sources import PACKAGE, sources_stamp
 
-__all__ = ["LOCATORS", "PORTABLE_CPUS", "compile_target", "in_package", "pin_portable_target",
-           "portable_cpu"]
+__all__ = ["LOCATORS", "PORTABLE_CPUS", "compile_target", "in_package", "level_features",
+           "pin_portable_target", "portable_cpu"]
 
 
 def in_package(py_file: str) -> bool:
@@ -78,7 +78,7 @@ LOCATORS = (PackageUserProvidedLocator, PackageInTreeLocator, PackageUserWideLoc
 # x86-64-v3: AVX2, FMA, BMI1/2, F16C, LZCNT, MOVBE, XSAVE over SSE4.2, POPCNT, CMPXCHG16B
 # (Intel since 2013, AMD since 2015); x86-64-v4: AVX-512 F, BW, CD, DQ and VL over it.
 # On an AVX-512 Xeon v4 code fitted a pose as fast as code for the Xeon itself, v3 code
-# ~5 % slower; a 60-pair run took the same time with all three, every output the same
+# ~6 % slower; 60-pair runs took the same time and gave every output the same
 # (docs/benchmarks.md).
 LEVEL_3 = ("cmov", "cx8", "fxsr", "mmx", "sse", "sse2", "sse3", "ssse3", "sse4.1", "sse4.2",
            "popcnt", "cx16", "sahf", "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt",
@@ -112,21 +112,34 @@ def portable_cpu(machine: str, features: Mapping[str, bool]) -> str | None:
     return None
 
 
+def level_features(name: str) -> str:
+    """The features of a level of :data:`PORTABLE_CPUS`, as ``NUMBA_CPU_FEATURES`` takes
+    them (``+avx2,+fma,...``)."""
+    return ",".join(f"+{feature}" for feature in dict(PORTABLE_CPUS)[name])
+
+
 def pin_portable_target() -> bool:
-    """Make numba compile for :func:`portable_cpu`'s level (``NUMBA_CPU_NAME``, no
-    extra ``NUMBA_CPU_FEATURES``) where the processor has one; True when it does.
+    """Make numba compile for :func:`portable_cpu`'s level (``NUMBA_CPU_NAME`` and
+    ``NUMBA_CPU_FEATURES``: :func:`level_features`) where the processor has one; True
+    when it does.
 
     numba keys each cached kernel by the processor's name and every feature it has, so
     a kernel compiled on one model is compiled again on any other (a minute of the
-    first run); compiled for a level, it serves every processor of that level. Nothing
-    is changed when the user set either variable (their choice: ``NUMBA_CPU_NAME=
-    x86-64-v3`` and an empty ``NUMBA_CPU_FEATURES`` at the set-up and in every run
-    share one cache between AVX2 and AVX-512 machines), when numba of this process
-    already compiles for the processor itself (its compiler is made once, at the first
-    kernel: a kernel of this package compiled then is cached for that processor, as
-    without this), or on a processor of neither level (not x86-64, or older).
+    first run); compiled for a level, it serves every processor of that level. The
+    features are spelled out (they are the level's anyway): numba reads the name in
+    its key afresh, the features as its compiler was made, so a name changed inside a
+    running process cannot file one level's code under another's key. Nothing is
+    changed where the user chose numba's processor (``NUMBA_CPU_NAME`` or
+    ``NUMBA_CPU_FEATURES``, in the environment or numba's configuration file; e.g.
+    ``NUMBA_CPU_NAME=x86-64-v3`` with ``NUMBA_CPU_FEATURES=`` followed by
+    :func:`level_features` of it, at the set-up and in every run, shares one cache
+    between AVX2 and AVX-512 machines) or turned AVX off (``NUMBA_ENABLE_AVX=0``), when
+    numba of this process already compiles for the processor itself (its compiler is
+    made once, at the first kernel: a kernel of this package compiled then is cached
+    for that processor, as without this), or on a processor of neither level (not
+    x86-64, or older).
     """
-    if "NUMBA_CPU_NAME" in os.environ or "NUMBA_CPU_FEATURES" in os.environ:
+    if config.CPU_NAME is not None or config.CPU_FEATURES is not None or not config.ENABLE_AVX:
         return False
     if "_toplevel_target_context" in vars(registry.cpu_target):
         return False
@@ -137,7 +150,7 @@ def pin_portable_target() -> bool:
     name = portable_cpu(platform.machine(), features)
     if name is None:
         return False
-    os.environ["NUMBA_CPU_NAME"], os.environ["NUMBA_CPU_FEATURES"] = name, ""
+    os.environ["NUMBA_CPU_NAME"], os.environ["NUMBA_CPU_FEATURES"] = name, level_features(name)
     config.reload_config()
     return True
 

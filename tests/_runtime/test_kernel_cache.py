@@ -165,14 +165,14 @@ TARGET = textwrap.dedent("""
 """)
 
 
-def _child_target(monkeypatch: pytest.MonkeyPatch, first: str = "",
+def _child_target(monkeypatch: pytest.MonkeyPatch, first: str = "", cwd: Path | None = None,
                   **numba_env: str) -> list[str]:
     for name in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES"):
         monkeypatch.delenv(name, raising=False)
     for name, value in numba_env.items():
         monkeypatch.setenv(name, value)
     proc = subprocess.run([sys.executable, "-c", TARGET, first], capture_output=True,
-                          text=True, timeout=300, check=False)
+                          text=True, timeout=300, check=False, cwd=cwd)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return proc.stdout.strip().splitlines()[-1].split("|")
 
@@ -212,6 +212,13 @@ def test_kernels_are_compiled_for_the_best_level_the_processor_runs(
 
 def test_the_users_choice_of_processor_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
     _, name, features = _child_target(monkeypatch, NUMBA_CPU_NAME="generic")
+    assert (name, features) == ("generic", "")
+
+
+def test_the_processor_in_numbas_configuration_file_is_kept(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / ".numba_config.yaml").write_text("cpu_name: generic\n")
+    _, name, features = _child_target(monkeypatch, cwd=tmp_path)
     assert (name, features) == ("generic", "")
 
 

@@ -198,7 +198,7 @@ def source_key() -> str:
     code comes from), this file, the interpreter, numba's version, the cache folder and
     the processor the kernels are compiled for
     (:func:`pipestitch._runtime.kernel_cache.compile_target`: the same on every machine
-    that runs x86-64-v3 code, the machine's own elsewhere).
+    of an x86-64 level, v4 or v3; the machine's own elsewhere).
 
     Returns
     -------

@@ -76,7 +76,8 @@ LOCATORS = (PackageUserProvidedLocator, PackageInTreeLocator, PackageUserWideLoc
 # The processors the kernels are compiled for, best first, where the machine runs their
 # code: the psABI's levels (LLVM's names) and the features each needs (LLVM's names).
 # x86-64-v3: AVX2, FMA, BMI1/2, F16C, LZCNT, MOVBE, XSAVE over SSE4.2, POPCNT, CMPXCHG16B
-# (Intel since 2013, AMD since 2015); x86-64-v4: AVX-512 F, BW, CD, DQ and VL over it.
+# (Intel's Core and Xeon since 2013, AMD since 2015); x86-64-v4: AVX-512 F, BW, CD, DQ
+# and VL over it.
 # On an AVX-512 Xeon v4 code fitted a pose as fast as code for the Xeon itself, v3 code
 # ~6 % slower; 60-pair runs took the same time and gave every output the same
 # (docs/benchmarks.md).

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numba.core.registry
 import pytest
+from numba.core import caching
 
 from pipestitch._runtime import kernel_cache, kernel_sources
 
@@ -265,3 +266,33 @@ def test_the_level_is_the_best_whose_every_feature_the_processor_has() -> None:
         assert kernel_cache.portable_cpu("x86_64", {k: v for k, v in level_3.items()
                                                     if k != name}) is None
     assert kernel_cache.portable_cpu("aarch64", level_4) is None
+
+
+# A child interpreter that saves ``n`` entries of one function's cache in ``folder`` as
+# this package's kernels are saved (their stamp), each naming its own code.
+SAVER = textwrap.dedent("""
+    import sys
+    from numba.core import caching
+    from pipestitch._runtime import kernel_cache, kernel_sources  # noqa: F401
+    folder, worker, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    cache = caching.IndexDataCacheFile(folder, "f-1.py311", kernel_sources.sources_stamp())
+    for i in range(n):
+        cache.save((f"signature {worker}.{i}", ("x86_64", "level", ""), ("code", "")),
+                   f"code of {worker}.{i}")
+""")
+
+
+def test_kernels_saved_by_several_processes_at_once_keep_their_own_code(
+        tmp_path: Path) -> None:
+    # numba's own save numbers the data files as it reads the index: processes saving at
+    # once take the same numbers, lose each other's entries and can name one entry's
+    # file with another's code (a set-up's pool did so)
+    children = [subprocess.Popen([sys.executable, "-c", SAVER, str(tmp_path), str(w), "40"])
+                for w in range(3)]
+    assert [child.wait(timeout=300) for child in children] == [0, 0, 0]
+    cache = caching.IndexDataCacheFile(str(tmp_path), "f-1.py311",
+                                       kernel_sources.sources_stamp())
+    index = cache._load_index()
+    assert len(index) == 3 * 40
+    for key in index:
+        assert cache.load(key) == f"code of {key[0].split()[-1]}"

@@ -17,6 +17,9 @@ first ``numba.njit`` (``tests/_runtime/test_kernel_cache.py`` checks it, and tha
 list of sources is whole). ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, replaces
 numba's list, and this one, with its own.
 
+Its kernels are saved safely when several processes save kernels of one function at
+once (:func:`_save`: numba's own numbering of the data files is not).
+
 Importing it also chooses the processor numba compiles for (:func:`pin_portable_target`):
 on x86-64 the best of the psABI's levels x86-64-v4 (AVX-512) and x86-64-v3 (AVX2, FMA)
 that the processor runs, rather than the processor itself, so that the cache the set-up
@@ -27,9 +30,16 @@ on first use.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import os
 import platform
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+
+try:
+    import fcntl
+except ImportError:   # not POSIX: no lock (each entry's file still holds its own code)
+    fcntl = None
 
 import llvmlite.binding as llvm
 from numba.core import caching, codegen, config, registry
@@ -71,6 +81,50 @@ class PackageUserWideLocator(_PackageStamp, caching.UserWideCacheLocator):
 
 
 LOCATORS = (PackageUserProvidedLocator, PackageInTreeLocator, PackageUserWideLocator)
+
+
+# numba's own save (below: this package's kernels are saved by _save instead)
+_NUMBA_SAVE = caching.IndexDataCacheFile.save
+LOCK_NAME = "pipestitch-kernels.lock"   # beside the cached kernels, while one is saved
+
+
+def _save(self: caching.IndexDataCacheFile, key: tuple, data: object) -> None:
+    """``IndexDataCacheFile.save`` for this package's kernels: safe when several
+    processes save kernels of one function at once (the set-up's pool, a batch's
+    workers, two runs).
+
+    numba numbers a function's data files in the order its index lists them, reading
+    the index, then writing it and the data file: two processes that read the index
+    before either wrote it take the same number, and the index can end up naming one
+    signature's file with another signature's code (a set-up's pool left the read-only
+    8-bit frames' scaling holding the 16-bit one's, and every frame of every run then
+    failed to unbox its array). Here a data file is named by its key's digest, written
+    before the index names it, and the index is read and written under a lock on the
+    folder; numba's own save serves every other function.
+    """
+    if self._source_stamp != sources_stamp():
+        _NUMBA_SAVE(self, key, data)
+        return
+    digest = hashlib.sha256(repr(key).encode()).hexdigest()[:20]
+    name = f"{self._index_name[:-len('.nbi')]}.{digest}.nbc"
+    with _locked(self._cache_path):
+        self._save_data(name, data)
+        overloads = self._load_index()
+        if overloads.get(key) != name:
+            overloads[key] = name
+            self._save_index(overloads)
+
+
+@contextlib.contextmanager
+def _locked(folder: str) -> Iterator[None]:
+    """An exclusive lock on ``folder`` (its file ``LOCK_NAME``) across processes, where
+    the system has ``fcntl``; released when the file is closed."""
+    if fcntl is None:
+        yield
+        return
+    with open(os.path.join(folder, LOCK_NAME), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
 
 
 # The processors the kernels are compiled for, best first, where the machine runs their
@@ -170,6 +224,7 @@ def _register() -> None:
     for cls in reversed(LOCATORS):
         if cls not in classes:
             classes.insert(0, cls)
+    caching.IndexDataCacheFile.save = _save
 
 
 _register()

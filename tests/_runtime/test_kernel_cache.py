@@ -9,6 +9,7 @@ import re
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numba.core.registry
@@ -271,11 +272,13 @@ def test_the_level_is_the_best_whose_every_feature_the_processor_has() -> None:
 # A child interpreter that saves ``n`` entries of one function's cache in ``folder`` as
 # this package's kernels are saved (their stamp), each naming its own code.
 SAVER = textwrap.dedent("""
-    import sys
+    import os, sys, time
     from numba.core import caching
     from pipestitch._runtime import kernel_cache, kernel_sources  # noqa: F401
     folder, worker, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     cache = caching.IndexDataCacheFile(folder, "f-1.py311", kernel_sources.sources_stamp())
+    while not os.path.exists(os.path.join(folder, "go")):   # all start saving at once
+        time.sleep(0.001)
     for i in range(n):
         cache.save((f"signature {worker}.{i}", ("x86_64", "level", ""), ("code", "")),
                    f"code of {worker}.{i}")
@@ -287,12 +290,31 @@ def test_kernels_saved_by_several_processes_at_once_keep_their_own_code(
     # numba's own save numbers the data files as it reads the index: processes saving at
     # once take the same numbers, lose each other's entries and can name one entry's
     # file with another's code (a set-up's pool did so)
-    children = [subprocess.Popen([sys.executable, "-c", SAVER, str(tmp_path), str(w), "40"])
+    children = [subprocess.Popen([sys.executable, "-c", SAVER, str(tmp_path), str(w), "150"])
                 for w in range(3)]
+    time.sleep(2.0)   # the children started and are waiting
+    (tmp_path / "go").touch()
     assert [child.wait(timeout=300) for child in children] == [0, 0, 0]
     cache = caching.IndexDataCacheFile(str(tmp_path), "f-1.py311",
                                        kernel_sources.sources_stamp())
     index = cache._load_index()
-    assert len(index) == 3 * 40
+    assert len(index) == 3 * 150
     for key in index:
         assert cache.load(key) == f"code of {key[0].split()[-1]}"
+
+
+def test_a_kernel_is_saved_where_the_folder_cannot_be_locked(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    class NoLocks:
+        LOCK_EX = 2
+
+        @staticmethod
+        def flock(handle: object, operation: int) -> None:
+            raise OSError(37, "No locks available")
+
+    monkeypatch.setattr(kernel_cache, "fcntl", NoLocks)
+    cache = caching.IndexDataCacheFile(str(tmp_path), "f-1.py311",
+                                       kernel_sources.sources_stamp())
+    key = ("signature", ("x86_64", "level", ""), ("code", ""))
+    cache.save(key, "its code")
+    assert cache.load(key) == "its code"

@@ -105,7 +105,10 @@ def _save(self: caching.IndexDataCacheFile, key: tuple, data: object) -> None:
     if self._source_stamp != sources_stamp():
         _NUMBA_SAVE(self, key, data)
         return
-    digest = hashlib.sha256(repr(key).encode()).hexdigest()[:20]
+    # the stamp and numba's version too: processes of other sources sharing the folder
+    # never write each other's files
+    digest = hashlib.sha256(repr((self._source_stamp, self._version, key)).encode()
+                            ).hexdigest()[:20]
     name = f"{self._index_name[:-len('.nbi')]}.{digest}.nbc"
     with _locked(self._cache_path):
         self._save_data(name, data)
@@ -118,13 +121,23 @@ def _save(self: caching.IndexDataCacheFile, key: tuple, data: object) -> None:
 @contextlib.contextmanager
 def _locked(folder: str) -> Iterator[None]:
     """An exclusive lock on ``folder`` (its file ``LOCK_NAME``) across processes, where
-    the system has ``fcntl``; released when the file is closed."""
-    if fcntl is None:
+    the system has ``fcntl`` and the lock can be taken (else none: concurrent saves may
+    then lose an index entry, compiled again later, never file wrong code); released
+    when the file is closed."""
+    handle = None
+    if fcntl is not None:
+        try:
+            handle = open(os.path.join(folder, LOCK_NAME), "a")   # closed below
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        except OSError:   # another user's lock file, a file system without locks
+            if handle is not None:
+                handle.close()
+            handle = None
+    try:
         yield
-        return
-    with open(os.path.join(folder, LOCK_NAME), "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        yield
+    finally:
+        if handle is not None:
+            handle.close()
 
 
 # The processors the kernels are compiled for, best first, where the machine runs their

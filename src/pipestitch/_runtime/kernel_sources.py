@@ -16,8 +16,12 @@ __all__ = ["KERNEL_SOURCES", "PACKAGE", "sources_stamp"]
 PACKAGE = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
 
 # Every file, relative to the package, whose text can end up in a kernel's compiled
-# code: the modules that define kernels and the modules they import names from.
+# code: the modules that define kernels and the modules they import names from; and
+# the module that saves and keys the cache (a change to how kernels are saved or which
+# processor they are compiled for re-stamps every cached kernel, so that none saved
+# the old way is loaded).
 KERNEL_SOURCES = (
+    "_runtime/kernel_cache.py",
     "camera/base.py",
     "camera/kernels.py",
     "camera/ocam.py",

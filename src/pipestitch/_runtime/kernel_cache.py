@@ -42,7 +42,7 @@ except ImportError:   # not POSIX: no lock (each entry's file still holds its ow
     fcntl = None
 
 import llvmlite.binding as llvm
-from numba.core import caching, codegen, config, registry
+from numba.core import caching, config, registry
 
 from pipestitch._runtime.kernel_sources import PACKAGE, sources_stamp
 
@@ -223,13 +223,11 @@ def pin_portable_target() -> bool:
     return True
 
 
-def compile_target() -> tuple[str, str]:
-    """(processor, features) numba compiles this process' kernels for: what it keys
-    each cached kernel by (with the platform)."""
-    name = config.CPU_NAME or llvm.get_host_cpu_name()
-    features = (config.CPU_FEATURES if config.CPU_FEATURES is not None
-                else codegen.get_host_cpu_features())
-    return name, features
+def compile_target() -> tuple[str, str, str]:
+    """(platform, processor, features) numba compiles this process' kernels for: the
+    part of each cached kernel's key that names the machine (numba's own
+    ``magic_tuple``; it makes numba's compiler if none was made yet)."""
+    return registry.cpu_target.target_context.codegen().magic_tuple()
 
 
 def _register() -> None:

@@ -106,6 +106,43 @@ def test_moved_division_interpolates_a_shift_varying_along_the_ring() -> None:
     assert np.any(got == 0) and np.any(got != 0)
 
 
+def _moved_in_float32(local: np.ndarray, along: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """The moved LED frame as the kernel forms each sample, in numpy's float32: the two
+    rows about ``r + across[r]`` (wrapping), each read at its columns ``j + floor(along)``
+    and the next, clamped to the row, then weighted along and across the rays."""
+    n_rays, n = local.shape
+    f32 = np.float32
+    out = np.empty_like(local)
+    for r in range(n_rays):
+        low, first = np.floor(r + across[r]), np.floor(along[r])
+        wy, wx = f32(r + across[r] - low), f32(along[r] - first)
+        above, below = local[int(low) % n_rays], local[(int(low) + 1) % n_rays]
+        c0 = np.clip(np.arange(n) + int(first), 0, n - 1)
+        c1 = np.clip(np.arange(n) + int(first) + 1, 0, n - 1)
+        top = (f32(1) - wx) * above[c0] + wx * above[c1]
+        bottom = (f32(1) - wx) * below[c0] + wx * below[c1]
+        out[r] = (f32(1) - wy) * top + wy * bottom
+    return out
+
+
+def test_moved_division_reads_every_sample_as_its_clamped_formula() -> None:
+    """Fractional shifts from far in past a row's start to far out past its end (every
+    sample clamped), through every split between the samples read inside the row and
+    those clamped at either end: the same float32 values as the per-sample formula with
+    clamped columns, to the bit."""
+    polar, local = _moved_frames(n_rays=41, n=50)
+    n_rays, n = local.shape
+    along = np.linspace(-1.5 * n, 1.5 * n, n_rays) + 0.37
+    along[::7] = np.floor(along[::7])               # whole shifts too
+    along[3], along[4] = n - 1.25, -(n - 1) + 0.25  # one sample inside, at either end
+    across = np.sin(np.arange(n_rays)) * 3.4
+    got = flatten_by_moved_reflectance(polar, local, along, across, 41, 0.15, 0.15)
+    want = flatten_by_reflectance(polar, _moved_in_float32(local, along, across), 41, 0.15,
+                                  0.15)
+    np.testing.assert_array_equal(got, want)
+    assert np.any(got != 0)
+
+
 # --- the line's width and the centroids: the numpy expressions they replace -------------
 
 def _row_percentile(values: np.ndarray, q: float) -> np.ndarray:

@@ -9,7 +9,9 @@ from scipy.spatial import cKDTree
 from pipestitch.camera import default_camera
 from pipestitch.geometry import PipeSection, Pose, WallGrid, laser_ring
 from pipestitch.pose.ring import (
+    _integer_contrast,
     detect_ring,
+    laser_channel,
     polar_crop,
     polar_grid,
     prepare_laser_frame,
@@ -97,6 +99,31 @@ def test_colour_frame_uses_the_laser_channel() -> None:
     grey = prepare_laser_frame(img)
     assert grey[21, 5] == pytest.approx(60000 / 65535)
     assert grey[5, 5] == pytest.approx(1000 / 65535)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_laser_channel_contrast_is_numpy_s_percentile_less_median(dtype: type) -> None:
+    """The histogram's contrast equals numpy's percentile less median of the values as
+    float32, exactly, on samples of odd and even sizes, with few distinct values, hot
+    pixels and constant ones; and the channel chosen is the one numpy's figures give."""
+    rng = np.random.default_rng(5)
+    top = np.iinfo(dtype).max
+    for n in (1, 2, 3, 999, 1000, 1001, 78_336):
+        for values in (rng.integers(0, top, n, endpoint=True),
+                       rng.integers(0, 4, n) * (top // 3),
+                       np.full(n, top // 2), np.minimum(rng.poisson(30, n), top)):
+            values = values.astype(dtype)
+            values[: n // 500] = top   # hot pixels
+            f = values.astype(np.float32)
+            assert _integer_contrast(values) == np.percentile(f, 99.9) - np.median(f)
+    for shape in ((1024, 1224, 3), (1024, 1224, 4), (333, 301, 3), (7, 9, 2)):
+        img = rng.integers(0, top, shape, endpoint=True).astype(dtype)
+        img[..., shape[2] - 1] //= 2
+        img[100:104] = top   # a bright line in every channel
+        sub = img[::max(1, shape[0] // 256), ::max(1, shape[0] // 256), :3]
+        flat = sub.reshape(-1, sub.shape[2]).astype(np.float32)
+        want = np.percentile(flat, 99.9, axis=0) - np.median(flat, axis=0)
+        assert laser_channel(img) == int(np.argmax(want))
 
 
 def test_integer_frames_are_cast_then_scaled_exactly() -> None:

@@ -306,8 +306,8 @@ def _read_grey(dataset: Dataset, index: int, timer: StageTimer, *,
         led = dataset.read_led(index)
         if blank := blank_led(dataset, index, led):   # the pose pass took the laser frame alone
             raise DatasetError(dataset.led_paths[index], blank)
-        out = (scratch.buffer("mosaic.grey", led.shape, np.float32)
-               if scratch_buffer and led.ndim == 2 else None)
+        out = (scratch.buffer("mosaic.grey", led.shape[:2], np.float32)
+               if scratch_buffer else None)
         grey = to_grey(led, out=out)   # a new array or this thread's buffer
         return repair_pixels(grey, *defects) if len(defects) else grey
 

@@ -109,9 +109,42 @@ def laser_channel(img: np.ndarray) -> int | None:
     if arr.ndim != 3:
         return None
     step = max(1, arr.shape[0] // 256)
-    sub = arr[::step, ::step, :3].reshape(-1, min(3, arr.shape[2])).astype(np.float32)
-    contrast = np.percentile(sub, 99.9, axis=0) - np.median(sub, axis=0)
+    sub = arr[::step, ::step, :3]
+    if arr.dtype in (np.uint8, np.uint16):
+        contrast = [_integer_contrast(sub[..., c]) for c in range(sub.shape[2])]
+    else:
+        flat = sub.reshape(-1, sub.shape[2]).astype(np.float32)
+        contrast = np.percentile(flat, TOP_PERCENT, axis=0) - np.median(flat, axis=0)
     return int(np.argmax(contrast))
+
+
+TOP_PERCENT = 99.9   # the laser's peak: a percentile, so that a few hot pixels do not count
+
+
+def _integer_contrast(values: np.ndarray) -> np.float32:
+    """``numpy.percentile(v, TOP_PERCENT) - numpy.median(v)`` of integer ``values`` as
+    float32 (what :func:`laser_channel` compares), from their histogram: the two order
+    statistics either side of each, combined as numpy combines them for a float32
+    array (its linear method; tests/pose/test_ring.py holds it to numpy's). A
+    frame's sample is ~78,000 pixels; numpy partitions them for each (4.7-4.9 ms for
+    three channels), a histogram takes 0.5 ms."""
+    cumulative = np.cumsum(np.bincount(values.ravel()))
+    n = int(cumulative[-1])
+
+    def ranked(rank: int) -> np.float32:   # the value at this rank of the sorted values
+        return np.float32(np.searchsorted(cumulative, rank, side="right"))
+
+    q = TOP_PERCENT / 100
+    at = n * q + (1 - q) - 1   # (n - 1) q, as numpy sums it (float64)
+    if at >= n - 1:
+        top = ranked(n - 1)
+    else:   # float32 values weighted by float64 weights taken as float32
+        low = math.floor(at)
+        a, b, gamma = ranked(low), ranked(low + 1), at - low
+        step = b - a
+        top = (b - step * np.float32(1 - gamma) if gamma >= 0.5
+               else a + step * np.float32(gamma))
+    return top - (ranked((n - 1) // 2) + ranked(n // 2)) / np.float32(2)
 
 
 def prepare_laser_frame(img: np.ndarray, channel: int | None = None, *,

@@ -88,8 +88,12 @@ def _sub_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
             left = np.uint8(raw[src + x] + left)
             out[dst + x] = left
         return
-    for x in range(n):
-        out[dst + x] = raw[src + x] if x < step else np.uint8(raw[src + x] + out[dst + x - step])
+    row, cur = raw[src:src + n], out[dst:dst + n]
+    for k in range(min(step, n)):   # each byte of a pixel its own chain, in a register
+        left = np.uint8(0)
+        for x in range(k, n, step):
+            left = np.uint8(row[x] + left)
+            cur[x] = left
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -67,8 +67,12 @@ def test_colour_to_grey_by_blocks_of_rows_is_the_whole_frame_s_conversion(
     else:
         img = rng.random(shape).astype(dtype)
         img[0, 0, 1] = np.nan
+    given = img.copy()
     want = _grey_whole_frame(img)
     np.testing.assert_array_equal(to_grey(img), want)
     out = np.full(shape[:2], -1.0, np.float32)
     assert to_grey(img, out=out) is out
     np.testing.assert_array_equal(out, want)
+    strided = np.full((shape[1], shape[0]), -1.0, np.float32).T   # not C-ordered: not used
+    np.testing.assert_array_equal(to_grey(img, out=strided), want)
+    np.testing.assert_array_equal(img, given)   # the frame itself is left as it was

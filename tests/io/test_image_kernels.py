@@ -77,12 +77,19 @@ def test_unfilter_undoes_every_filter_in_any_order_of_rows(step: int, width: int
         image = rng.integers(0, 256, (20, width * step), dtype=np.uint8)
         raw = _spec_filtered(image, kinds, step).ravel()
         raw.flags.writeable = False
-        out = np.zeros(image.size, np.uint8)
+        out = np.full(image.size, 0xAB, np.uint8)   # nothing read before it is written
         assert png_unfilter(raw, image.shape[0], image.shape[1], step, out)
         np.testing.assert_array_equal(out.reshape(image.shape), image)
 
 
-def test_unfilter_refuses_an_unknown_filter() -> None:
-    raw = np.array([5, 1, 2, 3], np.uint8)
+@pytest.mark.parametrize("bad_row", [0, 2, 5])
+def test_unfilter_refuses_an_unknown_filter(bad_row: int) -> None:
+    """A filter byte above 4 anywhere, also among Paeth rows unfiltered four at a time:
+    False, the rows before it unfiltered."""
+    image = np.random.default_rng(bad_row).integers(0, 256, (8, 6), dtype=np.uint8)
+    raw = _spec_filtered(image, np.full(8, 4), 1)
+    raw[bad_row, 0] = 5
     raw.flags.writeable = False
-    assert not png_unfilter(raw, 1, 3, 1, np.zeros(3, np.uint8))
+    out = np.zeros(image.size, np.uint8)
+    assert not png_unfilter(raw.ravel(), 8, 6, 1, out)
+    np.testing.assert_array_equal(out.reshape(image.shape)[:bad_row], image[:bad_row])

@@ -66,7 +66,8 @@ def _bgr_to_grey(arr: np.ndarray, out: np.ndarray | None) -> np.ndarray:
     frame's float32 copy (15 MB at 1224 x 1024) went to memory and back, 3.6 ms a
     frame in a run. The same values: the conversion is pixel by pixel."""
     rows, cols = arr.shape[:2]
-    if out is None or out.shape != (rows, cols) or out.dtype != np.float32:
+    if (out is None or out.shape != (rows, cols) or out.dtype != np.float32
+            or not out.flags.c_contiguous):
         out = np.empty((rows, cols), np.float32)
     block = scratch.buffer("grey.colour", (min(COLOUR_ROWS, rows), cols, 3), np.float32)
     for first in range(0, rows, COLOUR_ROWS):

@@ -9,9 +9,10 @@ unfilter (:func:`pipestitch.io._image_kernels.png_unfilter`) 0.35 ms, 2.8 ms in 
 (docs/benchmarks.md). No decoder library we found is faster than OpenCV's here
 (imagecodecs' libpng and libspng take 6.8 and 7.3 ms). The stream is inflated to the
 image's size and a byte more at most, whatever it holds. Those figures are for OpenCV's
-files (every row Sub-filtered); Pillow and imageio filter a camera's frame mostly with
-Paeth, whose rows unfilter in 1.1-1.2 ms (a grey 1224 x 1024 frame: OpenCV decodes such
-a file in ~12 ms, this reader in ~3.3 ms).
+files (every row Sub-filtered). Pillow (and imageio, which writes PNGs through it)
+chooses a filter for each row: a textured LED frame's rows came out nearly all Paeth,
+which unfilter in 1.1-1.2 ms (a grey 1224 x 1024 frame: OpenCV decodes such a file in
+~12 ms, this reader in ~3.3 ms), a mostly dark laser frame's Up and Sub.
 
 Only the layouts cameras write are decoded here: 8- or 16-bit grey, RGB or RGBA, not
 interlaced, whose chunks are the image's own (IHDR, IDAT, IEND) or ancillary ones that

@@ -121,8 +121,8 @@ def occluder_mask(frames: Sequence[np.ndarray], *, relative: float = 0.35,
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         list(pool.map(fill, range(len(frames))))
-    # numpy.quantile's "linear" virtual index (n·q + (1 - q) - 1), in its arithmetic.
-    virtual = len(stack) * NEARLY_ALL + (1 - NEARLY_ALL) - 1
+    # numpy.quantile's "linear" virtual index, (n - 1)·q, in its arithmetic.
+    virtual = (len(stack) - 1) * NEARLY_ALL
     ratio = quantile_over_frames(ratios, virtual, False)[0]
     level, typical = quantile_over_frames(stack, virtual, True)
     scale = float(median(typical[typical > 0])) if np.any(typical > 0) else 1.0

@@ -63,7 +63,8 @@ def flatten_by_moved_reflectance(polar: np.ndarray, local: np.ndarray, along: np
     weights, which it rounds to 1/32 of a sample: bitwise at whole shifts. Each block of
     ``ROWS`` rows is moved into a small buffer and divided while in the cache, instead of
     a moved frame-sized copy read again (a 1440 x 578 polar frame, one thread: 6.1 -> 3.3
-    ms).
+    ms; 2.7 ms since :func:`_moved_row` reads a row's inside samples in one vectorised
+    loop).
     """
     n_rows, n = polar.shape
     out = np.empty(polar.shape, np.float32)
@@ -87,7 +88,8 @@ def _moved_row(local: np.ndarray, row: int, along: float, across: float,
 
     The samples whose two columns both lie inside the row are one loop of contiguous
     reads, which LLVM vectorises; only those reading past an end clamp their columns
-    (the same arithmetic for every sample: 1.4 -> 0.5 ms for a 1440 x 578 frame)."""
+    (the same arithmetic for every sample; the moved division of a 1440 x 578 polar
+    frame 3.9-4.1 -> 2.7-2.8 ms)."""
     n_rows, n = local.shape
     at = row + across
     low = math.floor(at)

@@ -135,7 +135,7 @@ def _integer_contrast(values: np.ndarray) -> np.float32:
         return np.float32(np.searchsorted(cumulative, rank, side="right"))
 
     q = TOP_PERCENT / 100
-    at = n * q + (1 - q) - 1   # (n - 1) q, as numpy sums it (float64)
+    at = (n - 1) * q   # numpy's virtual index for its linear method (float64)
     if at >= n - 1:
         top = ranked(n - 1)
     else:   # float32 values weighted by float64 weights taken as float32

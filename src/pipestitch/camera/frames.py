@@ -55,7 +55,6 @@ def to_grey(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
     return arr if integer else np.nan_to_num(arr, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
 
 
-
 COLOUR_ROWS = 32   # rows of a colour frame cast at a time: their float32 copy (~0.5 MB
                    # at 1224 px) stays in a core's cache between the cast and OpenCV
 
@@ -76,6 +75,7 @@ def _bgr_to_grey(arr: np.ndarray, out: np.ndarray | None) -> np.ndarray:
         np.copyto(part, arr[first:last, :, :3], casting="unsafe")
         cv2.cvtColor(part, cv2.COLOR_BGR2GRAY, dst=out[first:last])
     return out
+
 
 BLANK_SAMPLE = 4        # every 4th row and column is looked at (a 1224-px frame: 78k pixels)
 BLANK_TAIL = 0.001      # the share of samples either end of the range may hold (hot pixels)

@@ -22,7 +22,14 @@ moves less); then the run's own reader over the same frames (PNGs decoded by
 ``first`` <= 1.5 x ``warm``; a warm
 run >= 10 pairs/s at 1224 x 1024 and <= 3 x the decode floor.
 
+The simulator writes its frames with OpenCV: 8-bit grey PNGs, every row Sub-filtered.
+``--frames`` saves the simulated frames again as others write them, the same pixels:
+``pillow`` (Pillow's PNG writer, which imageio uses too: a filter chosen for each row,
+mostly Paeth on a textured frame), ``colour`` (BGR, the grey value in each channel) or
+``16bit`` (grey, times 257).
+
 Run: python -u bench/first_run.py [--quick] [--pairs N] [--repeat N] [--work DIR]
+                                  [--frames opencv|pillow|colour|16bit]
      python -u bench/first_run.py --dataset DIR [--no-cold]   (an existing dataset)
 """
 
@@ -105,6 +112,30 @@ def decode_floor(data: Path, *, own: bool = False) -> float:
     return time.perf_counter() - t0
 
 
+FRAMES = ("opencv", "pillow", "colour", "16bit")   # how --frames saves the simulated frames
+
+
+def rewrite_frames(data: Path, how: str) -> None:
+    """Save every frame of ``data/frames`` again as ``how`` says (:data:`FRAMES`; the
+    module docstring), the same pixels; "opencv" leaves them as they are."""
+    if how not in FRAMES:
+        raise ValueError(f"--frames: expected one of {', '.join(FRAMES)}, got {how!r}")
+    if how == "opencv":
+        return
+    import cv2
+    import numpy as np
+    from PIL import Image  # installed with matplotlib
+
+    for path in sorted((data / "frames").glob("*.png")):
+        grey = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if how == "pillow":
+            Image.fromarray(grey).save(path)
+        elif how == "colour":
+            cv2.imwrite(str(path), cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+        else:
+            cv2.imwrite(str(path), grey.astype(np.uint16) * 257)
+
+
 def main() -> None:
     """Simulate the dataset, time the runs, print the table and the ratios."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -117,6 +148,8 @@ def main() -> None:
     parser.add_argument("--work", type=Path, help="keep the dataset, caches and outputs here")
     parser.add_argument("--dataset", type=Path, help="time this dataset (not simulated)")
     parser.add_argument("--no-cold", action="store_true", help="leave out the cold run")
+    parser.add_argument("--frames", default="opencv", choices=FRAMES,
+                        help="save the simulated frames again this way (the same pixels)")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="pipestitch-first-run-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -128,6 +161,7 @@ def main() -> None:
             subprocess.run([*pipestitch(), "simulate", "--scenario", args.scenario, "--size",
                             args.size, "--pairs", str(pairs), "--out", str(data), "-q"],
                            check=True, stdout=subprocess.DEVNULL)
+            rewrite_frames(data, args.frames)
         run = [*pipestitch(), "run", str(data), "-q", "--out"]
         caches = {name: Path(tempfile.mkdtemp(prefix=f"numba-{name}-", dir=work))
                   for name in ("cold", "setup")}
@@ -145,7 +179,8 @@ def main() -> None:
                                                      caches["setup"])))
             floors.append(decode_floor(data))
         warm = min(wall for name, wall, _ in rows if name.startswith("warm"))
-        what = args.dataset or f"{args.scenario!r} at {args.size} size"
+        what = args.dataset or (f"{args.scenario!r} at {args.size} size"
+                                + ("" if args.frames == "opencv" else f", {args.frames} frames"))
         print(f"pipestitch run, {pairs} pairs of {what}, {os.cpu_count()} cores")
         print(f"{'what':<28} {'wall s':>8} {'pairs/s':>8} {'peak MB':>8} {'x warm':>7}")
         for name, wall, mb in rows:

@@ -58,3 +58,34 @@ def test_mosaic_benchmark_slips_the_odometer_from_mid_run(
     assert lines == ["frame,z_mm", "0,0.500000", "1,5.250000", "2,6.000000", "3,11.125000"]
     with pytest.raises(ValueError, match="no odometer"):
         module.slip_odometer(tmp_path / "missing", 4.0)
+
+
+def test_first_run_benchmark_saves_frames_again_with_the_same_pixels(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench/first_run.py --frames: Pillow's PNGs (a filter chosen for each row), BGR and
+    16-bit frames, each decoding to the frame written (colour: the grey value in every
+    channel; 16-bit: times 257); an unknown way is refused."""
+    import importlib.util
+
+    import cv2
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("bench_first_run", BENCH / "first_run.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)
+    spec.loader.exec_module(module)
+    rng = np.random.default_rng(3)
+    grey = np.clip(rng.normal(120, 40, (64, 80)), 0, 255).astype(np.uint8)
+    for how, want in (("opencv", grey), ("pillow", grey),
+                      ("colour", np.repeat(grey[..., None], 3, axis=2)),
+                      ("16bit", grey.astype(np.uint16) * 257)):
+        data = tmp_path / how
+        (data / "frames").mkdir(parents=True)
+        cv2.imwrite(str(data / "frames" / "led_00000.png"), grey)
+        module.rewrite_frames(data, how)
+        np.testing.assert_array_equal(
+            cv2.imread(str(data / "frames" / "led_00000.png"), cv2.IMREAD_UNCHANGED), want)
+    assert (tmp_path / "pillow" / "frames" / "led_00000.png").read_bytes() != (
+        tmp_path / "opencv" / "frames" / "led_00000.png").read_bytes()
+    with pytest.raises(ValueError, match="--frames"):
+        module.rewrite_frames(tmp_path / "opencv", "jpeg")

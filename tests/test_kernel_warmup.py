@@ -132,7 +132,8 @@ def test_the_set_up_key_follows_the_kernel_sources(monkeypatch: pytest.MonkeyPat
     monkeypatch.setenv("NUMBA_CACHE_DIR", "/elsewhere")
     assert ck.source_key() != moved
     elsewhere = ck.source_key()
-    monkeypatch.setattr(kernel_cache, "compile_target", lambda: ("znver4", "+avx512f"))
+    monkeypatch.setattr(kernel_cache, "compile_target",
+                        lambda: ("x86_64-unknown-linux-gnu", "znver4", "+avx512f"))
     assert ck.source_key() != elsewhere
 
 

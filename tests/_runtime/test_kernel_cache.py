@@ -277,6 +277,7 @@ SAVER = textwrap.dedent("""
     from pipestitch._runtime import kernel_cache, kernel_sources  # noqa: F401
     folder, worker, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     cache = caching.IndexDataCacheFile(folder, "f-1.py311", kernel_sources.sources_stamp())
+    open(os.path.join(folder, f"ready-{worker}"), "w").close()
     while not os.path.exists(os.path.join(folder, "go")):   # all start saving at once
         time.sleep(0.001)
     for i in range(n):
@@ -292,7 +293,11 @@ def test_kernels_saved_by_several_processes_at_once_keep_their_own_code(
     # file with another's code (a set-up's pool did so)
     children = [subprocess.Popen([sys.executable, "-c", SAVER, str(tmp_path), str(w), "150"])
                 for w in range(3)]
-    time.sleep(2.0)   # the children started and are waiting
+    deadline = time.monotonic() + 120
+    while len(list(tmp_path.glob("ready-*"))) < 3:   # every child imported and waiting
+        assert time.monotonic() < deadline, "the savers did not start"
+        assert all(child.poll() is None for child in children), "a saver failed to start"
+        time.sleep(0.01)
     (tmp_path / "go").touch()
     assert [child.wait(timeout=300) for child in children] == [0, 0, 0]
     cache = caching.IndexDataCacheFile(str(tmp_path), "f-1.py311",

@@ -139,8 +139,7 @@ def _paeth_row(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int,
     for x in range(min(step, n)):   # left and upper-left 0: the predictor is the upper byte
         cur[x] = np.uint8((np.int32(row[x]) + np.int32(up[x])) & 255)
     for x in range(step, n):
-        left, corner = np.int32(cur[x - step]), np.int32(up[x - step])
-        cur[x] = np.uint8((np.int32(row[x]) + _paeth(left, np.int32(up[x]), corner)) & 255)
+        _paeth_byte(row, up, cur, x, np.int32(cur[x - step]), np.int32(up[x - step]))
 
 
 PAETH_ROWS = 4   # Paeth rows unfiltered together: four dependency chains side by side
@@ -200,10 +199,10 @@ def _paeth_rows(raw: np.ndarray, src: int, out: np.ndarray, dst: int, n: int) ->
 @numba.njit(cache=True, nogil=True, inline="always")
 def _paeth_byte(row: np.ndarray, up: np.ndarray, cur: np.ndarray, x: int, left: np.int32,
                 corner: np.int32) -> tuple[np.int32, np.int32]:
-    """Byte ``x`` of a Paeth-filtered row of single-byte pixels (``row`` filtered,
-    ``up`` the row above unfiltered, ``cur`` this row's output) from its unfiltered
-    ``left`` and upper-left (``corner``) neighbours; returns (the byte, the byte above
-    it): byte ``x + 1``'s left and upper-left."""
+    """Byte ``x`` of a Paeth-filtered row (``row`` filtered, ``up`` the row above
+    unfiltered, ``cur`` this row's output) from its unfiltered ``left`` and upper-left
+    (``corner``) neighbours; returns (the byte, the byte above it): with single-byte
+    pixels, byte ``x + 1``'s left and upper-left."""
     above = np.int32(up[x])
     value = (np.int32(row[x]) + _paeth(left, above, corner)) & 255
     cur[x] = np.uint8(value)

@@ -63,6 +63,27 @@ def test_frame_sized_buffers_are_reused_from_the_heap() -> None:
     assert _faults("mapped", "worker") >= 100
 
 
+# numpy's huge-page mark of its large buffers, after the run's heap policy is made
+HINT = """
+import numpy as np
+from pipestitch._runtime.memory import keep_buffers_in_heap
+keep_buffers_in_heap()
+print(np._core.multiarray._get_madvise_hugepage())
+"""
+
+
+@pytest.mark.parametrize(("chosen", "expected"), [(None, "False"), ("1", "True"),
+                                                  ("0", "False")])
+def test_the_heap_policy_turns_numpys_huge_page_mark_off_unless_the_user_chose(
+        chosen: str | None, expected: str) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if chosen is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = chosen
+    out = subprocess.run([sys.executable, "-c", HINT], capture_output=True, text=True,
+                         check=True, env=env)
+    assert out.stdout.strip() == expected
+
+
 def test_every_n_calls_after_each_nth_item() -> None:
     calls: list[int] = []
     items = list(every_n(range(7), 3, lambda: calls.append(1)))

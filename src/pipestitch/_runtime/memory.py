@@ -22,13 +22,13 @@ of this is a no-op.
 numpy marks each buffer of 4 MB or more for transparent huge pages (``madvise``
 ``MADV_HUGEPAGE``), and the mark stays on those pages of the heap after the buffer is
 freed (numpy issue 31590): where the system gives huge pages only to marked memory
-(``/sys/kernel/mm/transparent_hugepage/enabled`` ``madvise``, as here), each first touch
-of a marked page after a trim had the kernel zero 2 MB at once, whatever part of it was
-used. :func:`without_huge_page_hints` turns the mark off for the run
-(:func:`keep_buffers_in_heap` calls it): on a 60-pair half-size run 177-212 huge pages
-faulted in and the kernel's page zeroing 2.0 % of the CPU samples against 0.27 %, system
-time 0.8-1.4 s against 0.7-0.8 s, the whole command ~4 % faster (at full size too; at
-1000 pairs the same time: docs/benchmarks.md).
+(``/sys/kernel/mm/transparent_hugepage/enabled`` ``madvise``, as on the machine of
+docs/benchmarks.md), each first touch of a marked page after a trim had the kernel zero
+2 MB at once, whatever part of it was used. :func:`without_huge_page_hints` turns the
+mark off for the run (:func:`keep_buffers_in_heap` calls it): on a 60-pair half-size run
+177-212 huge pages faulted in and the kernel's page zeroing 2.0 % of the CPU samples
+against 0.27 %, system time 0.8-1.4 s against 0.7-0.8 s; runs of 60 pairs 2-5 % faster
+at either frame size, 1000 pairs in the same time.
 """
 
 from __future__ import annotations

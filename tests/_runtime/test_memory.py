@@ -65,10 +65,13 @@ def test_frame_sized_buffers_are_reused_from_the_heap() -> None:
 
 # numpy's huge-page mark of its large buffers, after the run's heap policy is made
 HINT = """
-import numpy as np
+try:
+    from numpy._core.multiarray import _get_madvise_hugepage
+except ImportError:   # numpy 1.26
+    from numpy.core.multiarray import _get_madvise_hugepage
 from pipestitch._runtime.memory import keep_buffers_in_heap
 keep_buffers_in_heap()
-print(np._core.multiarray._get_madvise_hugepage())
+print(_get_madvise_hugepage())
 """
 
 

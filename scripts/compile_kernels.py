@@ -51,6 +51,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("pose._fit_kernels", "fit_fields",   # Candidates, RayKernel, Plane, FitSettings
      "f8:2 i8:1A i8:1A i8 i8 f8:1 f8:1 f8:1 f8:1 i8:1 f8 f8:1r f8:2r f8 f8 i8 f8 i8 i8 f8 f8:2"),
     ("pose._fit_kernels", "rays_to_plane", f"f8:2 {PLANE}"),
+    ("pose._pair_motion_kernels", "sector_correlations",
+     "f4:2 i8 i8 i8:2 i8:1 i8:1 f8:1 f8:1 i8:1 i8 i8"),
     ("pose._ring_kernels", "flatten_by_reflectance", "f4:2 f4:2 i8 f8 f8"),
     ("pose._ring_kernels", "flatten_by_moved_reflectance", "f4:2 f4:2 f8:1 f8:1 i8 f8 f8"),
     ("pose._ring_kernels", "ridge_peaks", "f4:2 f8 i8"),

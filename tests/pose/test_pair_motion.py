@@ -125,19 +125,21 @@ def test_apply_reads_the_frame_where_the_shift_says(across: float) -> None:
                                    atol=0.1)
 
 
+@pytest.mark.parametrize(("shifts", "turns", "smooth"), [
+    (np.arange(-3, 12), np.arange(-2, 3), 1),              # 15 shifts: blocks of 4 and 3
+    (np.arange(-9, 10, 2), np.zeros(1, np.int64), pm.COARSE_SMOOTH),   # the coarse search
+    (np.arange(-398, 400, 57), np.array([-1, 1439]), 1),   # clipped at both ends of a ray
+])
 def test_the_correlations_are_each_sectors_pearson_coefficient(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """Every sector, turn and shift at once (and in blocks of a few turns) against
-    numpy's correlation coefficient of the same samples; a sector with too few rays
-    is NaN."""
+        shifts: np.ndarray, turns: np.ndarray, smooth: int) -> None:
+    """Every sector, turn and shift at once against numpy's correlation coefficient of
+    the same samples; a sector with too few rays is NaN."""
     laser, led, rays, at = _pair(np.full(N_RAYS, 9.0), np.zeros(N_RAYS), seed=5)
     keep = (rays < 700) | (rays % 97 == 0)   # sectors 4-7: a ray or two each, too few
     rays, at = rays[keep], at[keep]
     sectors = rays * pm.SECTORS // N_RAYS
-    shifts, turns = np.arange(-3, 12), np.arange(-2, 3)
-    line = pm._brightness(laser, rays, at)
-    monkeypatch.setattr(pm, "BLOCK_SAMPLES", 2 * shifts.size * rays.size)   # 3 blocks
-    got = pm._correlations(line, led, rays, at, sectors, shifts, turns)
+    line = pm._brightness(laser, rays, at, smooth)
+    got = pm._correlations(line, led, rays, at, sectors, shifts, turns, smooth)
     assert got.shape == (pm.SECTORS, turns.size, shifts.size)
     counts = np.bincount(sectors, minlength=pm.SECTORS)
     for k in range(pm.SECTORS):
@@ -148,6 +150,6 @@ def test_the_correlations_are_each_sectors_pearson_coefficient(
         for i, turn in enumerate(turns):
             for j, shift in enumerate(shifts):
                 wall = led[(rays + turn) % N_RAYS, np.clip(at + shift, 0, N_SAMPLES - 1)]
-                wall = pm._high_pass(np.log(wall)[None, :])[0]   # along the whole ring
+                wall = pm._high_pass(np.log(wall)[None, :], smooth)[0]   # the whole ring
                 want = np.corrcoef(wall[mine], line[mine])[0, 1]
                 assert got[k, i, j] == pytest.approx(want, abs=1e-6)

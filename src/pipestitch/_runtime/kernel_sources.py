@@ -37,6 +37,7 @@ KERNEL_SOURCES = (
     "mosaic/_register_kernels.py",
     "mosaic/_unwrap_kernels.py",
     "pose/_fit_kernels.py",
+    "pose/_pair_motion_kernels.py",
     "pose/_ring_kernels.py",
     "pose/_section_kernels.py",
 )

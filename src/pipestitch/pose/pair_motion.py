@@ -21,9 +21,10 @@ together (the correlation peaks at no shift, clearly above every shift outside t
 peak) or the wall shows too little texture under the line to tell (anything else).
 
 Why hand-written: no library measures a shift along a set of rays from a line's
-brightness; the correlations themselves are array sums.
+brightness; the correlations are sums over each sector's rays, one compiled pass
+(:func:`pipestitch.pose._pair_motion_kernels.sector_correlations`).
 
-Pure and vectorised: polar samples in, a shift per ray (samples) out.
+Pure: polar samples in, a shift per ray (samples) out.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from pipestitch.pose import _pair_motion_kernels as _k
 
 F32 = np.float32
 
@@ -54,10 +57,6 @@ COARSE = 2               # the first search takes every COARSE-th shift (samples
 # ... and smooths both sides along the ring over this many of its rays, so that a wall
 # also turned by a few rays (a sideways motion, a roll) still correlates
 COARSE_SMOOTH = 5
-# LED-frame samples gathered at once: memory stays bounded, and a block's temporaries
-# (indices, logarithms, products: ~40 bytes a sample) stay in a core's cache; blocks of
-# 2^20 took a moving half-size frame's ring search 2-3.5 ms (~10 %) longer
-BLOCK_SAMPLES = 1 << 16
 
 
 def led_shift(laser: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.ndarray,
@@ -214,41 +213,33 @@ def _correlations(line: np.ndarray, led: np.ndarray, rays: np.ndarray, at: np.nd
     (``line``: :func:`_brightness` with the same ``smooth``) with the LED frame's
     reflectance along the ring moved by each shift along the rays and each turn (rays)
     across them (logarithms, high-passed along the ring; the LED frame's ends of a ray
-    repeated beyond it); NaN where a sector has too few rays. Every turn and sector at
-    once, in blocks of about ``BLOCK_SAMPLES`` samples read from the LED frame (whole turns, at
-    least one)."""
-    member = np.zeros((rays.size, SECTORS))
-    member[np.arange(rays.size), sectors] = 1.0   # which sector each ring ray is in
-    count = member.sum(axis=0)
+    repeated beyond it); NaN where a sector has too few rays. ``sectors`` must not
+    decrease (the rays increase). The logarithms are taken once, over the samples the
+    shifts reach on the rays read (numpy's vectorised log: the values it gives each
+    sample alone), and read by
+    :func:`pipestitch.pose._pair_motion_kernels.sector_correlations`."""
+    count = np.bincount(sectors, minlength=SECTORS)
+    bounds = np.searchsorted(sectors, np.arange(SECTORS + 1))
+    line = line.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        centred = line - (line @ member / count)[sectors]   # each sector's own mean off
-        spread = (centred * centred) @ member / count
-    per_turn = max(1, BLOCK_SAMPLES // (shifts.size * rays.size))
-    out = np.concatenate([_block_correlations(centred, spread, led, rays, at, member, count,
-                                              shifts, turns[i:i + per_turn], smooth)
-                          for i in range(0, turns.size, per_turn)], axis=1)
+        centred = line - (np.bincount(sectors, line, SECTORS) / count)[sectors]
+        spread = np.bincount(sectors, centred * centred, SECTORS) / count
+    n_rays, n = led.shape
+    first = int(np.clip(at.min() + shifts.min(), 0, n - 1))
+    last = int(np.clip(at.max() + shifts.max(), 0, n - 1))
+    read = (rays[None, :] + turns[:, None]) % n_rays
+    if turns.size == 1:   # the rays of the ring only (one per row)
+        logs, read = led[read[0], first:last + 1], np.arange(rays.size)[None, :]
+    else:
+        logs = led[:, first:last + 1]
+    logs = np.maximum(logs, F32(1e-6))
+    np.log(logs, out=logs)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = _k.sector_correlations(logs, first, n, read.astype(np.int64),
+                                     at.astype(np.int64), bounds, centred, spread,
+                                     shifts.astype(np.int64), HIGH_PASS_RAYS, smooth)
     out[count < MIN_SECTOR_RAYS] = np.nan
     return out
-
-
-def _block_correlations(centred: np.ndarray, spread: np.ndarray, led: np.ndarray,
-                        rays: np.ndarray, at: np.ndarray, member: np.ndarray,
-                        count: np.ndarray, shifts: np.ndarray, turns: np.ndarray,
-                        smooth: int) -> np.ndarray:
-    """:func:`_correlations` for some turns: each sector's sums as one product with the
-    rays' sector membership (``member``, ``count`` rays each), the line's brightness
-    already centred in each sector (``centred``, its variance ``spread``)."""
-    n_rays, n = led.shape
-    # flat indices: one gather (numpy's two-index gather takes twice as long)
-    cols = np.clip(at[None, :] + shifts[:, None], 0, n - 1)
-    index = cols[None] + (((rays[None, :] + turns[:, None]) % n_rays) * n)[:, None, :]
-    wall = _high_pass(np.log(np.maximum(np.take(led, index.reshape(-1, rays.size)),
-                                        F32(1e-6))), smooth).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = wall @ member / count
-        var = (wall * wall) @ member / count - mean * mean
-        corr = ((wall * centred) @ member / count) / np.sqrt(var * spread)
-    return corr.T.reshape(SECTORS, turns.size, shifts.size)
 
 
 def _high_pass(values: np.ndarray, smooth: int = 1) -> np.ndarray:

@@ -37,10 +37,10 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "pipestitch"
 
-# (module, kernel, argument types). Types: f4 f8 i8 u1 u2 b1 are float32, float64, int64,
-# uint8, uint16 and bool scalars; "f4:2" is a C-contiguous 2-d float32 array, a trailing "A"
-# any layout, a trailing "r" read-only; "Name(f8 i8)" a named tuple of the kernel's
-# module (its class ``Name``) with fields of those types.
+# (module, kernel, argument types). Types: f4 f8 i8 i2 u1 u2 b1 are float32, float64,
+# int64, int16, uint8, uint16 and bool scalars; "f4:2" is a C-contiguous 2-d float32
+# array, a trailing "A" any layout, a trailing "r" read-only; "Name(f8 i8)" a named
+# tuple of the kernel's module (its class ``Name``) with fields of those types.
 PLANE = "Plane(f8 f8:1r f8:2r)"
 FIT_SETTINGS = "FitSettings(f8 f8 i8 f8 i8 i8)"
 KERNELS: tuple[tuple[str, str, str], ...] = (
@@ -87,6 +87,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("mosaic._blend_kernels", "shaded_albedo", "f4:2 f4:2 f4:2"),
     ("mosaic._flat_field_kernels", "fall_off_at", "f4:2 f4:2 f8 f8 f8 f8:1 f4:2"),
     ("mosaic._flat_field_kernels", "ring_index", "f4:2 f4:2 f8 f8 f8 i8"),
+    ("mosaic._flat_field_kernels", "pair_cells", "i2:2 f4:2 i2:2 f4:2 i8 i8 i8"),
+    ("mosaic._flat_field_kernels", "group_medians", "i8:1 f4:1"),
     ("mosaic._blend_kernels", "feathered_weight", "f4:2 f4:2 u1:2 i8"),
     ("mosaic._blend_kernels", "accumulate_strip", "f4:2 f4:2 i8 f4:2 f4:2 f8"),
     ("mosaic._blend_kernels", "gain_ratios", "f4:2 f4:2 i8 f4:2 f4:2 i8 f4:1"),
@@ -141,7 +143,8 @@ def _scalar_or_array(token: str) -> object:
     from numba.core import types
 
     scalars = {"f4": types.float32, "f8": types.float64, "i8": types.int64,
-               "u1": types.uint8, "u2": types.uint16, "b1": types.boolean}
+               "i2": types.int16, "u1": types.uint8, "u2": types.uint16,
+               "b1": types.boolean}
     name, _, rest = token.partition(":")
     if not rest:
         return scalars[name]

@@ -7,8 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipestitch.mosaic._flat_field_kernels import group_medians
 from pipestitch.mosaic.flat_field import (
     CLIPPED_WEIGHT,
+    MIN_PAIR_NODES,
+    MIN_RING_NODES,
     FlatInput,
     RadialFlatField,
     clipped_level,
@@ -199,3 +202,78 @@ def test_each_nodes_ring_is_the_float32_hypot_of_its_offset() -> None:
     want = np.where((ring >= 0) & (ring < len(EDGES) - 1), ring, -1).astype(np.int16)
     np.testing.assert_array_equal(got, want)
     assert np.any(got == -1) and np.any(got >= 0)
+
+
+def _strip_input(rng: np.random.Generator, shape: tuple[int, int]) -> FlatInput:
+    """Rings with -1 (no data) and log ratios with NaN, +inf (clipped), -inf (black)."""
+    ring = rng.integers(-1, 12, shape).astype(np.int16)
+    log_albedo = rng.normal(0.0, 0.3, shape).astype(np.float32)
+    special = rng.random(shape)
+    log_albedo[special < 0.05] = np.nan
+    log_albedo[(special >= 0.05) & (special < 0.08)] = np.inf
+    log_albedo[(special >= 0.08) & (special < 0.1)] = -np.inf
+    return FlatInput(log_albedo, ring)
+
+
+@pytest.mark.parametrize("motion", [(0.0, 0.0), (5.4, 13.0), (-7.6, -21.2), (130.0, 3.0),
+                                    (-3.0, 61.0), (2.0, -80.0)])
+def test_the_overlaps_ratios_are_each_cells_median_of_its_node_pairs(
+        motion: tuple[float, float]) -> None:
+    """Rows wrapping either way, columns shifted either way (by up to the whole strip);
+    against the node pairs taken by numpy indexing and each cell's median by sorting."""
+    rng = np.random.default_rng(int(abs(motion[1])))
+    first, second = _strip_input(rng, (50, 61)), _strip_input(rng, (50, 61))
+    got = pair_ratios(first, second, motion, (3, 4))
+    dr, dc = round(motion[0]), round(motion[1])
+    rows2 = np.arange(0, 50, 4)
+    cols2 = np.arange(max(0, -dc), min(61, 61 - dc), 2)
+    r2, c2 = np.meshgrid(rows2, cols2, indexing="ij")
+    r1, c1 = (r2 + dr) % 50, c2 + dc
+    a, b = first.ring[r1, c1].ravel(), second.ring[r2, c2].ravel()
+    with np.errstate(invalid="ignore"):
+        y = (second.log_albedo[r2, c2] - first.log_albedo[r1, c1]).ravel()
+    keep = (a >= 0) & (b >= 0) & np.isfinite(y)
+    want = []
+    cells = {(int(p), int(q)) for p, q in zip(a[keep], b[keep], strict=True)}
+    for ring1, ring2 in sorted(cells):
+        values = np.sort(y[keep & (a == ring1) & (b == ring2)])
+        if values.size >= MIN_PAIR_NODES:
+            want.append((ring1, ring2, values[values.size // 2], values.size))
+    assert got.frames == (3, 4)
+    assert list(zip(got.ring_first.tolist(), got.ring_second.tolist(),
+                    got.log_ratio.tolist(), got.count.tolist(), strict=True)) == [
+        (p, q, float(m), n) for p, q, m, n in want]
+
+
+def test_a_strips_ring_levels_are_each_rings_median() -> None:
+    """Clipped (+inf) and black (-inf) nodes sort to the ends; a ring with too few
+    nodes is NaN, one whose median is clipped too."""
+    rng = np.random.default_rng(9)
+    flat = _strip_input(rng, (120, 90))
+    flat.log_albedo[flat.ring == 4] = np.inf   # all clipped
+    got = radial_levels(flat, 14)
+    ring, values = flat.ring[::4, ::2], flat.log_albedo[::4, ::2]
+    for k in range(14):
+        mine = np.sort(values[(ring == k) & ~np.isnan(values)])
+        if mine.size < MIN_RING_NODES or not np.isfinite(mine[mine.size // 2]):
+            assert np.isnan(got[k]), k
+        else:
+            assert got[k] == np.exp(mine[mine.size // 2]), k
+
+
+def test_group_medians_select_the_upper_middle_value_among_ties() -> None:
+    # few distinct values (many equal to the pivot), the infinities, groups of 1 to 60
+    # values and gaps between the groups present
+    rng = np.random.default_rng(12)
+    levels = np.array([-np.inf, -1.5, 0.0, 0.25, 0.25, 2.0, np.inf], np.float32)
+    group = np.repeat(np.arange(0, 240, 4), rng.integers(1, 61, 60))
+    rng.shuffle(group)
+    value = rng.choice(levels, group.size)
+    groups, counts, medians = group_medians(group, value)
+    present = np.unique(group)
+    np.testing.assert_array_equal(groups, present)
+    for g, n, m in zip(groups, counts, medians, strict=True):
+        mine = np.sort(value[group == g])
+        assert (n, m) == (mine.size, mine[mine.size // 2])
+    assert [a.size for a in group_medians(np.zeros(0, np.int64),
+                                          np.zeros(0, np.float32))] == [0, 0, 0]

@@ -41,7 +41,12 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from pipestitch.mosaic._flat_field_kernels import fall_off_at, ring_index
+from pipestitch.mosaic._flat_field_kernels import (
+    fall_off_at,
+    group_medians,
+    pair_cells,
+    ring_index,
+)
 
 __all__ = ["CLIPPED_WEIGHT", "FIND", "RING_BINS", "FlatInput", "PairRatios", "RadialFlatField",
            "clipped_level", "flat_input", "optical_centre_px", "pair_ratios", "radial_edges",
@@ -95,31 +100,12 @@ def radial_levels(flat: FlatInput, n_rings: int) -> np.ndarray:
     sub = (slice(None, None, 4), slice(None, None, 2))
     ring, log_albedo = flat.ring[sub].ravel(), flat.log_albedo[sub].ravel()
     keep = (ring >= 0) & ~np.isnan(log_albedo)
-    rings, counts, medians = _group_medians(ring[keep], log_albedo[keep])
+    rings, counts, medians = group_medians(ring[keep].astype(np.int64), log_albedo[keep])
     levels = np.full(n_rings, np.nan, np.float32)
     enough = (counts >= MIN_RING_NODES) & (rings < n_rings)
     levels[rings[enough]] = np.exp(medians[enough])
     levels[~np.isfinite(levels)] = np.nan   # half the ring or more clipped: unknown
     return levels
-
-
-def _group_medians(group: np.ndarray, value: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each group present (ascending), its size and the median of its values (the upper
-    middle one), from one sort. ``value`` are logs of brightness ratios: finite ones
-    within ±16 (a factor of 9e6), or ±inf (censored), which sort to the ends."""
-    group = group.astype(np.int64)
-    # Not a stable sort (numpy's quicksort of float64 keys is vectorised, ~5x faster):
-    # nodes of equal keys are in the same group with values equal to within the key's
-    # rounding (a few 1e-16 of group x 64), or clipped at the same end (±16 and ±inf,
-    # censored alike), so their order moves a median by at most that rounding.
-    order = np.argsort(group * 64.0 + np.clip(value, -16.0, 16.0))
-    group, value = group[order], value[order]
-    if not len(group):
-        return group, np.zeros(0, np.int64), value
-    starts = np.flatnonzero(np.diff(group, prepend=group[0] - 1))   # sorted: no np.unique
-    counts = np.diff(starts, append=len(group))
-    return group[starts], counts, value[starts + counts // 2]
 
 
 @dataclass(frozen=True)
@@ -302,22 +288,11 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     ``motion_px`` (rows, cols): second(n) ~ first(n + motion), rows wrapping around the
     pipe (:func:`pipestitch.mosaic.refine.patch_shifts`' convention). Every 4th row and
     2nd column of the second strip is paired with its nearest node in the first."""
-    n_rows, n_cols = second.ring.shape
-    dr, dc = round(motion_px[0]), round(motion_px[1])
-    # Rows 0, 4, .. of the second and their rows in the first (wrapping: one gather of
-    # rows); every 2nd column of their common columns (slices, no index arrays).
-    c_lo, c_hi = max(0, -dc), min(n_cols, n_cols - dc)
-    rows2 = slice(0, n_rows, 4)
-    rows1 = (np.arange(0, n_rows, 4) + dr) % n_rows
-    cols2, cols1 = slice(c_lo, max(c_lo, c_hi), 2), slice(c_lo + dc, max(c_lo, c_hi) + dc, 2)
-    ring1 = first.ring[:, cols1][rows1].ravel()
-    ring2 = second.ring[rows2, cols2].ravel()
-    with np.errstate(invalid="ignore"):   # clipped in both (inf - inf): left out below
-        y = (second.log_albedo[rows2, cols2] - first.log_albedo[:, cols1][rows1]).ravel()
-    keep = (ring1 >= 0) & (ring2 >= 0) & np.isfinite(y)
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
-    cell = ring1[keep].astype(np.int64) * n_bins + ring2[keep]
-    cells, counts, medians = _group_medians(cell, y[keep])
+    # clipped in both (inf - inf): left out
+    cell, y = pair_cells(first.ring, first.log_albedo, second.ring, second.log_albedo,
+                         round(motion_px[0]), round(motion_px[1]), n_bins)
+    cells, counts, medians = group_medians(cell, y)
     enough = counts >= MIN_PAIR_NODES
     cells, counts = cells[enough], counts[enough]
     return PairRatios(frames, (cells // n_bins).astype(np.int16),

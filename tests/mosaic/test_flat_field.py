@@ -204,9 +204,10 @@ def test_each_nodes_ring_is_the_float32_hypot_of_its_offset() -> None:
     assert np.any(got == -1) and np.any(got >= 0)
 
 
-def _strip_input(rng: np.random.Generator, shape: tuple[int, int]) -> FlatInput:
+def _strip_input(rng: np.random.Generator, shape: tuple[int, int],
+                 n_rings: int = 12) -> FlatInput:
     """Rings with -1 (no data) and log ratios with NaN, +inf (clipped), -inf (black)."""
-    ring = rng.integers(-1, 12, shape).astype(np.int16)
+    ring = rng.integers(-1, n_rings, shape).astype(np.int16)
     log_albedo = rng.normal(0.0, 0.3, shape).astype(np.float32)
     special = rng.random(shape)
     log_albedo[special < 0.05] = np.nan
@@ -222,7 +223,8 @@ def test_the_overlaps_ratios_are_each_cells_median_of_its_node_pairs(
     """Rows wrapping either way, columns shifted either way (by up to the whole strip);
     against the node pairs taken by numpy indexing and each cell's median by sorting."""
     rng = np.random.default_rng(int(abs(motion[1])))
-    first, second = _strip_input(rng, (50, 61)), _strip_input(rng, (50, 61))
+    # three rings: most (ring, ring) cells hold enough node pairs to be kept
+    first, second = _strip_input(rng, (50, 61), 3), _strip_input(rng, (50, 61), 3)
     got = pair_ratios(first, second, motion, (3, 4))
     dr, dc = round(motion[0]), round(motion[1])
     rows2 = np.arange(0, 50, 4)
@@ -240,6 +242,7 @@ def test_the_overlaps_ratios_are_each_cells_median_of_its_node_pairs(
         if values.size >= MIN_PAIR_NODES:
             want.append((ring1, ring2, values[values.size // 2], values.size))
     assert got.frames == (3, 4)
+    assert want or cols2.size < 10   # only a sliver of common columns keeps no cell
     assert list(zip(got.ring_first.tolist(), got.ring_second.tolist(),
                     got.log_ratio.tolist(), got.count.tolist(), strict=True)) == [
         (p, q, float(m), n) for p, q, m, n in want]
@@ -277,3 +280,10 @@ def test_group_medians_select_the_upper_middle_value_among_ties() -> None:
         assert (n, m) == (mine.size, mine[mine.size // 2])
     assert [a.size for a in group_medians(np.zeros(0, np.int64),
                                           np.zeros(0, np.float32))] == [0, 0, 0]
+
+
+def test_strips_of_different_grids_are_refused() -> None:
+    rng = np.random.default_rng(1)
+    with pytest.raises(ValueError, match="one grid"):
+        pair_ratios(_strip_input(rng, (40, 30)), _strip_input(rng, (40, 31)), (0.0, 0.0),
+                    (0, 1))

@@ -129,6 +129,7 @@ def test_apply_reads_the_frame_where_the_shift_says(across: float) -> None:
     (np.arange(-3, 12), np.arange(-2, 3), 1),              # 15 shifts: blocks of 4 and 3
     (np.arange(-9, 10, 2), np.zeros(1, np.int64), pm.COARSE_SMOOTH),   # the coarse search
     (np.arange(-398, 400, 57), np.array([-1, 1439]), 1),   # clipped at both ends of a ray
+    (np.arange(-5, 6), np.array([1437]), 1),               # one turn, wrapping around
 ])
 def test_the_correlations_are_each_sectors_pearson_coefficient(
         shifts: np.ndarray, turns: np.ndarray, smooth: int) -> None:

@@ -12,7 +12,7 @@ from pipestitch.pose._pair_motion_kernels import ROWS, _box_means, box_mean_refl
 RNG = np.random.default_rng(11)
 
 
-@pytest.mark.parametrize("length", [3, 5, 7, 15])
+@pytest.mark.parametrize("length", [1, 3, 5, 7, 15])
 @pytest.mark.parametrize("size", [1, 2, 3, 4, 6, 7, 8, 15, 16, 29, 707])
 def test_a_box_mean_is_opencvs_blur_to_the_bit(length: int, size: int) -> None:
     """Rows shorter than the box (reflected more than once), as long as it, and a
@@ -32,3 +32,13 @@ def test_rows_side_by_side_are_each_opencvs_blur_to_the_bit(length: int, size: i
     got = np.full(rows.shape, np.nan, np.float32)
     _box_means(rows, length, got)
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("length", [2, 4, 16])
+def test_a_box_of_even_length_is_refused(length: int) -> None:
+    # cv2.blur puts an even box off centre; the kernels take centred ones only
+    row = np.ones(9, np.float32)
+    with pytest.raises(ValueError, match="odd"):
+        box_mean_reflect(row, length, np.empty_like(row))
+    with pytest.raises(ValueError, match="odd"):
+        _box_means(np.ones((ROWS, 9), np.float32), length, np.empty((ROWS, 9), np.float32))

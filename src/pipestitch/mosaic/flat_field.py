@@ -288,6 +288,9 @@ def pair_ratios(first: FlatInput, second: FlatInput, motion_px: tuple[float, flo
     ``motion_px`` (rows, cols): second(n) ~ first(n + motion), rows wrapping around the
     pipe (:func:`pipestitch.mosaic.refine.patch_shifts`' convention). Every 4th row and
     2nd column of the second strip is paired with its nearest node in the first."""
+    if first.ring.shape != second.ring.shape:
+        raise ValueError(f"pair_ratios: strips of one grid expected, got {first.ring.shape} "
+                         f"and {second.ring.shape}")
     n_bins = int(max(first.ring.max(initial=0), second.ring.max(initial=0))) + 1
     # clipped in both (inf - inf): left out
     cell, y = pair_cells(first.ring, first.log_albedo, second.ring, second.log_albedo,

@@ -51,8 +51,8 @@ def sector_correlations(logs: np.ndarray, first_col: int, n_samples: int, read: 
     shifts : numpy.ndarray of int64
         Samples along the rays (a ray's ends are repeated beyond it).
     high_pass, smooth : int
-        Box lengths along the ring: the running mean taken off, then the running mean
-        taken (1: none); as ``cv2.blur`` computes them for float32 with
+        Box lengths along the ring (odd): the running mean taken off, then the running
+        mean taken (1: none); as ``cv2.blur`` computes them for float32 with
         ``BORDER_REFLECT``, bitwise.
 
     Returns
@@ -126,8 +126,8 @@ def _sector_sums(rows: np.ndarray, bounds: np.ndarray, centred: np.ndarray,
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _box_means(src: np.ndarray, length: int, dst: np.ndarray) -> None:
     """:func:`box_mean_reflect` of the ``ROWS`` rows of ``src`` into ``dst``: side by
-    side where it takes running sums (``length`` not 3 or 5)."""
-    if length == 3 or length == 5:
+    side where it takes running sums (``length`` odd, not 1, 3 or 5)."""
+    if length <= 5 or length % 2 == 0:
         for r in range(ROWS):
             box_mean_reflect(src[r], length, dst[r])
         return
@@ -162,7 +162,12 @@ def box_mean_reflect(src: np.ndarray, length: int, dst: np.ndarray) -> None:
     ``BORDER_REFLECT``, into ``dst``, bitwise as OpenCV computes it: float64 sums of
     ``length`` samples (for 3 and 5 each written out left to right, else a running sum
     that adds the difference of the sample entering and the one leaving), times
-    1 / ``length``, rounded to float32."""
+    1 / ``length``, rounded to float32. ``length`` odd (centred boxes only); 1 copies."""
+    if length % 2 == 0:
+        raise ValueError("box_mean_reflect: the box length must be odd")
+    if length == 1:
+        dst[:] = src
+        return
     n, half = src.size, length // 2
     scale = 1.0 / length
     if length == 3 or length == 5:

@@ -171,7 +171,7 @@ def box_mean_reflect(src: np.ndarray, length: int, dst: np.ndarray) -> None:
     n, half = src.size, length // 2
     scale = 1.0 / length
     if length == 3 or length == 5:
-        if half == 1:   # every sample inside the row (vectorised)
+        if half == 1:   # every sample inside the row
             for j in range(1, n - 1):
                 dst[j] = ((np.float64(src[j - 1]) + np.float64(src[j]))
                           + np.float64(src[j + 1])) * scale

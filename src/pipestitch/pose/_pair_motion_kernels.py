@@ -18,8 +18,9 @@ import numba
 import numpy as np
 
 from pipestitch._runtime import kernel_cache  # noqa: F401  (before the first kernel)
+from pipestitch.pose._ring_kernels import ROWS, _box_means, border_index
 
-ROWS = 4   # shifts whose rows are summed side by side: four named sums (keep 4)
+# ROWS shifts' rows are summed side by side (the ring's box means' four named sums)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -76,13 +77,12 @@ def sector_correlations(logs: np.ndarray, first_col: int, n_samples: int, read: 
                 for i in range(size):
                     rows[r, i] = logs[turned[i],
                                       min(max(at[i] + shift, 0), n_samples - 1) - first_col]
-            _box_means(rows, high_pass, means)
+            row_means(rows, high_pass, means)
             for r in range(ROWS):
                 for i in range(size):
                     rows[r, i] -= means[r, i]
             if smooth > 1:
-                for r in range(ROWS):
-                    box_mean_reflect(rows[r], smooth, means[r])
+                row_means(rows, smooth, means)
                 _sector_sums(means, bounds, centred, spread, out[:, ti, si:si + ROWS])
             else:
                 _sector_sums(rows, bounds, centred, spread, out[:, ti, si:si + ROWS])
@@ -124,102 +124,54 @@ def _sector_sums(rows: np.ndarray, bounds: np.ndarray, centred: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _box_means(src: np.ndarray, length: int, dst: np.ndarray) -> None:
-    """:func:`box_mean_reflect` of the ``ROWS`` rows of ``src`` into ``dst``: side by
-    side where it takes running sums (``length`` odd, not 1, 3 or 5)."""
-    if length <= 5 or length % 2 == 0:
-        for r in range(ROWS):
-            box_mean_reflect(src[r], length, dst[r])
+def row_means(src: np.ndarray, length: int, dst: np.ndarray) -> None:
+    """``cv2.blur`` of each of the ``ROWS`` float32 rows of ``src`` with a
+    (``length``, 1) kernel and ``BORDER_REFLECT``, into ``dst``, bitwise as OpenCV
+    computes it: float64 sums of ``length`` samples (for 3 and 5 each written out left
+    to right, longer boxes as running sums that add the difference of the sample
+    entering and the one leaving), times 1 / ``length``, rounded to float32. ``length``
+    odd (centred boxes only); 1 copies.
+
+    The running sums are the ring division's, the four rows side by side
+    (:func:`pipestitch.pose._ring_kernels._box_means`, its border reflected).
+    """
+    if length % 2 == 0:
+        raise ValueError("row_means: the box length must be odd")
+    if length > 5:
+        _box_means(src, 0, length // 2, dst, True)
         return
-    n, half = src.shape[1], length // 2
-    scale = 1.0 / length
-    s0, s1, s2, s3 = src[0], src[1], src[2], src[3]
-    d0, d1, d2, d3 = dst[0], dst[1], dst[2], dst[3]
-    t0 = t1 = t2 = t3 = 0.0
-    for k in range(-half, half + 1):
-        at = _reflect(k, n)
-        t0 += s0[at]
-        t1 += s1[at]
-        t2 += s2[at]
-        t3 += s3[at]
-    d0[0], d1[0], d2[0], d3[0] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
-    inside = min(max(n - half, 1), half + 1)   # from here on, no sample leaves from before 0
-    for j in range(1, n):
-        if inside <= j < n - half:   # both samples inside the row
-            enter, leave = j + half, j - half - 1
-        else:
-            enter, leave = _reflect(j + half, n), _reflect(j - half - 1, n)
-        t0 += np.float64(s0[enter]) - np.float64(s0[leave])
-        t1 += np.float64(s1[enter]) - np.float64(s1[leave])
-        t2 += np.float64(s2[enter]) - np.float64(s2[leave])
-        t3 += np.float64(s3[enter]) - np.float64(s3[leave])
-        d0[j], d1[j], d2[j], d3[j] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
+    for r in range(ROWS):
+        _short_means(src[r], length // 2, dst[r])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def box_mean_reflect(src: np.ndarray, length: int, dst: np.ndarray) -> None:
-    """``cv2.blur`` of a float32 row with a (``length``, 1) kernel and
-    ``BORDER_REFLECT``, into ``dst``, bitwise as OpenCV computes it: float64 sums of
-    ``length`` samples (for 3 and 5 each written out left to right, else a running sum
-    that adds the difference of the sample entering and the one leaving), times
-    1 / ``length``, rounded to float32. ``length`` odd (centred boxes only); 1 copies."""
-    if length % 2 == 0:
-        raise ValueError("box_mean_reflect: the box length must be odd")
-    if length == 1:
+def _short_means(src: np.ndarray, half: int, dst: np.ndarray) -> None:
+    """:func:`row_means` of one row for a box of 1, 3 or 5 samples (``half`` 0-2)."""
+    n, scale = src.size, 1.0 / (2 * half + 1)
+    if half == 0:
         dst[:] = src
         return
-    n, half = src.size, length // 2
-    scale = 1.0 / length
-    if length == 3 or length == 5:
-        if half == 1:   # every sample inside the row
-            for j in range(1, n - 1):
-                dst[j] = ((np.float64(src[j - 1]) + np.float64(src[j]))
-                          + np.float64(src[j + 1])) * scale
-        else:
-            for j in range(2, n - 2):
-                dst[j] = ((((np.float64(src[j - 2]) + np.float64(src[j - 1]))
-                            + np.float64(src[j])) + np.float64(src[j + 1]))
-                          + np.float64(src[j + 2])) * scale
-        for j in range(min(half, n)):   # the ends: the border reflected
-            dst[j] = _reflected_sum(src, j, half) * scale
-        for j in range(max(n - half, half), n):
-            dst[j] = _reflected_sum(src, j, half) * scale
-        return
-    s = 0.0
-    for k in range(-half, half + 1):
-        s += np.float64(src[_reflect(k, n)])
-    dst[0] = s * scale
-    inside = min(max(n - half, 1), half + 1)   # from here on, no sample leaves from before 0
-    for j in range(1, inside):
-        s += (np.float64(src[_reflect(j + half, n)])
-              - np.float64(src[_reflect(j - half - 1, n)]))
-        dst[j] = s * scale
-    for j in range(inside, n - half):   # both samples inside the row
-        s += np.float64(src[j + half]) - np.float64(src[j - half - 1])
-        dst[j] = s * scale
-    for j in range(max(inside, n - half), n):
-        s += (np.float64(src[_reflect(j + half, n)])
-              - np.float64(src[_reflect(j - half - 1, n)]))
-        dst[j] = s * scale
+    if half == 1:   # every sample inside the row
+        for j in range(1, n - 1):
+            dst[j] = ((np.float64(src[j - 1]) + np.float64(src[j]))
+                      + np.float64(src[j + 1])) * scale
+    else:
+        for j in range(2, n - 2):
+            dst[j] = ((((np.float64(src[j - 2]) + np.float64(src[j - 1]))
+                        + np.float64(src[j])) + np.float64(src[j + 1]))
+                      + np.float64(src[j + 2])) * scale
+    for j in range(min(half, n)):   # the ends: the border reflected
+        dst[j] = _reflected_sum(src, j, half) * scale
+    for j in range(max(n - half, half), n):
+        dst[j] = _reflected_sum(src, j, half) * scale
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _reflected_sum(src: np.ndarray, j: int, half: int) -> float:
     """The float64 sum of ``src[j - half .. j + half]`` left to right, the border
-    reflected (:func:`_reflect`)."""
+    reflected (:func:`pipestitch.pose._ring_kernels.border_index`)."""
     n = src.size
-    s = np.float64(src[_reflect(j - half, n)])
+    s = np.float64(src[border_index(j - half, n, True)])
     for k in range(1 - half, half + 1):
-        s += np.float64(src[_reflect(j + k, n)])
+        s += np.float64(src[border_index(j + k, n, True)])
     return s
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _reflect(p: int, n: int) -> int:
-    """OpenCV's ``BORDER_REFLECT`` index (``fedcba|abcdefgh|hgfedcb``), reflected again
-    until inside a row of ``n``."""
-    if n == 1:
-        return 0
-    while p < 0 or p >= n:
-        p = -p - 1 if p < 0 else 2 * n - 1 - p
-    return p

@@ -43,8 +43,8 @@ def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor
     once = np.empty((ROWS, n), np.float32)
     broad = np.empty((ROWS, n), np.float32)
     for first in range(0, n_rows, ROWS):
-        _box_means(local, first, box // 2, once)
-        _box_means(once, 0, box // 2, broad)
+        _box_means(local, first, box // 2, once, False)
+        _box_means(once, 0, box // 2, broad, False)
         _divide(polar, local, first, first, broad, F32(floor), F32(min_relative), out)
     return out
 
@@ -74,8 +74,8 @@ def flatten_by_moved_reflectance(polar: np.ndarray, local: np.ndarray, along: np
     for first in range(0, n_rows, ROWS):
         for r in range(min(ROWS, n_rows - first)):
             _moved_row(local, first + r, along[first + r], across[first + r], moved[r])
-        _box_means(moved, 0, box // 2, once)
-        _box_means(once, 0, box // 2, broad)
+        _box_means(moved, 0, box // 2, once, False)
+        _box_means(once, 0, box // 2, broad, False)
         _divide(polar, moved, first, 0, broad, F32(floor), F32(min_relative), out)
     return out
 
@@ -141,10 +141,13 @@ def _divide(polar: np.ndarray, local: np.ndarray, first: int, local_first: int,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _box_means(src: np.ndarray, first: int, half: int, dst: np.ndarray) -> None:
+def _box_means(src: np.ndarray, first: int, half: int, dst: np.ndarray,
+               reflect: bool) -> None:
     """Rows ``first .. first + 3`` of ``src`` (the last row again past the end): the
-    mean over ``2 half + 1`` samples about each, the border replicated, into ``dst``
-    (float64 running sums: add the sample entering, subtract the one leaving).
+    mean over ``2 half + 1`` samples about each into ``dst``, the border replicated
+    (``reflect`` False) or reflected (:func:`border_index`), as ``cv2.blur`` computes a
+    float32 box of more than 5 samples (float64 running sums: add the sample entering,
+    subtract the one leaving).
 
     Four rows (``ROWS``) in four named sums: independent chains of additions the
     processor overlaps (a 1440 x 578 polar frame's division 3.2 -> 1.6 ms against sums
@@ -157,19 +160,34 @@ def _box_means(src: np.ndarray, first: int, half: int, dst: np.ndarray) -> None:
     d0, d1, d2, d3 = dst[0], dst[1], dst[2], dst[3]
     t0 = t1 = t2 = t3 = 0.0
     for k in range(-half, half + 1):
-        at = min(max(k, 0), n - 1)
+        at = border_index(k, n, reflect)
         t0 += s0[at]
         t1 += s1[at]
         t2 += s2[at]
         t3 += s3[at]
     d0[0], d1[0], d2[0], d3[0] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
     for j in range(1, n):
-        enter, leave = min(j + half, n - 1), max(j - half - 1, 0)
+        enter = border_index(j + half, n, reflect)
+        leave = border_index(j - half - 1, n, reflect)
         t0 += np.float64(s0[enter]) - np.float64(s0[leave])
         t1 += np.float64(s1[enter]) - np.float64(s1[leave])
         t2 += np.float64(s2[enter]) - np.float64(s2[leave])
         t3 += np.float64(s3[enter]) - np.float64(s3[leave])
         d0[j], d1[j], d2[j], d3[j] = t0 * scale, t1 * scale, t2 * scale, t3 * scale
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def border_index(p: int, n: int, reflect: bool) -> int:
+    """Index ``p`` of a row of ``n`` samples, its border replicated (OpenCV's
+    ``BORDER_REPLICATE``, ``aaa|abcd|ddd``) or reflected (``BORDER_REFLECT``,
+    ``cba|abcd|dcb``, again until inside the row)."""
+    if not reflect:
+        return min(max(p, 0), n - 1)
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p - 1 if p < 0 else 2 * n - 1 - p
+    return p
 
 
 @numba.njit(cache=True, nogil=True)

@@ -143,7 +143,10 @@ def group_medians(group: np.ndarray, value: np.ndarray
 def _kth_smallest(values: np.ndarray, k: int) -> float:
     """The ``k``-th smallest of ``values`` (no NaN), which it reorders: Hoare's
     selection (each pass splits about the median of the ends and the middle, and goes
-    on in the part holding ``k``), ~3 passes over the values instead of a sort."""
+    on in the part holding ``k``), ~3 passes over the values instead of a sort. For the
+    cells' few dozen values each: the package's radix selection
+    (:func:`pipestitch.imaging.medians.median`, for a frame's many thousands) counts
+    2048 digits a pass and took twice as long over an overlap's ~300 cells."""
     lo, hi = 0, values.size - 1
     while lo < hi:
         a, b, c = values[lo], values[(lo + hi) // 2], values[hi]

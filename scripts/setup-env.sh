@@ -1,9 +1,9 @@
 # Sourced by ./run-tests and ./run-demo: create .venv with Python >= 3.11 and install
-# pipestitch (editable, versions from constraints.txt; with the test extras for
-# ./run-tests) when pyproject.toml or constraints.txt changed since the last install, or
-# the test extras are wanted and missing; then write the
-# package's bytecode, and compile the numba kernels into their cache when they changed
-# since the last compile.
+# pipestitch (editable, versions from constraints.txt, by uv or else pip; with the test
+# extras for ./run-tests) when pyproject.toml or constraints.txt changed since the last
+# install, or the test extras are wanted and missing; then write the package's
+# bytecode, and compile the numba kernels into their cache when they changed since the
+# last compile.
 PY=""
 for cand in python3.11 python3.12 python3.13 python3 python; do
   if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
@@ -27,11 +27,20 @@ extras=${setup_extras:-}
 have=$(cat "$stamp" 2>/dev/null || true)
 if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $extras" ]; }; then
   echo "installing pipestitch and its dependencies into .venv ..." >&2
-  .venv/bin/python -m pip install --quiet --upgrade pip >&2
-  # bytecode written below by all cores, not by pip on one, and not for the packages'
-  # own test suites (a quarter of their sources, never imported by a run)
-  .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
-    -e ".${extras:+[$extras]}" >&2
+  # uv (from PyPI, at the version constraints.txt names) installs the same versions
+  # several times faster than pip, its downloads and unpacking in parallel
+  # (docs/benchmarks.md); where it cannot be installed or fails, pip installs them.
+  # Either way without bytecode: written below by all cores, and not for the
+  # packages' own test suites (a quarter of their sources, never imported by a run).
+  if ! { .venv/bin/python -m pip install --quiet --disable-pip-version-check \
+           -c constraints.txt uv >&2 \
+         && .venv/bin/uv pip install --quiet --python .venv/bin/python \
+           -c constraints.txt -e ".${extras:+[$extras]}" >&2; }; then
+    echo "installing with pip instead (uv could not be installed or failed) ..." >&2
+    .venv/bin/python -m pip install --quiet --upgrade pip >&2
+    .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
+      -e ".${extras:+[$extras]}" >&2
+  fi
   .venv/bin/python -c 'import compileall, re, sysconfig as s
 for d in {s.get_path("purelib"), s.get_path("platlib")}:
     compileall.compile_dir(d, quiet=2, workers=0, rx=re.compile(r"[/\\]tests?[/\\]"))' \

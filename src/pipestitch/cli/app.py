@@ -402,7 +402,7 @@ def demo(
     reused = simulated_before(dataset, "default", 0, size)
     if not reused:
         simulate_dataset(SCENARIOS["default"], dataset, seed=0, size=size,
-                         show_progress=not quiet)
+                         show_progress=not quiet, workers=min(2, os.cpu_count() or 1))
     problems = [p for p in run_check(dataset, show_progress=not quiet) if p.severity == "error"]
     if problems:
         _print_problems(problems)

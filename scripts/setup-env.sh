@@ -16,7 +16,8 @@ if [ -z "$PY" ]; then
 fi
 if [ ! -x .venv/bin/python ]; then
   echo "setting up .venv with $PY ..." >&2
-  "$PY" -m venv .venv
+  # without pip for now (ensurepip: ~6 s): uv installs it with the rest, below
+  "$PY" -m venv --without-pip .venv
 fi
 # The stamp holds the hash of pyproject.toml and constraints.txt, then "test" when the
 # test tools are installed too: ./run-tests sets setup_extras=test before sourcing this,
@@ -27,16 +28,23 @@ extras=${setup_extras:-}
 have=$(cat "$stamp" 2>/dev/null || true)
 if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $extras" ]; }; then
   echo "installing pipestitch and its dependencies into .venv ..." >&2
-  # uv (from PyPI, at the version constraints.txt names) installs the same versions
-  # several times faster than pip, its downloads and unpacking in parallel
-  # (docs/benchmarks.md); where it cannot be installed or fails, pip installs them.
-  # Either way without bytecode: written below by all cores, and not for the
-  # packages' own test suites (a quarter of their sources, never imported by a run).
-  if ! { .venv/bin/python -m pip install --quiet --disable-pip-version-check \
+  # uv (from PyPI, at the version constraints.txt names; put into .venv by the venv's
+  # pip, or by the interpreter's own where the venv has none yet) installs the same
+  # versions several times faster than pip, its downloads and unpacking in parallel
+  # (docs/benchmarks.md), and pip into .venv with them; where it cannot be installed
+  # or fails, pip installs them. Either way without bytecode: written below by all
+  # cores, and not for the packages' own test suites (a quarter of their sources,
+  # never imported by a run).
+  pip_of_venv=(.venv/bin/python -m pip)
+  if ! "${pip_of_venv[@]}" --version >/dev/null 2>&1; then
+    pip_of_venv=("$PY" -m pip --python .venv/bin/python)
+  fi
+  if ! { "${pip_of_venv[@]}" install --quiet --disable-pip-version-check \
            -c constraints.txt uv >&2 \
          && .venv/bin/uv pip install --quiet --python .venv/bin/python \
-           -c constraints.txt -e ".${extras:+[$extras]}" >&2; }; then
+           -c constraints.txt pip -e ".${extras:+[$extras]}" >&2; }; then
     echo "installing with pip instead (uv could not be installed or failed) ..." >&2
+    .venv/bin/python -m pip --version >/dev/null 2>&1 || .venv/bin/python -m ensurepip >/dev/null
     .venv/bin/python -m pip install --quiet --upgrade pip >&2
     .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
       -e ".${extras:+[$extras]}" >&2

@@ -32,9 +32,10 @@ if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $ex
   # pip, or by the interpreter's own where the venv has none yet) installs the same
   # versions several times faster than pip, its downloads and unpacking in parallel
   # (docs/benchmarks.md), and pip into .venv with them; where it cannot be installed
-  # or fails, pip installs them. Either way without bytecode: written below by all
-  # cores, and not for the packages' own test suites (a quarter of their sources,
-  # never imported by a run).
+  # or fails, pip installs them (uv reads its own settings, e.g. UV_DEFAULT_INDEX for
+  # a mirror, not pip's). Either way without bytecode: written below by all cores,
+  # and not for the packages' own test suites (a quarter of their sources, never
+  # imported by a run).
   pip_of_venv=(.venv/bin/python -m pip)
   if ! "${pip_of_venv[@]}" --version >/dev/null 2>&1; then
     pip_of_venv=("$PY" -m pip --python .venv/bin/python)

@@ -8,6 +8,9 @@ difference wrapped here, not by the module.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -371,3 +374,23 @@ def test_wrapped_rescale_in_chunks_matches_one_warp() -> None:
     # source column off would be wrong by about the values themselves
     chunked = scale_wrapped(src, 200, 1000, chunk_cols=64)
     assert np.abs(chunked - one).max() < 1e-3
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc")
+def test_a_wall_is_made_without_starting_threads_a_fork_would_stop() -> None:
+    """The simulator forks its renderers after making the wall: the wall's noise must
+    not leave a native thread pool behind (pocketfft's stops its threads around each
+    fork and could wait forever), so the process has as many threads after as before."""
+    code = ("import os, numpy as np\n"
+            "from pipestitch.simulate.textures._texture_common import filtered_noise\n"
+            "def threads(): return len(os.listdir('/proc/self/task'))\n"
+            "before = threads()\n"
+            "noise = filtered_noise(np.random.default_rng(1), (256, 512), (0.2, 0.2),\n"
+            "                       lambda fs, fz: 1.0 / (1.0 + fs * fs + fz * fz))\n"
+            "assert noise.shape == (256, 512) and abs(float(noise.std()) - 1.0) < 1e-3\n"
+            "print(before, threads())\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=False, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    before, after = map(int, proc.stdout.split())
+    assert after == before

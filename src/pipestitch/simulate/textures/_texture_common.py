@@ -71,8 +71,13 @@ def filtered_noise(rng: np.random.Generator, shape: tuple[int, int],
         ``amplitude(f_s, f_z)`` -> filter gain at spatial frequencies in cycles/mm
         (broadcast arrays, float32).
     """
+    # One thread (scipy's default), not ``workers=-1``: a multi-threaded transform starts
+    # pocketfft's thread pool, which stops and restarts its threads around every fork
+    # (pthread_atfork); the simulator forks its renderers after building the wall, and
+    # that stop could wait forever (seen: `pipestitch simulate --workers 2` hung in the
+    # fork). Same values either way (each 1-D transform is the same on any thread).
     white = rng.standard_normal(shape, dtype=np.float32)
-    spec = sfft.rfft2(white, workers=-1)
+    spec = sfft.rfft2(white)
     del white
     f_s = sfft.fftfreq(shape[0], d=spacing_mm[0]).astype(np.float32)[:, None]
     f_z = sfft.rfftfreq(shape[1], d=spacing_mm[1]).astype(np.float32)[None, :]
@@ -80,7 +85,7 @@ def filtered_noise(rng: np.random.Generator, shape: tuple[int, int],
     gain[0, 0] = 0.0
     spec *= gain
     del gain
-    out = sfft.irfft2(spec, s=shape, workers=-1).astype(np.float32, copy=False)
+    out = sfft.irfft2(spec, s=shape).astype(np.float32, copy=False)
     del spec
     std = float(out.std())
     out -= np.float32(out.mean())

@@ -213,7 +213,9 @@ def test_a_killed_run_leaves_the_previous_run_byte_identical(dataset: Path, prev
         proc = subprocess.Popen([sys.executable, "-c", _STARTED_THEN_CLI, "run", str(dataset),
                                  "--out", str(previous), "-q"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        assert proc.stdout is not None and proc.stdout.read(1) == b"."
+        assert proc.stdout is not None
+        if proc.stdout.read(1) != b".":
+            pytest.fail(f"the command did not start: {proc.communicate(timeout=120)[1]!r}")
         time.sleep(delay)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=120)

@@ -562,3 +562,41 @@ def test_check_names_a_truth_wall_json_that_is_not_an_object(small_dataset: Path
     assert result.exit_code == 2, result.output
     assert "wall.json: expected a JSON object" in result.output
     assert "Traceback" not in result.output
+
+
+_CONVERTED_INTERRUPT = """
+import signal, sys
+import pipestitch.pipeline.check as check
+
+def run_check(*args, **kwargs):   # a library that turns Ctrl-C into an error of its own
+    try:
+        signal.raise_signal(signal.SIGINT)
+    except KeyboardInterrupt:
+        raise ValueError("Error building validator: KeyboardInterrupt") from None
+    raise AssertionError("the interrupt did not arrive")
+
+check.run_check = run_check
+sys.argv = ["pipestitch", "check", sys.argv[1]]
+from pipestitch.cli import main
+main()
+"""
+
+
+@pytest.mark.parametrize("interrupted", [True, False])
+def test_ctrl_c_turned_into_a_librarys_error_still_exits_130(tmp_path: Path,
+                                                               interrupted: bool) -> None:
+    """pydantic-core turns a KeyboardInterrupt raised while it builds a model into a
+    SchemaError: after Ctrl-C such an error is the interrupt (one line, exit 130);
+    without one, the same error is a processing failure (exit 1)."""
+    code = _CONVERTED_INTERRUPT if interrupted else _CONVERTED_INTERRUPT.replace(
+        "signal.raise_signal(signal.SIGINT)", "raise KeyboardInterrupt")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True,
+                          text=True, check=False, timeout=120)
+    assert "Traceback" not in proc.stderr + proc.stdout, proc.stderr[-2000:]
+    if interrupted:
+        assert proc.returncode == 130, (proc.stdout, proc.stderr)
+        assert "interrupted" in proc.stdout + proc.stderr
+        assert "processing failed" not in proc.stdout + proc.stderr
+    else:
+        assert proc.returncode == 1, (proc.stdout, proc.stderr)
+        assert "processing failed" in proc.stdout + proc.stderr

@@ -9,9 +9,12 @@ work itself: each command is a few lines around one pipeline call.
 from __future__ import annotations
 
 import os
+import signal
 import sys
+from types import FrameType
+from typing import NoReturn
 
-__all__ = ["main"]
+__all__ = ["interrupt_came", "main"]
 
 #: BLAS thread pools the command leaves at one thread unless the user set them.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -21,18 +24,47 @@ def main() -> None:
     """The console script: the app, imported here so that Ctrl-C at any moment, even
     while the libraries load, ends with one line and exit code 130, not a traceback."""
     single_threaded_blas()
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:   # not where ignored
+        signal.signal(signal.SIGINT, _note_interrupt)
     try:
         from pipestitch.cli.app import main as app_main
 
         app_main()
     except KeyboardInterrupt:
-        sys.stderr.write("interrupted\n")
-        quiet_shutdown()
-        raise SystemExit(130) from None
+        _interrupted_exit()
     except SystemExit as exc:
         if exc.code == 130:
             quiet_shutdown()
         raise
+    except Exception:
+        if interrupt_came():   # while the app loaded, turned into a library's own error
+            _interrupted_exit()
+        raise
+
+
+_interrupts: list[int] = []   # the SIGINTs this process received (the console script's)
+
+
+def _note_interrupt(signum: int, frame: FrameType | None) -> None:
+    """Python's own Ctrl-C handler (raise KeyboardInterrupt), noting that it came."""
+    _interrupts.append(signum)
+    signal.default_int_handler(signum, frame)
+
+
+def interrupt_came() -> bool:
+    """Whether Ctrl-C came to this process (the ``pipestitch`` command only).
+
+    Some libraries turn the KeyboardInterrupt raised inside their callbacks into errors
+    of their own (pydantic-core: a ``SchemaError`` while a model class is built, as the
+    command's first imports do); an error after Ctrl-C is taken as the interrupt.
+    """
+    return bool(_interrupts)
+
+
+def _interrupted_exit() -> NoReturn:
+    sys.stderr.write("interrupted\n")
+    quiet_shutdown()
+    raise SystemExit(130) from None
 
 
 def single_threaded_blas() -> None:

@@ -20,6 +20,7 @@ import typer
 from rich.markup import escape
 
 from pipestitch import __version__
+from pipestitch.cli import interrupt_came
 from pipestitch.cli.batch_command import batch
 from pipestitch.cli.calibrate_command import register as register_calibrate
 from pipestitch.cli.export_command import CROWN_HELP
@@ -73,24 +74,33 @@ def _handle_errors(func: F) -> F:
     def wrapper(*args: object, **kwargs: object) -> object:
         try:
             return func(*args, **kwargs)
-        except PipestitchError as exc:
-            raise _error(str(exc), exc.exit_code) from None
         except KeyboardInterrupt:
-            console.print("[bold red]interrupted[/]")
-            raise typer.Exit(130) from None
+            raise _interrupted() from None
         except (typer.Exit, typer.Abort):
             raise
-        except (click.ClickException, typer.TyperException) as exc:
-            # typer.BadParameter (typer's own click) or click's: usage errors, exit 2
-            message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
-            raise _error(" ".join(message.split()), getattr(exc, "exit_code", 2)) from None
-        except OSError as exc:
-            if exc.errno not in _PATH_ERRNOS or not exc.filename:
-                _unexpected(exc)
-            raise _error(f"{exc.filename}: {exc.strerror}", 2) from None
         except Exception as exc:
-            _unexpected(exc)
+            if interrupt_came():   # Ctrl-C that a library turned into an error of its own
+                raise _interrupted() from None
+            raise _mapped(exc) from None
     return wrapper  # type: ignore[return-value]
+
+
+def _interrupted() -> typer.Exit:
+    console.print("[bold red]interrupted[/]")
+    return typer.Exit(130)
+
+
+def _mapped(exc: Exception) -> typer.Exit:
+    """The one-line message and exit code of an error a command raised."""
+    if isinstance(exc, PipestitchError):
+        return _error(str(exc), exc.exit_code)
+    if isinstance(exc, (click.ClickException, typer.TyperException)):
+        # typer.BadParameter (typer's own click) or click's: usage errors, exit 2
+        message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+        return _error(" ".join(message.split()), getattr(exc, "exit_code", 2))
+    if isinstance(exc, OSError) and exc.errno in _PATH_ERRNOS and exc.filename:
+        return _error(f"{exc.filename}: {exc.strerror}", 2)
+    _unexpected(exc)
 
 
 def _unexpected(exc: Exception) -> NoReturn:

@@ -68,7 +68,9 @@ def _handle_errors(func: F) -> F:
     """Turn pipestitch errors into a one-line message and the SPEC exit code.
 
     Also a usage error raised in a command's body (``typer.BadParameter``: exit 2) and an
-    OSError naming a path the user gave (exit 2): one line, never a traceback.
+    OSError naming a path the user gave (exit 2): one line, never a traceback. Ctrl-C
+    (exit 130) includes an error a library made of it (see
+    :func:`pipestitch.cli.interrupt_came`).
     """
     @functools.wraps(func)
     def wrapper(*args: object, **kwargs: object) -> object:

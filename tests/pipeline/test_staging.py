@@ -201,6 +201,7 @@ _STARTED_THEN_CLI = ("import runpy, sys; sys.stdout.write('.'); sys.stdout.flush
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
 def test_a_killed_run_leaves_the_previous_run_byte_identical(dataset: Path, previous: Path,
                                                              sig: signal.Signals) -> None:
+    import select
     import subprocess
     import sys
     import time
@@ -214,7 +215,9 @@ def test_a_killed_run_leaves_the_previous_run_byte_identical(dataset: Path, prev
                                  "--out", str(previous), "-q"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         assert proc.stdout is not None
-        if proc.stdout.read(1) != b".":
+        started, _, _ = select.select([proc.stdout], [], [], 120)
+        if not started or proc.stdout.read(1) != b".":
+            proc.kill()
             pytest.fail(f"the command did not start: {proc.communicate(timeout=120)[1]!r}")
         time.sleep(delay)
         proc.send_signal(sig)

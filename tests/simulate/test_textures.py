@@ -8,6 +8,7 @@ difference wrapped here, not by the module.
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -377,6 +378,8 @@ def test_wrapped_rescale_in_chunks_matches_one_warp() -> None:
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc")
+@pytest.mark.skipif((os.cpu_count() or 1) < 2,
+                    reason="on one CPU a transform on every core is on one thread anyway")
 def test_a_wall_is_made_without_starting_threads_a_fork_would_stop() -> None:
     """The simulator forks its renderers after making the wall: the wall's noise must
     not leave a native thread pool behind (pocketfft's stops its threads around each

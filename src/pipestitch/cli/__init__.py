@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 from types import FrameType
 from typing import NoReturn
 
@@ -24,7 +25,9 @@ def main() -> None:
     """The console script: the app, imported here so that Ctrl-C at any moment, even
     while the libraries load, ends with one line and exit code 130, not a traceback."""
     single_threaded_blas()
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:   # not where ignored
+    noting = (threading.current_thread() is threading.main_thread()
+              and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    if noting:   # not where SIGINT is ignored (a background job) or set by the caller
         signal.signal(signal.SIGINT, _note_interrupt)
     try:
         from pipestitch.cli.app import main as app_main
@@ -40,6 +43,9 @@ def main() -> None:
         if interrupt_came():   # while the app loaded, turned into a library's own error
             _interrupted_exit()
         raise
+    finally:
+        if noting:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 _interrupts: list[int] = []   # the SIGINTs this process received (the console script's)

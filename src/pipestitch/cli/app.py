@@ -81,10 +81,23 @@ def _handle_errors(func: F) -> F:
         except (typer.Exit, typer.Abort):
             raise
         except Exception as exc:
-            if interrupt_came():   # Ctrl-C that a library turned into an error of its own
-                raise _interrupted() from None
+            if interrupt_came() or _during_interrupt(exc):   # Ctrl-C that a library turned
+                raise _interrupted() from None               # into an error of its own
             raise _mapped(exc) from None
     return wrapper  # type: ignore[return-value]
+
+
+def _during_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled (its
+    context or cause chain holds one: e.g. a clean-up that failed on the way out)."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return True
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return False
 
 
 def _interrupted() -> typer.Exit:

@@ -193,7 +193,11 @@ def test_a_termination_request_waits_for_the_whole_set_too(tmp_path: Path,
     assert resent == [signal.SIGTERM]   # sent again once the set is in place
 
 
-_STARTED_THEN_CLI = ("import runpy, sys; sys.stdout.write('.'); sys.stdout.flush(); "
+# Ctrl-C as in a terminal: a job started in the background (as CI may be) has SIGINT
+# ignored, and its children inherit that.
+_STARTED_THEN_CLI = ("import runpy, signal, sys; "
+                     "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                     "sys.stdout.write('.'); sys.stdout.flush(); "
                      "runpy.run_module('pipestitch.cli', run_name='__main__', alter_sys=True)")
 
 

@@ -15,7 +15,7 @@ import threading
 from types import FrameType
 from typing import NoReturn
 
-__all__ = ["interrupt_came", "main"]
+__all__ = ["interrupted", "main"]
 
 #: BLAS thread pools the command leaves at one thread unless the user set them.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -39,8 +39,8 @@ def main() -> None:
         if exc.code == 130:
             quiet_shutdown()
         raise
-    except Exception:
-        if interrupt_came():   # while the app loaded, turned into a library's own error
+    except Exception as exc:
+        if interrupted(exc):   # while the app loaded
             _interrupted_exit()
         raise
     finally:
@@ -57,14 +57,23 @@ def _note_interrupt(signum: int, frame: FrameType | None) -> None:
     signal.default_int_handler(signum, frame)
 
 
-def interrupt_came() -> bool:
-    """Whether Ctrl-C came to this process (the ``pipestitch`` command only).
-
-    Some libraries turn the KeyboardInterrupt raised inside their callbacks into errors
-    of their own (pydantic-core: a ``SchemaError`` while a model class is built, as the
-    command's first imports do); an error after Ctrl-C is taken as the interrupt.
-    """
-    return bool(_interrupts)
+def interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` is Ctrl-C in another form: raised after Ctrl-C came to this
+    process (the ``pipestitch`` command's; some libraries turn the KeyboardInterrupt
+    raised inside their callbacks into errors of their own, as pydantic-core does with a
+    ``SchemaError`` while a model class is built, as the command's first imports do), or
+    while a KeyboardInterrupt was being handled (its cause or context chain holds one:
+    a clean-up that failed on the way out)."""
+    if _interrupts:
+        return True
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return True
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return False
 
 
 def _interrupted_exit() -> NoReturn:

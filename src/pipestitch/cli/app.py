@@ -20,7 +20,7 @@ import typer
 from rich.markup import escape
 
 from pipestitch import __version__
-from pipestitch.cli import interrupt_came
+from pipestitch.cli import interrupted
 from pipestitch.cli.batch_command import batch
 from pipestitch.cli.calibrate_command import register as register_calibrate
 from pipestitch.cli.export_command import CROWN_HELP
@@ -70,7 +70,7 @@ def _handle_errors(func: F) -> F:
     Also a usage error raised in a command's body (``typer.BadParameter``: exit 2) and an
     OSError naming a path the user gave (exit 2): one line, never a traceback. Ctrl-C
     (exit 130) includes an error a library made of it (see
-    :func:`pipestitch.cli.interrupt_came`).
+    :func:`pipestitch.cli.interrupted`).
     """
     @functools.wraps(func)
     def wrapper(*args: object, **kwargs: object) -> object:
@@ -81,23 +81,10 @@ def _handle_errors(func: F) -> F:
         except (typer.Exit, typer.Abort):
             raise
         except Exception as exc:
-            if interrupt_came() or _during_interrupt(exc):   # Ctrl-C that a library turned
-                raise _interrupted() from None               # into an error of its own
+            if interrupted(exc):   # Ctrl-C that a library turned into an error of its own
+                raise _interrupted() from None
             raise _mapped(exc) from None
     return wrapper  # type: ignore[return-value]
-
-
-def _during_interrupt(exc: BaseException) -> bool:
-    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled (its
-    context or cause chain holds one: e.g. a clean-up that failed on the way out)."""
-    seen: set[int] = set()
-    link: BaseException | None = exc
-    while link is not None and id(link) not in seen:
-        if isinstance(link, KeyboardInterrupt):
-            return True
-        seen.add(id(link))
-        link = link.__cause__ or link.__context__
-    return False
 
 
 def _interrupted() -> typer.Exit:

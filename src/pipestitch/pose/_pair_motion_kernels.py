@@ -148,8 +148,9 @@ def row_means(src: np.ndarray, length: int, dst: np.ndarray) -> None:
 def _short_means(src: np.ndarray, half: int, dst: np.ndarray) -> None:
     """:func:`row_means` of one row for a box of 1, 3 or 5 samples (``half`` 0-2)."""
     n, scale = src.size, 1.0 / (2 * half + 1)
-    if half == 0:
-        dst[:] = src
+    if half == 0:   # element by element: a slice assignment compiles a shape check
+        for j in range(n):
+            dst[j] = src[j]
         return
     if half == 1:   # every sample inside the row
         for j in range(1, n - 1):

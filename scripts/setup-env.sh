@@ -33,9 +33,7 @@ if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $ex
   # versions several times faster than pip, its downloads and unpacking in parallel
   # (docs/benchmarks.md), and pip into .venv with them; where it cannot be installed
   # or fails, pip installs them (uv reads its own settings, e.g. UV_DEFAULT_INDEX for
-  # a mirror, not pip's). Either way without bytecode: written below by all cores,
-  # and not for the packages' own test suites (a quarter of their sources, never
-  # imported by a run).
+  # a mirror, not pip's). Either way without bytecode (see below).
   pip_of_venv=(.venv/bin/python -m pip)
   if ! "${pip_of_venv[@]}" --version >/dev/null 2>&1; then
     pip_of_venv=("$PY" -m pip --python .venv/bin/python)
@@ -50,10 +48,17 @@ if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $ex
     .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
       -e ".${extras:+[$extras]}" >&2
   fi
-  .venv/bin/python -c 'import compileall, re, sysconfig as s
+  # The dependencies' bytecode: for the tests, all of it, by all cores (the suite
+  # imports nearly every package, in many processes). For the demo none here: it
+  # imports about a third of the files (~950 of ~4,250 outside the packages' tests) and
+  # ./run-demo lets it write theirs as it imports them (Python's default), so that
+  # later commands read it even where PYTHONDONTWRITEBYTECODE is set.
+  if [ -n "$extras" ]; then
+    .venv/bin/python -c 'import compileall, re, sysconfig as s
 for d in {s.get_path("purelib"), s.get_path("platlib")}:
     compileall.compile_dir(d, quiet=2, workers=0, rx=re.compile(r"[/\\]tests?[/\\]"))' \
-    >/dev/null 2>&1 || true
+      >/dev/null 2>&1 || true
+  fi
   echo "$want${extras:+ $extras}" > "$stamp"
 fi
 # The package's bytecode, written here: a run then reads it even where
@@ -63,5 +68,7 @@ fi
   || echo "warning: bytecode not written; each run compiles the modules" >&2
 # Compiled here, in parallel processes, the first run loads the kernels instead of
 # compiling them (about a minute); a failure only leaves them to compile on first use.
-.venv/bin/python scripts/compile_kernels.py --stamp .venv/.pipestitch-kernels >&2 \
+# Its processes write the bytecode of what they import (numba, numpy) where the install
+# left none, instead of each compiling it again.
+env -u PYTHONDONTWRITEBYTECODE .venv/bin/python scripts/compile_kernels.py --stamp .venv/.pipestitch-kernels >&2 \
   || echo "warning: kernels not compiled ahead; the first run compiles them" >&2

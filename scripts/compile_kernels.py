@@ -305,6 +305,17 @@ def compile_all(n_jobs: int, verbose: bool = False) -> int:
     return failed + len(pending)
 
 
+def import_kernel_modules() -> None:
+    """Import every module of :data:`KERNELS` in this process before the pool starts.
+
+    Where bytecode may be written (the set-up runs this script so), this writes that of
+    the modules and of what they import (numba, numpy, ...) once, and the pool's
+    processes, each importing the same, read it instead of compiling every module again.
+    """
+    for module in dict.fromkeys(module for module, _, _ in KERNELS):
+        importlib.import_module(f"pipestitch.{module}")
+
+
 def _compile_one(i: int) -> tuple[float, int]:
     """(seconds, process id) of compiling :data:`KERNELS` entry ``i`` in a pool process."""
     return compile_entries([i]), os.getpid()
@@ -337,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = max(1, args.jobs)
     print(f"compiling the numba kernels ({jobs} processes, once: up to a minute) ...",
           file=sys.stderr)
+    import_kernel_modules()
     failed = compile_all(jobs, args.verbose)
     if failed:
         print(f"compile_kernels: {failed} of {len(KERNELS)} kernels failed; they will "

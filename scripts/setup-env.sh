@@ -48,11 +48,12 @@ if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "$have" != "$want $ex
     .venv/bin/python -m pip install --quiet --no-compile -c constraints.txt \
       -e ".${extras:+[$extras]}" >&2
   fi
-  # The dependencies' bytecode: for the tests, all of it, by all cores (the suite
-  # imports nearly every package, in many processes). For the demo none here: it
-  # imports about a third of the files (~950 of ~4,250 outside the packages' tests) and
-  # ./run-demo lets it write theirs as it imports them (Python's default), so that
-  # later commands read it even where PYTHONDONTWRITEBYTECODE is set.
+  # The dependencies' bytecode: for the tests all of it here, by all cores (the suite
+  # imports nearly every package, in many processes). For the demo none here: the
+  # kernels' compile (below) and the demo write that of the modules they import, as
+  # Python does by default, about a third of the files (~950 of ~4,250 outside the
+  # packages' tests), so that later commands read it even where
+  # PYTHONDONTWRITEBYTECODE is set.
   if [ -n "$extras" ]; then
     .venv/bin/python -c 'import compileall, re, sysconfig as s
 for d in {s.get_path("purelib"), s.get_path("platlib")}:
@@ -68,7 +69,8 @@ fi
   || echo "warning: bytecode not written; each run compiles the modules" >&2
 # Compiled here, in parallel processes, the first run loads the kernels instead of
 # compiling them (about a minute); a failure only leaves them to compile on first use.
-# Its processes write the bytecode of what they import (numba, numpy) where the install
-# left none, instead of each compiling it again.
+# Where the install left no bytecode (./run-demo), it writes that of the kernel modules
+# and what they import (numba, numpy, ...) once, before its processes start, and they
+# read it instead of each compiling those modules again.
 env -u PYTHONDONTWRITEBYTECODE .venv/bin/python scripts/compile_kernels.py --stamp .venv/.pipestitch-kernels >&2 \
   || echo "warning: kernels not compiled ahead; the first run compiles them" >&2

@@ -1270,7 +1270,8 @@ def fit_pixels(candidates: Candidates, camera: RayKernel, plane: Plane, settings
     """
     query, stride, found, valid = fit_query(candidates)
     if not has_ring(candidates, found, settings):
-        return found, np.nan, no_fit(NO_RING, 0, settings.n_free)
+        # values, not constants: numba compiles a kernel once for each constant argument
+        return found, np.nan, no_fit(np.int64(NO_RING), np.int64(0), settings.n_free)
     noise, out = fit_scaled(rays_of(camera, query), stride, valid, candidates, plane, settings,
                             line_sigma_px, uniforms)
     return found, noise, out

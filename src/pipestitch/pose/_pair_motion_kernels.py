@@ -138,7 +138,7 @@ def row_means(src: np.ndarray, length: int, dst: np.ndarray) -> None:
     if length % 2 == 0:
         raise ValueError("row_means: the box length must be odd")
     if length > 5:
-        _box_means(src, 0, length // 2, dst, True)
+        _box_means(src, np.int64(0), length // 2, dst, np.bool_(True))
         return
     for r in range(ROWS):
         _short_means(src[r], length // 2, dst[r])

@@ -43,8 +43,8 @@ def flatten_by_reflectance(polar: np.ndarray, local: np.ndarray, box: int, floor
     once = np.empty((ROWS, n), np.float32)
     broad = np.empty((ROWS, n), np.float32)
     for first in range(0, n_rows, ROWS):
-        _box_means(local, first, box // 2, once, False)
-        _box_means(once, 0, box // 2, broad, False)
+        _box_means(local, first, box // 2, once, np.bool_(False))
+        _box_means(once, np.int64(0), box // 2, broad, np.bool_(False))
         _divide(polar, local, first, first, broad, F32(floor), F32(min_relative), out)
     return out
 
@@ -74,8 +74,8 @@ def flatten_by_moved_reflectance(polar: np.ndarray, local: np.ndarray, along: np
     for first in range(0, n_rows, ROWS):
         for r in range(min(ROWS, n_rows - first)):
             _moved_row(local, first + r, along[first + r], across[first + r], moved[r])
-        _box_means(moved, 0, box // 2, once, False)
-        _box_means(once, 0, box // 2, broad, False)
+        _box_means(moved, np.int64(0), box // 2, once, np.bool_(False))
+        _box_means(once, np.int64(0), box // 2, broad, np.bool_(False))
         _divide(polar, moved, first, 0, broad, F32(floor), F32(min_relative), out)
     return out
 
@@ -152,6 +152,10 @@ def _box_means(src: np.ndarray, first: int, half: int, dst: np.ndarray,
     Four rows (``ROWS``) in four named sums: independent chains of additions the
     processor overlaps (a 1440 x 578 polar frame's division 3.2 -> 1.6 ms against sums
     in an array indexed by a row count; the same values).
+
+    Callers pass ``first`` and ``reflect`` as values, not constants (``np.int64(0)``,
+    ``np.bool_(False)``): numba compiles a kernel called with a constant argument once
+    for each constant (its literal type), ~1 s of the set-up's compile each.
     """
     n, last = src.shape[1], src.shape[0] - 1
     scale = 1.0 / (2 * half + 1)
@@ -313,7 +317,7 @@ def line_widths(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int)
     out = np.empty(n, np.float64)
     for c in range(n):
         row, at = polar[rows[c]], idx[c]
-        finite = 0
+        finite = np.int64(0)   # a value: a constant 0 compiles _percentile_20 for it too
         for k in range(width):
             col = at - half + k
             profile[k] = row[col] if 0 <= col < n_cols else np.float32(np.nan)
@@ -324,8 +328,8 @@ def line_widths(polar: np.ndarray, rows: np.ndarray, idx: np.ndarray, half: int)
             if profile[k] == profile[k] and (peak != peak or profile[k] > peak):
                 peak = profile[k]
         level = base + (peak - base) / 2
-        left = _crossing(profile, level, half, -1)
-        right = _crossing(profile, level, half, 1)
+        left = _crossing(profile, level, half, np.int64(-1))   # values: see _box_means
+        right = _crossing(profile, level, half, np.int64(1))
         fwhm = left + right
         out[c] = fwhm if np.isfinite(fwhm) and peak > base else np.nan
     return out

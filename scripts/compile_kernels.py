@@ -311,9 +311,13 @@ def import_kernel_modules() -> None:
     Where bytecode may be written (the set-up runs this script so), this writes that of
     the modules and of what they import (numba, numpy, ...) once, and the pool's
     processes, each importing the same, read it instead of compiling every module again.
+    A module that fails to import is left to the pool, which reports its entries.
     """
     for module in dict.fromkeys(module for module, _, _ in KERNELS):
-        importlib.import_module(f"pipestitch.{module}")
+        try:
+            importlib.import_module(f"pipestitch.{module}")
+        except Exception:   # reported with the entries that need it
+            continue
 
 
 def _compile_one(i: int) -> tuple[float, int]:
